@@ -1,0 +1,28 @@
+//! Catmull-Clark subdivision surfaces for surfsynth.
+//!
+//! Data flows one way:
+//! [`mesh`] (OBJ → validated polygon mesh with half-edge [`topology`]) →
+//! [`refine`] (one Catmull-Clark step, EDGE_AND_CORNER boundaries) →
+//! [`surface`] (the level-1 *base quads*, an exact [`patch`] tree per base quad, [`limit`]
+//! masks at extraordinary points) → [`domains`] (Ptex face domains on top of base quads) →
+//! [`charts`] (characteristic-map vertex charts Φ, DΦ, Φ⁻¹ of Ying et al. 2001, §4.2).
+//!
+//! This crate knows nothing about textures.
+
+pub mod charts;
+pub mod domains;
+pub mod error;
+pub mod ids;
+pub mod limit;
+pub mod mesh;
+pub mod patch;
+pub mod refine;
+pub mod surface;
+pub mod topology;
+
+pub use charts::{ChartPoint, Charts, VertexChart};
+pub use domains::{Domain, DomainLocation};
+pub use error::MeshError;
+pub use ids::{BaseQuadId, DomainId, FaceId, VertexId};
+pub use mesh::ControlMesh;
+pub use surface::{LimitSample, Surface};

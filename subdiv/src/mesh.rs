@@ -1,0 +1,228 @@
+//! The control mesh: reading OBJ files and validating them into a [`PolyMesh`].
+//!
+//! We read OBJ ourselves instead of through `tobj`: tobj renumbers vertices per object/group
+//! (by first use), which splits meshes whose groups share vertices and makes it impossible
+//! to name the file's own vertex numbers in error messages (see docs/dependencies.md).
+//! Only `v` and `f` lines matter; `vt`, `vn`, `usemtl`, `mtllib`, `o`, `g`, `s` and
+//! OpenSubdiv's `t` tag lines are ignored.
+
+use crate::error::{MeshError, MeshProblem};
+use crate::topology::{Check, PolyMesh};
+use glam::DVec3;
+use std::path::{Path, PathBuf};
+
+/// A validated control mesh (faces in OBJ order, vertices 0-based in OBJ order).
+#[derive(Clone, Debug)]
+pub struct ControlMesh {
+    pub mesh: PolyMesh,
+    pub path: Option<PathBuf>,
+}
+
+impl ControlMesh {
+    /// Reads and validates an OBJ file. Errors name the file and the first bad element.
+    pub fn load_obj(path: impl AsRef<Path>) -> Result<Self, MeshError> {
+        let path = path.as_ref();
+        let bytes = std::fs::read(path)
+            .map_err(|e| MeshError::new(MeshProblem::Unreadable(e.to_string())).in_file(path))?;
+        let text = String::from_utf8_lossy(&bytes);
+        let mut m = Self::parse_obj(&text).map_err(|e| e.in_file(path))?;
+        m.path = Some(path.to_path_buf());
+        Ok(m)
+    }
+
+    /// Parses OBJ text (see [`Self::load_obj`]).
+    pub fn parse_obj(text: &str) -> Result<Self, MeshError> {
+        let mut positions = Vec::new();
+        let mut face_start = vec![0u32];
+        let mut face_verts: Vec<u32> = Vec::new();
+        for (lineno, raw) in text.lines().enumerate() {
+            let line = raw.split('#').next().unwrap_or("").trim();
+            let mut it = line.split_ascii_whitespace();
+            match it.next() {
+                Some("v") => {
+                    let mut c = [0.0f64; 3];
+                    for (k, slot) in c.iter_mut().enumerate() {
+                        let tok = it.next().ok_or_else(|| {
+                            parse_err(lineno, format!("vertex has {k} coordinates, expected 3"))
+                        })?;
+                        *slot = tok
+                            .parse::<f64>()
+                            .map_err(|_| parse_err(lineno, format!("bad coordinate '{tok}'")))?;
+                    }
+                    positions.push(DVec3::from_array(c));
+                }
+                Some("f") => {
+                    let face = face_start.len() - 1;
+                    for tok in it {
+                        let idx = tok.split('/').next().unwrap_or("");
+                        let i: i64 = idx.parse().map_err(|_| {
+                            parse_err(lineno, format!("bad vertex reference '{tok}'"))
+                        })?;
+                        // OBJ indices are 1-based; negative ones count back from the last vertex.
+                        let zero_based = if i > 0 {
+                            i - 1
+                        } else if i < 0 {
+                            positions.len() as i64 + i
+                        } else {
+                            return Err(parse_err(
+                                lineno,
+                                "vertex index 0 is not valid in OBJ".into(),
+                            ));
+                        };
+                        if zero_based < 0 || zero_based >= u32::MAX as i64 {
+                            return Err(MeshProblem::IndexOutOfRange {
+                                face,
+                                vertex: i.unsigned_abs() as usize,
+                                count: positions.len(),
+                            }
+                            .into());
+                        }
+                        face_verts.push(zero_based as u32);
+                    }
+                    face_start.push(face_verts.len() as u32);
+                }
+                _ => {}
+            }
+        }
+        Self::from_polygons(positions, face_start, face_verts)
+    }
+
+    /// Builds a control mesh from positions and polygons (`face_start` has F+1 offsets).
+    pub fn from_polygons(
+        positions: Vec<DVec3>,
+        face_start: Vec<u32>,
+        face_verts: Vec<u32>,
+    ) -> Result<Self, MeshError> {
+        let mesh = PolyMesh::new(positions, face_start, face_verts, Check::Strict)?;
+        Ok(Self { mesh, path: None })
+    }
+
+    /// Convenience for tests and generators: polygons as slices of vertex indices.
+    pub fn from_faces(positions: Vec<DVec3>, faces: &[&[u32]]) -> Result<Self, MeshError> {
+        let mut fs = vec![0u32];
+        let mut fv = Vec::new();
+        for f in faces {
+            fv.extend_from_slice(f);
+            fs.push(fv.len() as u32);
+        }
+        Self::from_polygons(positions, fs, fv)
+    }
+
+    /// Number of Ptex face domains: 1 per quad, n per n-gon.
+    pub fn num_domains(&self) -> usize {
+        (0..self.mesh.num_faces())
+            .map(|f| ptex_count(self.mesh.face_size(crate::FaceId::from_idx(f))))
+            .sum()
+    }
+
+    /// Axis-aligned bounding box (min, max) of the control points.
+    pub fn bounds(&self) -> (DVec3, DVec3) {
+        self.mesh.positions.iter().fold(
+            (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+            |(lo, hi), p| (lo.min(*p), hi.max(*p)),
+        )
+    }
+}
+
+/// Ptex domains of an n-sided face.
+#[inline]
+pub fn ptex_count(n: usize) -> usize {
+    if n == 4 {
+        1
+    } else {
+        n
+    }
+}
+
+fn parse_err(lineno: usize, msg: String) -> MeshError {
+    MeshProblem::Parse(format!("line {}: {msg}", lineno + 1)).into()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn err(text: &str) -> MeshProblem {
+        ControlMesh::parse_obj(text).unwrap_err().problem
+    }
+
+    const QUAD: &str = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n";
+
+    #[test]
+    fn reads_ngons_groups_and_negative_indices() {
+        let m = ControlMesh::parse_obj(
+            "# c\nmtllib x.mtl\no a\nv 0 0 0\nv 1 0 0\nv 1 1 0\nvt 0 0\nv 0 1 0\nv 2 0 0\ng b\nusemtl m\ns off\nt interpolateboundary 1/0/0 1\nf 1/1 2/1 3/1 4/1\nf -4 5 3\n",
+        )
+        .unwrap();
+        assert_eq!(m.mesh.num_faces(), 2);
+        assert_eq!(m.mesh.face_vertices(crate::FaceId(1)), &[1, 4, 2]);
+        assert_eq!(m.num_domains(), 4);
+    }
+
+    #[test]
+    fn rejects_each_error_class() {
+        assert_eq!(err(QUAD), MeshProblem::NoFaces);
+        assert!(matches!(
+            err(&format!("{QUAD}f 1 2\n")),
+            MeshProblem::TooFewVertices { face: 0, count: 2 }
+        ));
+        assert!(matches!(
+            err(&format!("{QUAD}f 1 2 9\n")),
+            MeshProblem::IndexOutOfRange {
+                face: 0,
+                vertex: 8,
+                ..
+            }
+        ));
+        assert!(matches!(
+            err(&format!("{QUAD}f 1 2 2 3\n")),
+            MeshProblem::RepeatedVertex { face: 0, vertex: 1 }
+        ));
+        assert!(matches!(
+            err("v 0 nan 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"),
+            MeshProblem::NonFiniteCoordinate { vertex: 0 }
+        ));
+        assert!(matches!(
+            err("v 0 inf 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"),
+            MeshProblem::NonFiniteCoordinate { vertex: 0 }
+        ));
+        // Three triangles on edge 1-2.
+        let fan = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 -1 0\nv 0 0 1\nf 1 2 3\nf 2 1 4\nf 1 2 5\n";
+        assert!(matches!(
+            err(fan),
+            MeshProblem::NonManifoldEdge {
+                a: 0,
+                b: 1,
+                face: 2
+            }
+        ));
+        let flipped = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2 3 4\n";
+        assert!(matches!(
+            err(flipped),
+            MeshProblem::InconsistentOrientation {
+                face_a: 0,
+                face_b: 1,
+                ..
+            }
+        ));
+        // Two triangles touching only at vertex 1 (a bow tie).
+        let bowtie = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv -1 0 0\nv -1 -1 0\nf 1 2 3\nf 1 4 5\n";
+        assert!(matches!(
+            err(bowtie),
+            MeshProblem::NonManifoldVertex { vertex: 0, fans: 2 }
+        ));
+        assert!(matches!(err("v 0 0\n"), MeshProblem::Parse(_)));
+        assert!(matches!(err("v 0 0 0\nf 1 a 2\n"), MeshProblem::Parse(_)));
+    }
+
+    #[test]
+    fn error_message_names_file() {
+        let e = ControlMesh::load_obj("/nonexistent/dir/m.obj").unwrap_err();
+        let s = e.to_string();
+        assert!(
+            s.starts_with("/nonexistent/dir/m.obj: cannot read file"),
+            "{s}"
+        );
+        assert!(!s.contains('\n'));
+    }
+}

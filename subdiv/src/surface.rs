@@ -1,0 +1,394 @@
+//! The limit surface, evaluated exactly at any parameter.
+//!
+//! The control mesh is refined once; its quads are the *base quads* (conforming, all quads,
+//! numbered like the control mesh's half-edges: base quad `face_start[f] + c` is corner `c`
+//! of control face `f`). Each base quad gets a *patch tree*:
+//! - a quad whose corners are all regular is a bicubic B-spline patch ([`BSplinePatch`]);
+//! - otherwise its 1-ring submesh is refined locally (with the same [`refine`] code) and the
+//!   quad splits into four children, recursively. Only the children touching an
+//!   extraordinary corner stay irregular, so every point other than the extraordinary vertex
+//!   itself ends in a regular patch after log2(1/distance) levels — this is the classic exact
+//!   evaluation by subdivision (Stam 1998 does the same with eigenvectors). Levels beyond
+//!   `max_depth` are not stored but refined on demand.
+//! - exactly at an extraordinary vertex the limit masks of [`crate::limit`] apply.
+//!
+//! Positions are exact to rounding; derivatives are scaled by 2 per level.
+
+use crate::error::MeshError;
+use crate::ids::{BaseQuadId, FaceId, VertexId};
+use crate::limit::vertex_limit;
+use crate::mesh::ControlMesh;
+use crate::patch::{BSplinePatch, PatchPoint};
+use crate::refine::refine;
+use crate::topology::{Check, PolyMesh};
+use glam::DVec3;
+
+/// Limit-surface geometry at a parameter point.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LimitSample {
+    /// Limit position.
+    pub p: DVec3,
+    /// Partial derivatives with respect to the two parameters. At an extraordinary vertex
+    /// they are singular; there they are the unit limit tangents along the two parameter
+    /// directions instead.
+    pub du: DVec3,
+    pub dv: DVec3,
+    /// Unit limit normal, `normalize(du x dv)` (outward for counter-clockwise faces).
+    pub n: DVec3,
+}
+
+/// Options for building a [`Surface`].
+#[derive(Clone, Copy, Debug)]
+pub struct SurfaceOptions {
+    /// Levels of the patch tree stored around extraordinary vertices (deeper points are
+    /// refined on demand). 8 covers texel centres of maps up to 256 texels per side.
+    pub max_depth: u32,
+}
+
+impl Default for SurfaceOptions {
+    fn default() -> Self {
+        Self { max_depth: 8 }
+    }
+}
+
+#[derive(Clone, Debug)]
+enum Node {
+    Regular(u32),
+    /// Four children (in child-corner order) and, for each corner of this quad that is an
+    /// extraordinary vertex, an index into `limits`.
+    Split {
+        children: [u32; 4],
+        corner_limit: [u32; 4],
+    },
+    /// A local submesh whose face 0 is this node's quad, refined on demand.
+    Deep(u32),
+}
+
+const NO_LIMIT: u32 = u32::MAX;
+
+/// A Catmull-Clark limit surface: control mesh, base quads and their patch trees.
+#[derive(Clone, Debug)]
+pub struct Surface {
+    pub control: ControlMesh,
+    /// The level-1 mesh (all quads).
+    pub base: PolyMesh,
+    roots: Vec<u32>,
+    nodes: Vec<Node>,
+    patches: Vec<BSplinePatch>,
+    limits: Vec<(DVec3, DVec3)>,
+    deep: Vec<PolyMesh>,
+    pub(crate) domain_start: Vec<u32>,
+    pub(crate) domain_face: Vec<u32>,
+}
+
+impl Surface {
+    pub fn new(control: ControlMesh) -> Self {
+        Self::with_options(control, SurfaceOptions::default())
+    }
+
+    pub fn with_options(control: ControlMesh, opts: SurfaceOptions) -> Self {
+        let base = refine(&control.mesh);
+        let mut s = Surface {
+            roots: Vec::with_capacity(base.num_faces()),
+            nodes: Vec::new(),
+            patches: Vec::with_capacity(base.num_faces()),
+            limits: Vec::new(),
+            deep: Vec::new(),
+            domain_start: Vec::new(),
+            domain_face: Vec::new(),
+            control,
+            base: PolyMesh::new(vec![], vec![0], vec![], Check::Trusted).unwrap(),
+        };
+        for q in 0..base.num_faces() {
+            let root = s.build(&base, FaceId::from_idx(q), 0, opts.max_depth);
+            s.roots.push(root);
+        }
+        s.base = base;
+        s.init_domains();
+        s
+    }
+
+    /// Reads, validates and builds in one go.
+    pub fn load_obj(path: impl AsRef<std::path::Path>) -> Result<Self, MeshError> {
+        Ok(Self::new(ControlMesh::load_obj(path)?))
+    }
+
+    fn build(&mut self, m: &PolyMesh, q: FaceId, depth: u32, max_depth: u32) -> u32 {
+        let corners: Vec<VertexId> = m.face_vertices(q).iter().map(|&v| VertexId(v)).collect();
+        if corners.iter().all(|&v| m.is_regular_vertex(v)) {
+            if let Some(p) = BSplinePatch::gather(m, q) {
+                self.patches.push(p);
+                return self.push(Node::Regular(self.patches.len() as u32 - 1));
+            }
+        }
+        let sub = extract_submesh(m, q);
+        if depth >= max_depth {
+            self.deep.push(sub);
+            return self.push(Node::Deep(self.deep.len() as u32 - 1));
+        }
+        let mut corner_limit = [NO_LIMIT; 4];
+        for (i, &v) in corners.iter().enumerate() {
+            if !m.is_regular_vertex(v) {
+                let l = vertex_limit(m, v);
+                self.limits.push((l.position, l.normal));
+                corner_limit[i] = self.limits.len() as u32 - 1;
+            }
+        }
+        let r = refine(&sub);
+        let id = self.push(Node::Split {
+            children: [0; 4],
+            corner_limit,
+        });
+        let mut children = [0u32; 4];
+        for (c, slot) in children.iter_mut().enumerate() {
+            *slot = self.build(&r, FaceId::from_idx(c), depth + 1, max_depth);
+        }
+        if let Node::Split { children: ch, .. } = &mut self.nodes[id as usize] {
+            *ch = children;
+        }
+        id
+    }
+
+    fn push(&mut self, n: Node) -> u32 {
+        self.nodes.push(n);
+        self.nodes.len() as u32 - 1
+    }
+
+    pub fn num_base_quads(&self) -> usize {
+        self.roots.len()
+    }
+
+    /// Evaluates base quad `b` at (s, t) in [0,1]^2; derivatives are with respect to s, t.
+    pub fn eval_base(&self, b: BaseQuadId, s: f64, t: f64) -> LimitSample {
+        let mut node = self.roots[b.idx()];
+        let (s0, t0) = (s.clamp(0.0, 1.0), t.clamp(0.0, 1.0));
+        let (mut s, mut t) = (s0, t0);
+        // jac maps base (s,t) differentials to local ones: d(local) = jac * d(base).
+        let mut jac = [[1.0f64, 0.0], [0.0, 1.0]];
+        loop {
+            match &self.nodes[node as usize] {
+                Node::Regular(i) => {
+                    let pp = self.patches[*i as usize].eval(s, t);
+                    return finish(pp, &jac);
+                }
+                Node::Split {
+                    children,
+                    corner_limit,
+                } => {
+                    if let Some(c) = exact_corner(s, t) {
+                        let li = corner_limit[c];
+                        if li != NO_LIMIT {
+                            return self.at_extraordinary(b, s0, t0, li as usize);
+                        }
+                    }
+                    let c = quadrant(s, t);
+                    (s, t) = to_child(c, s, t);
+                    jac = mul_child(c, &jac);
+                    node = children[c];
+                }
+                Node::Deep(i) => {
+                    return self.eval_deep(&self.deep[*i as usize], s, t, jac);
+                }
+            }
+        }
+    }
+
+    /// At an extraordinary vertex (a corner (s0, t0) of the base quad): position and normal
+    /// from limit masks; unit tangents from the surface a hair inside the base quad, since
+    /// the parametric derivatives themselves are singular there.
+    fn at_extraordinary(&self, b: BaseQuadId, s0: f64, t0: f64, li: usize) -> LimitSample {
+        let (p, n) = self.limits[li];
+        let inward = |x: f64| if x < 0.5 { 1e-9 } else { 1.0 - 1e-9 };
+        let q = self.eval_base(b, inward(s0), inward(t0));
+        let du = (q.du - n * n.dot(q.du)).normalize_or_zero();
+        let dv = (q.dv - n * n.dot(q.dv)).normalize_or_zero();
+        LimitSample { p, du, dv, n }
+    }
+
+    fn eval_deep(
+        &self,
+        m0: &PolyMesh,
+        mut s: f64,
+        mut t: f64,
+        mut jac: [[f64; 2]; 2],
+    ) -> LimitSample {
+        let mut m = m0.clone();
+        for _ in 0..64 {
+            let q = FaceId(0);
+            if m.face_vertices(q)
+                .iter()
+                .all(|&v| m.is_regular_vertex(VertexId(v)))
+            {
+                if let Some(p) = BSplinePatch::gather(&m, q) {
+                    return finish(p.eval(s, t), &jac);
+                }
+            }
+            if let Some(c) = exact_corner(s, t) {
+                let v = VertexId(m.face_vertices(q)[c]);
+                if !m.is_regular_vertex(v) {
+                    let l = vertex_limit(&m, v);
+                    return LimitSample {
+                        p: l.position,
+                        du: l.tangent1,
+                        dv: l.tangent2,
+                        n: l.normal,
+                    };
+                }
+            }
+            let r = refine(&m);
+            let c = quadrant(s, t);
+            (s, t) = to_child(c, s, t);
+            jac = mul_child(c, &jac);
+            m = extract_submesh(&r, FaceId::from_idx(c));
+        }
+        // Within 2^-64 of the extraordinary vertex: its limit point.
+        let v = (0..4)
+            .map(|c| VertexId(m.face_vertices(FaceId(0))[c]))
+            .find(|&v| !m.is_regular_vertex(v))
+            .unwrap_or(VertexId(m.face_vertices(FaceId(0))[0]));
+        let l = vertex_limit(&m, v);
+        LimitSample {
+            p: l.position,
+            du: l.tangent1,
+            dv: l.tangent2,
+            n: l.normal,
+        }
+    }
+
+    /// Axis-aligned bounds of the control points (the limit surface lies inside).
+    pub fn bounds(&self) -> (DVec3, DVec3) {
+        self.control.bounds()
+    }
+}
+
+/// Which corner (0..4, in quad corner order) (s, t) sits on exactly, if any.
+#[inline]
+fn exact_corner(s: f64, t: f64) -> Option<usize> {
+    match (s, t) {
+        (0.0, 0.0) => Some(0),
+        (1.0, 0.0) => Some(1),
+        (1.0, 1.0) => Some(2),
+        (0.0, 1.0) => Some(3),
+        _ => None,
+    }
+}
+
+/// The child quad (by corner) that contains (s, t).
+#[inline]
+pub(crate) fn quadrant(s: f64, t: f64) -> usize {
+    match (s < 0.5, t < 0.5) {
+        (true, true) => 0,
+        (false, true) => 1,
+        (false, false) => 2,
+        (true, false) => 3,
+    }
+}
+
+/// Parameter of (s, t) in child quad `c`. Child c has (0,0) at parent corner c, its s axis
+/// toward parent corner c+1 and its t axis toward parent corner c-1 (see [`crate::refine`]).
+#[inline]
+pub(crate) fn to_child(c: usize, s: f64, t: f64) -> (f64, f64) {
+    match c {
+        0 => (2.0 * s, 2.0 * t),
+        1 => (2.0 * t, 2.0 - 2.0 * s),
+        2 => (2.0 - 2.0 * s, 2.0 - 2.0 * t),
+        _ => (2.0 - 2.0 * t, 2.0 * s),
+    }
+}
+
+/// Inverse of [`to_child`].
+#[inline]
+pub(crate) fn from_child(c: usize, s: f64, t: f64) -> (f64, f64) {
+    match c {
+        0 => (0.5 * s, 0.5 * t),
+        1 => (1.0 - 0.5 * t, 0.5 * s),
+        2 => (1.0 - 0.5 * s, 1.0 - 0.5 * t),
+        _ => (0.5 * t, 1.0 - 0.5 * s),
+    }
+}
+
+/// Linear part of [`to_child`] composed after `jac`.
+#[inline]
+pub(crate) fn mul_child(c: usize, jac: &[[f64; 2]; 2]) -> [[f64; 2]; 2] {
+    let r: [[f64; 2]; 2] = match c {
+        0 => [[2.0, 0.0], [0.0, 2.0]],
+        1 => [[0.0, 2.0], [-2.0, 0.0]],
+        2 => [[-2.0, 0.0], [0.0, -2.0]],
+        _ => [[0.0, -2.0], [2.0, 0.0]],
+    };
+    [
+        [
+            r[0][0] * jac[0][0] + r[0][1] * jac[1][0],
+            r[0][0] * jac[0][1] + r[0][1] * jac[1][1],
+        ],
+        [
+            r[1][0] * jac[0][0] + r[1][1] * jac[1][0],
+            r[1][0] * jac[0][1] + r[1][1] * jac[1][1],
+        ],
+    ]
+}
+
+#[inline]
+fn finish(pp: PatchPoint, jac: &[[f64; 2]; 2]) -> LimitSample {
+    // dP/ds_base = dP/ds' * ds'/ds + dP/dt' * dt'/ds.
+    let du = pp.ds * jac[0][0] + pp.dt * jac[1][0];
+    let dv = pp.ds * jac[0][1] + pp.dt * jac[1][1];
+    LimitSample {
+        p: pp.p,
+        du,
+        dv,
+        n: du.cross(dv).normalize_or_zero(),
+    }
+}
+
+/// The faces around the corners of quad `q`, as a new mesh whose face 0 is `q` with its
+/// vertex order kept. Refining it gives exact values for everything the children of `q`
+/// need (their own 1-ring submeshes).
+pub(crate) fn extract_submesh(m: &PolyMesh, q: FaceId) -> PolyMesh {
+    let mut faces: Vec<FaceId> = vec![q];
+    for &v in m.face_vertices(q) {
+        for h in m.outgoing(VertexId(v)) {
+            let f = m.face_of(h);
+            if !faces.contains(&f) {
+                faces.push(f);
+            }
+        }
+    }
+    let mut map: Vec<(u32, u32)> = Vec::with_capacity(faces.len() * 4);
+    let mut positions = Vec::with_capacity(faces.len() * 3);
+    let mut face_start = Vec::with_capacity(faces.len() + 1);
+    let mut face_verts = Vec::with_capacity(faces.len() * 4);
+    face_start.push(0);
+    for f in faces {
+        for &v in m.face_vertices(f) {
+            let local = match map.iter().find(|(g, _)| *g == v) {
+                Some(&(_, l)) => l,
+                None => {
+                    positions.push(m.positions[v as usize]);
+                    let l = positions.len() as u32 - 1;
+                    map.push((v, l));
+                    l
+                }
+            };
+            face_verts.push(local);
+        }
+        face_start.push(face_verts.len() as u32);
+    }
+    PolyMesh::new(positions, face_start, face_verts, Check::Trusted)
+        .expect("submesh of a valid mesh")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn child_maps_invert() {
+        for c in 0..4 {
+            let (s, t) = (0.3, 0.1);
+            let (a, b) = to_child(c, s, t);
+            let (x, y) = from_child(c, a, b);
+            assert!((x - s).abs() < 1e-15 && (y - t).abs() < 1e-15);
+        }
+    }
+}

@@ -1,0 +1,461 @@
+//! Half-edge topology of a polygon mesh.
+//!
+//! Half-edge `h` is corner `h - face_start[f]` of face `f`: it leaves that corner's vertex
+//! and runs to the next vertex of the face. `next`/`prev` stay inside the face; `twin` is the
+//! opposite half-edge of the neighbouring face, absent on a boundary. Rotating
+//! `h -> twin(prev(h))` walks the outgoing half-edges of a vertex counter-clockwise (seen
+//! from the side the faces' normals point to).
+
+use crate::error::{MeshError, MeshProblem};
+use crate::ids::{FaceId, VertexId};
+use glam::DVec3;
+use std::collections::HashMap;
+
+/// Marks an absent half-edge (boundary twin, unused vertex).
+pub const NONE: u32 = u32::MAX;
+
+/// Largest valence accepted in input meshes (limit masks and charts are tested up to this).
+pub const MAX_VALENCE: usize = 64;
+
+/// A polygon mesh with positions and half-edge connectivity.
+#[derive(Clone, Debug)]
+pub struct PolyMesh {
+    pub positions: Vec<DVec3>,
+    face_start: Vec<u32>,
+    /// Origin vertex of every half-edge.
+    he_vert: Vec<u32>,
+    he_face: Vec<u32>,
+    he_twin: Vec<u32>,
+    /// Edge index of every half-edge; edges are numbered in order of first appearance.
+    he_edge: Vec<u32>,
+    /// First half-edge of every edge.
+    edge_he: Vec<u32>,
+    /// An outgoing half-edge per vertex: for a boundary vertex the clockwise-most one (its
+    /// twin is absent), so that a counter-clockwise walk visits the whole fan.
+    vert_out: Vec<u32>,
+    vert_faces: Vec<u32>,
+    vert_boundary: Vec<bool>,
+}
+
+/// How strictly to check a mesh when building its topology.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Check {
+    /// Input meshes: every manifold condition is checked and reported.
+    Strict,
+    /// Meshes made by this crate (refined levels, local submeshes cut out of a larger mesh,
+    /// whose cut may leave vertices with several fans that are never evaluated).
+    Trusted,
+}
+
+impl PolyMesh {
+    /// Builds topology for faces given as vertex-index lists (`face_start` has F+1 entries).
+    pub fn new(
+        positions: Vec<DVec3>,
+        face_start: Vec<u32>,
+        face_verts: Vec<u32>,
+        check: Check,
+    ) -> Result<Self, MeshError> {
+        let nf = face_start.len() - 1;
+        let nv = positions.len();
+        let nh = face_verts.len();
+        if check == Check::Strict {
+            if nf == 0 {
+                return Err(MeshProblem::NoFaces.into());
+            }
+            for (i, p) in positions.iter().enumerate() {
+                if !p.is_finite() {
+                    return Err(MeshProblem::NonFiniteCoordinate { vertex: i }.into());
+                }
+            }
+            for f in 0..nf {
+                let vs = &face_verts[face_start[f] as usize..face_start[f + 1] as usize];
+                if vs.len() < 3 {
+                    return Err(MeshProblem::TooFewVertices {
+                        face: f,
+                        count: vs.len(),
+                    }
+                    .into());
+                }
+                for (i, &v) in vs.iter().enumerate() {
+                    if v as usize >= nv {
+                        return Err(MeshProblem::IndexOutOfRange {
+                            face: f,
+                            vertex: v as usize,
+                            count: nv,
+                        }
+                        .into());
+                    }
+                    if vs[..i].contains(&v) {
+                        return Err(MeshProblem::RepeatedVertex {
+                            face: f,
+                            vertex: v as usize,
+                        }
+                        .into());
+                    }
+                }
+            }
+        }
+        let mut he_face = vec![0u32; nh];
+        for f in 0..nf {
+            for h in face_start[f]..face_start[f + 1] {
+                he_face[h as usize] = f as u32;
+            }
+        }
+        let mut m = PolyMesh {
+            positions,
+            face_start,
+            he_vert: face_verts,
+            he_face,
+            he_twin: vec![NONE; nh],
+            he_edge: vec![NONE; nh],
+            edge_he: Vec::with_capacity(nh / 2 + 8),
+            vert_out: vec![NONE; nv],
+            vert_faces: vec![0; nv],
+            vert_boundary: vec![false; nv],
+        };
+        m.link_twins(check)?;
+        m.build_vertex_fans(check)?;
+        Ok(m)
+    }
+
+    fn link_twins(&mut self, check: Check) -> Result<(), MeshError> {
+        let nh = self.he_vert.len();
+        // Key: (min vertex, max vertex) -> first half-edge seen on that edge.
+        let mut map: HashMap<(u32, u32), u32> = HashMap::with_capacity(nh);
+        for h in 0..nh as u32 {
+            let a = self.he_vert[h as usize];
+            let b = self.dest_raw(h);
+            let key = (a.min(b), a.max(b));
+            match map.get(&key) {
+                None => {
+                    map.insert(key, h);
+                    self.he_edge[h as usize] = self.edge_he.len() as u32;
+                    self.edge_he.push(h);
+                }
+                Some(&g) => {
+                    let strict = check == Check::Strict;
+                    if self.he_twin[g as usize] != NONE {
+                        if strict {
+                            return Err(MeshProblem::NonManifoldEdge {
+                                a: key.0 as usize,
+                                b: key.1 as usize,
+                                face: self.he_face[h as usize] as usize,
+                            }
+                            .into());
+                        }
+                        // Trusted meshes never get here; keep the edge as a boundary.
+                        self.he_edge[h as usize] = self.edge_he.len() as u32;
+                        self.edge_he.push(h);
+                        continue;
+                    }
+                    if self.he_vert[g as usize] == a {
+                        if strict {
+                            return Err(MeshProblem::InconsistentOrientation {
+                                a: a as usize,
+                                b: b as usize,
+                                face_a: self.he_face[g as usize] as usize,
+                                face_b: self.he_face[h as usize] as usize,
+                            }
+                            .into());
+                        }
+                        self.he_edge[h as usize] = self.edge_he.len() as u32;
+                        self.edge_he.push(h);
+                        continue;
+                    }
+                    self.he_twin[g as usize] = h;
+                    self.he_twin[h as usize] = g;
+                    self.he_edge[h as usize] = self.he_edge[g as usize];
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn build_vertex_fans(&mut self, check: Check) -> Result<(), MeshError> {
+        let nh = self.he_vert.len();
+        let nv = self.positions.len();
+        let mut corners = vec![0u32; nv];
+        for h in 0..nh {
+            let v = self.he_vert[h] as usize;
+            corners[v] += 1;
+            // Prefer a half-edge with no twin: it starts the fan of a boundary vertex.
+            if self.vert_out[v] == NONE || self.he_twin[h] == NONE {
+                self.vert_out[v] = h as u32;
+            }
+        }
+        for v in 0..nv {
+            let start = self.vert_out[v];
+            if start == NONE {
+                continue;
+            }
+            let boundary = self.he_twin[start as usize] == NONE;
+            let mut count = 0u32;
+            let mut h = start;
+            loop {
+                count += 1;
+                let p = self.prev(h);
+                let t = self.he_twin[p as usize];
+                if t == NONE || t == start || count > corners[v] {
+                    break;
+                }
+                h = t;
+            }
+            self.vert_faces[v] = count;
+            self.vert_boundary[v] = boundary;
+            if check == Check::Strict {
+                if count != corners[v] {
+                    // The faces at v do not form one fan: count the fans for the message.
+                    let fans = self.count_fans(v as u32, corners[v]);
+                    return Err(MeshProblem::NonManifoldVertex { vertex: v, fans }.into());
+                }
+                let valence = count as usize + boundary as usize;
+                if valence > MAX_VALENCE {
+                    return Err(MeshProblem::ValenceTooHigh {
+                        vertex: v,
+                        valence,
+                        max: MAX_VALENCE,
+                    }
+                    .into());
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn count_fans(&self, v: u32, corners: u32) -> usize {
+        let outgoing: Vec<u32> = (0..self.he_vert.len() as u32)
+            .filter(|&h| self.he_vert[h as usize] == v)
+            .collect();
+        let mut seen = vec![false; outgoing.len()];
+        let mut fans = 0;
+        for i in 0..outgoing.len() {
+            if seen[i] {
+                continue;
+            }
+            fans += 1;
+            // Flood the fan both ways.
+            let mut stack = vec![outgoing[i]];
+            while let Some(h) = stack.pop() {
+                let Some(k) = outgoing.iter().position(|&g| g == h) else {
+                    continue;
+                };
+                if seen[k] {
+                    continue;
+                }
+                seen[k] = true;
+                let t = self.he_twin[self.prev(h) as usize];
+                if t != NONE {
+                    stack.push(t);
+                }
+                let t = self.he_twin[h as usize];
+                if t != NONE {
+                    stack.push(self.next(t));
+                }
+            }
+        }
+        let _ = corners;
+        fans.max(2)
+    }
+
+    #[inline]
+    fn dest_raw(&self, h: u32) -> u32 {
+        self.he_vert[self.next(h) as usize]
+    }
+
+    pub fn num_faces(&self) -> usize {
+        self.face_start.len() - 1
+    }
+    pub fn num_vertices(&self) -> usize {
+        self.positions.len()
+    }
+    pub fn num_edges(&self) -> usize {
+        self.edge_he.len()
+    }
+    pub fn num_half_edges(&self) -> usize {
+        self.he_vert.len()
+    }
+
+    /// Number of vertices of face `f`.
+    #[inline]
+    pub fn face_size(&self, f: FaceId) -> usize {
+        (self.face_start[f.idx() + 1] - self.face_start[f.idx()]) as usize
+    }
+    /// First half-edge of face `f` (the one leaving its first vertex).
+    #[inline]
+    pub fn face_he(&self, f: FaceId) -> u32 {
+        self.face_start[f.idx()]
+    }
+    /// The vertices of face `f`, in order.
+    #[inline]
+    pub fn face_vertices(&self, f: FaceId) -> &[u32] {
+        &self.he_vert[self.face_start[f.idx()] as usize..self.face_start[f.idx() + 1] as usize]
+    }
+    #[inline]
+    pub fn face_of(&self, h: u32) -> FaceId {
+        FaceId(self.he_face[h as usize])
+    }
+    #[inline]
+    pub fn next(&self, h: u32) -> u32 {
+        let f = self.he_face[h as usize] as usize;
+        if h + 1 == self.face_start[f + 1] {
+            self.face_start[f]
+        } else {
+            h + 1
+        }
+    }
+    #[inline]
+    pub fn prev(&self, h: u32) -> u32 {
+        let f = self.he_face[h as usize] as usize;
+        if h == self.face_start[f] {
+            self.face_start[f + 1] - 1
+        } else {
+            h - 1
+        }
+    }
+    /// The opposite half-edge, or `None` on a boundary.
+    #[inline]
+    pub fn twin(&self, h: u32) -> Option<u32> {
+        let t = self.he_twin[h as usize];
+        (t != NONE).then_some(t)
+    }
+    #[inline]
+    pub fn origin(&self, h: u32) -> VertexId {
+        VertexId(self.he_vert[h as usize])
+    }
+    #[inline]
+    pub fn dest(&self, h: u32) -> VertexId {
+        VertexId(self.dest_raw(h))
+    }
+    #[inline]
+    pub fn edge_of(&self, h: u32) -> usize {
+        self.he_edge[h as usize] as usize
+    }
+    /// A half-edge of edge `e` (either direction).
+    #[inline]
+    pub fn edge_half_edge(&self, e: usize) -> u32 {
+        self.edge_he[e]
+    }
+    #[inline]
+    pub fn pos(&self, v: VertexId) -> DVec3 {
+        self.positions[v.idx()]
+    }
+    /// Number of faces around `v` (its fan).
+    #[inline]
+    pub fn vertex_faces(&self, v: VertexId) -> usize {
+        self.vert_faces[v.idx()] as usize
+    }
+    #[inline]
+    pub fn is_boundary_vertex(&self, v: VertexId) -> bool {
+        self.vert_boundary[v.idx()]
+    }
+    /// The first outgoing half-edge of `v` (clockwise-most for boundary vertices).
+    #[inline]
+    pub fn vertex_out(&self, v: VertexId) -> Option<u32> {
+        let h = self.vert_out[v.idx()];
+        (h != NONE).then_some(h)
+    }
+    /// Outgoing half-edges of `v`, counter-clockwise, starting at [`Self::vertex_out`].
+    pub fn outgoing(&self, v: VertexId) -> Outgoing<'_> {
+        Outgoing {
+            mesh: self,
+            start: self.vert_out[v.idx()],
+            cur: self.vert_out[v.idx()],
+            left: self.vert_faces[v.idx()],
+        }
+    }
+    /// Number of edges at `v`.
+    #[inline]
+    pub fn valence(&self, v: VertexId) -> usize {
+        self.vertex_faces(v) + self.is_boundary_vertex(v) as usize
+    }
+    /// A vertex where a Catmull-Clark patch is a regular bicubic B-spline: interior with 4
+    /// faces, boundary with 2 faces, or a corner with 1 face (EDGE_AND_CORNER rules).
+    #[inline]
+    pub fn is_regular_vertex(&self, v: VertexId) -> bool {
+        let n = self.vertex_faces(v);
+        if self.is_boundary_vertex(v) {
+            n == 1 || n == 2
+        } else {
+            n == 4
+        }
+    }
+    /// Whether all faces are quads.
+    pub fn all_quads(&self) -> bool {
+        self.face_start.windows(2).all(|w| w[1] - w[0] == 4)
+    }
+    pub fn face_starts(&self) -> &[u32] {
+        &self.face_start
+    }
+    pub fn half_edge_vertices(&self) -> &[u32] {
+        &self.he_vert
+    }
+}
+
+/// Iterator over the outgoing half-edges of a vertex, counter-clockwise.
+pub struct Outgoing<'a> {
+    mesh: &'a PolyMesh,
+    start: u32,
+    cur: u32,
+    left: u32,
+}
+
+impl Iterator for Outgoing<'_> {
+    type Item = u32;
+    fn next(&mut self) -> Option<u32> {
+        if self.left == 0 || self.cur == NONE {
+            return None;
+        }
+        self.left -= 1;
+        let h = self.cur;
+        let t = self.mesh.he_twin[self.mesh.prev(h) as usize];
+        self.cur = if t == self.start { NONE } else { t };
+        Some(h)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn quad_grid(n: usize) -> PolyMesh {
+        let mut pos = Vec::new();
+        for y in 0..=n {
+            for x in 0..=n {
+                pos.push(DVec3::new(x as f64, y as f64, 0.0));
+            }
+        }
+        let mut fs = vec![0u32];
+        let mut fv = Vec::new();
+        for y in 0..n {
+            for x in 0..n {
+                let i = (y * (n + 1) + x) as u32;
+                let w = (n + 1) as u32;
+                fv.extend([i, i + 1, i + 1 + w, i + w]);
+                fs.push(fv.len() as u32);
+            }
+        }
+        PolyMesh::new(pos, fs, fv, Check::Strict).unwrap()
+    }
+
+    #[test]
+    fn grid_valences_and_boundary() {
+        let m = quad_grid(3);
+        // Centre vertex (1,1) is interior with 4 faces; corner (0,0) has 1 face.
+        assert_eq!(m.vertex_faces(VertexId(5)), 4);
+        assert!(!m.is_boundary_vertex(VertexId(5)));
+        assert_eq!(m.vertex_faces(VertexId(0)), 1);
+        assert!(m.is_boundary_vertex(VertexId(0)));
+        assert_eq!(m.vertex_faces(VertexId(1)), 2);
+        assert_eq!(m.num_edges(), 24);
+        // The counter-clockwise walk visits every outgoing half-edge once.
+        let outs: Vec<u32> = m.outgoing(VertexId(5)).collect();
+        assert_eq!(outs.len(), 4);
+        for w in outs.windows(2) {
+            let a = m.dest(w[0]).idx() as i64;
+            let b = m.dest(w[1]).idx() as i64;
+            let pa = m.positions[a as usize] - m.positions[5];
+            let pb = m.positions[b as usize] - m.positions[5];
+            assert!(pa.x * pb.y - pa.y * pb.x > 0.0, "walk is counter-clockwise");
+        }
+    }
+}
