@@ -9,10 +9,12 @@
 //!
 //! This crate knows nothing about textures.
 
+pub mod adjacency;
 pub mod charts;
 pub mod domains;
 pub mod error;
 pub mod ids;
+pub mod levels;
 pub mod limit;
 pub mod mesh;
 pub mod patch;
@@ -20,9 +22,11 @@ pub mod refine;
 pub mod surface;
 pub mod topology;
 
+pub use adjacency::BaseLocation;
 pub use charts::{ChartPoint, Charts, VertexChart};
 pub use domains::{Domain, DomainLocation};
 pub use error::MeshError;
 pub use ids::{BaseQuadId, DomainId, FaceId, VertexId};
+pub use levels::LimitMesh;
 pub use mesh::ControlMesh;
 pub use surface::{LimitSample, Surface};
