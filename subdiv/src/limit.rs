@@ -4,7 +4,9 @@
 //! (interior valence != 4, or a boundary vertex with 3 or more faces). Everywhere else the
 //! bicubic patches of [`crate::patch`] are exact.
 
-use crate::ids::VertexId;
+use crate::ids::{FaceId, VertexId};
+use crate::refine::refine;
+use crate::topology::Check;
 use crate::topology::PolyMesh;
 use glam::DVec3;
 use std::f64::consts::PI;
@@ -36,30 +38,13 @@ pub fn vertex_limit(m: &PolyMesh, v: VertexId) -> VertexLimit {
             let t2 = b - s;
             return finish(s, t1, t2);
         }
-        // Cross-boundary tangent: Catmull-Clark boundary mask (Biermann, Levin, Zorin 2000,
-        // Table 1 with smooth boundary, theta_k = pi / k over k = n faces). The along-boundary
-        // tangent is exact; the cross tangent gives the direction, which is what the normal
-        // needs (OpenSubdiv's own normals at such vertices are not unique either).
-        let k = n as f64;
-        let theta = PI / k;
-        let mut t2 = DVec3::ZERO;
-        // Interior edge neighbours e[1..n] and face points f[0..n].
-        let mut w0 = 0.0;
-        for (i, ei) in e.iter().enumerate().skip(1) {
-            let w = (i as f64 * theta).sin();
-            t2 += w * (*ei - s);
-            w0 += w;
-        }
-        for (i, fi) in f.iter().enumerate() {
-            let w = ((i as f64 + 0.5) * theta).sin() * 0.5;
-            t2 += w * (*fi - s);
-            w0 += w;
-        }
-        let _ = w0;
+        // No closed-form cross-boundary mask is used here: the tangent plane comes from
+        // the subdivision itself (see `normal_by_refinement`); the along-boundary tangent
+        // b - a is exact.
+        let normal = normal_by_refinement(m, v, position);
         let along = a - b;
-        let mut r = finish(position, along, t2);
-        r.position = position;
-        return r;
+        let t2 = normal.cross(along);
+        return finish(position, along, t2);
     }
     let nf = n as f64;
     let mut sum_e = DVec3::ZERO;
@@ -101,5 +86,93 @@ fn finish(position: DVec3, t1: DVec3, t2: DVec3) -> VertexLimit {
         normal,
         tangent1,
         tangent2,
+    }
+}
+
+/// The limit normal at `v` from repeated local refinement of its 1-ring: the ring points
+/// minus the limit point converge onto the tangent plane (the components along the two
+/// subdominant eigenvectors shrink slowest), so after enough steps the plane of consecutive
+/// ring vectors is the limit tangent plane. Exact up to (λ3/λ2)^L; we take L = 28.
+pub fn normal_by_refinement(m: &PolyMesh, v: VertexId, limit: DVec3) -> DVec3 {
+    let mut ring = one_ring(m, v);
+    let mut center = VertexId(0);
+    for _ in 0..28 {
+        let r = refine(&ring);
+        // Keep the child of each face at the corner `center` (vertex points keep their
+        // index, so the centre stays vertex 0 after re-extraction).
+        ring = one_ring(&r, center);
+        center = VertexId(0);
+    }
+    let outs: Vec<u32> = ring.outgoing(center).collect();
+    let mut d: Vec<DVec3> = outs
+        .iter()
+        .map(|&h| ring.pos(ring.dest(h)) - limit)
+        .collect();
+    if ring.is_boundary_vertex(center) {
+        let last = *outs.last().unwrap();
+        d.push(ring.pos(ring.origin(ring.prev(last))) - limit);
+    }
+    let scale = d.iter().map(|x| x.length()).fold(0.0, f64::max).max(1e-300);
+    let mut n = DVec3::ZERO;
+    let pairs = if ring.is_boundary_vertex(center) {
+        d.len() - 1
+    } else {
+        d.len()
+    };
+    for j in 0..pairs {
+        n += (d[j] / scale).cross(d[(j + 1) % d.len()] / scale);
+    }
+    n.normalize_or_zero()
+}
+
+/// The faces around `v` as a mesh of their own with `v` as vertex 0.
+fn one_ring(m: &PolyMesh, v: VertexId) -> PolyMesh {
+    let mut map: Vec<(u32, u32)> = vec![(v.0, 0)];
+    let mut positions = vec![m.pos(v)];
+    let mut face_start = vec![0u32];
+    let mut face_verts = Vec::new();
+    for h in m.outgoing(v) {
+        let f: FaceId = m.face_of(h);
+        for &w in m.face_vertices(f) {
+            let l = match map.iter().find(|(g, _)| *g == w) {
+                Some(&(_, l)) => l,
+                None => {
+                    positions.push(m.positions[w as usize]);
+                    map.push((w, positions.len() as u32 - 1));
+                    positions.len() as u32 - 1
+                }
+            };
+            face_verts.push(l);
+        }
+        face_start.push(face_verts.len() as u32);
+    }
+    PolyMesh::new(positions, face_start, face_verts, Check::Trusted)
+        .expect("1-ring of a valid mesh")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ControlMesh;
+
+    /// At interior vertices the closed-form masks are exact; the refinement normal must agree.
+    #[test]
+    fn refinement_normal_agrees_with_interior_masks() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../shared/data/opensubdiv-reference");
+        for shape in ["catmark_pole8", "spot_control_mesh", "catmark_cube"] {
+            let cm = ControlMesh::load_obj(dir.join(format!("{shape}.obj"))).unwrap();
+            let base = refine(&cm.mesh);
+            for v in 0..base.num_vertices() {
+                let v = VertexId(v as u32);
+                if base.is_boundary_vertex(v) || base.vertex_faces(v) == 4 {
+                    continue;
+                }
+                let l = vertex_limit(&base, v);
+                let n = normal_by_refinement(&base, v, l.position);
+                let ang = n.dot(l.normal).clamp(-1.0, 1.0).acos().to_degrees();
+                assert!(ang < 1e-3, "{shape} v{}: {ang}°", v.0);
+            }
+        }
     }
 }
