@@ -1,2 +1,8 @@
+//! surfsynth: texture synthesis directly on Catmull-Clark subdivision surfaces
+//! (Ying, Hertzmann, Biermann, Zorin 2001).
 
-pub mod field;
+pub mod error;
+pub mod example;
+pub mod io;
+
+pub use error::{Error, Result};

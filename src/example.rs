@@ -1,0 +1,499 @@
+//! The example texture: loading PNG/JPEG into linear floats, and bilinear lookups.
+//!
+//! Synthesis compares and blends colours, which is only meaningful on linear values, so
+//! colour channels are decoded from sRGB here (the `image` crate returns the encoded values
+//! unchanged). Alpha is coverage, not light, and a height map is a geometric quantity: both
+//! stay as stored (scaled to 0..1). 8- and 16-bit files are read at full precision;
+//! grayscale examples are expanded to equal R, G and B so that every later stage can assume
+//! three colour channels.
+//!
+//! Coordinates are continuous pixel positions from the top-left corner of the image, pixel
+//! centres at +0.5 (pixel (i, j) covers [i, i+1) x [j, j+1)), the same convention as the
+//! `source.u`/`source.v` channels of `facemaps.exr`.
+
+use crate::error::{Error, Result};
+use image::DynamicImage;
+use std::path::{Path, PathBuf};
+
+/// Smallest accepted example side: a 5x5 neighbourhood plus a margin must fit.
+pub const MIN_SIZE: usize = 8;
+
+/// A loaded example: linear RGB, optional alpha and optional height, all row-major with
+/// the top row first, `width * height` entries each.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Example {
+    /// The file it came from (for messages and reports).
+    pub path: PathBuf,
+    pub width: usize,
+    pub height: usize,
+    /// Linear RGB (decoded from sRGB).
+    pub rgb: Vec<[f32; 3]>,
+    /// Alpha in 0..1 when the file has an alpha channel (RGBA or gray+alpha).
+    pub alpha: Option<Vec<f32>>,
+    /// Height in 0..1 from a separate grayscale file (`--height`), not sRGB-decoded.
+    pub height_map: Option<Vec<f32>>,
+}
+
+/// sRGB transfer function, decoded (IEC 61966-2-1), for values in 0..1.
+#[inline]
+pub fn srgb_to_linear(v: f32) -> f32 {
+    if v <= 0.04045 {
+        v / 12.92
+    } else {
+        ((v + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+/// Inverse of [`srgb_to_linear`] (for writing previews and atlases).
+#[inline]
+pub fn linear_to_srgb(v: f32) -> f32 {
+    let v = v.clamp(0.0, 1.0);
+    if v <= 0.0031308 {
+        v * 12.92
+    } else {
+        1.055 * v.powf(1.0 / 2.4) - 0.055
+    }
+}
+
+/// Reads and decodes an image file, with one-line errors naming the file.
+fn decode(path: &Path) -> Result<DynamicImage> {
+    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, "cannot read image", e))?;
+    if meta.is_dir() {
+        return Err(Error::file(path, "is a directory, not an image file"));
+    }
+    if meta.len() == 0 {
+        return Err(Error::file(path, "image file is empty (0 bytes)"));
+    }
+    // Decide the format from the content, not the name: a text file called .png should be
+    // reported as "not an image", not as a PNG with a bad signature.
+    let mut head = [0u8; 8];
+    let got = {
+        use std::io::Read;
+        let mut f =
+            std::fs::File::open(path).map_err(|e| Error::io(path, "cannot read image", e))?;
+        let mut n = 0;
+        while n < head.len() {
+            match f.read(&mut head[n..]) {
+                Ok(0) => break,
+                Ok(k) => n += k,
+                Err(e) => return Err(Error::io(path, "cannot read image", e)),
+            }
+        }
+        n
+    };
+    let format = if got == 8 && head == *b"\x89PNG\r\n\x1a\n" {
+        image::ImageFormat::Png
+    } else if got >= 3 && head[..3] == [0xFF, 0xD8, 0xFF] {
+        image::ImageFormat::Jpeg
+    } else {
+        return Err(Error::file(
+            path,
+            "not a PNG or JPEG image (unrecognised file signature)",
+        ));
+    };
+    let mut reader =
+        image::ImageReader::open(path).map_err(|e| Error::io(path, "cannot read image", e))?;
+    reader.set_format(format);
+    reader
+        .decode()
+        .map_err(|e| Error::file(path, format!("cannot decode image: {e}")))
+}
+
+fn check_size(path: &Path, img: &DynamicImage) -> Result<(usize, usize)> {
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    if w < MIN_SIZE || h < MIN_SIZE {
+        return Err(Error::file(
+            path,
+            format!("image is {w}x{h} pixels; at least {MIN_SIZE}x{MIN_SIZE} are required"),
+        ));
+    }
+    Ok((w, h))
+}
+
+impl Example {
+    /// Loads an example without a height map.
+    pub fn load(path: impl AsRef<Path>) -> Result<Self> {
+        Self::load_with_height(path, None::<&Path>)
+    }
+
+    /// Loads an example and, optionally, a height map of the same size.
+    pub fn load_with_height(
+        path: impl AsRef<Path>,
+        height_path: Option<impl AsRef<Path>>,
+    ) -> Result<Self> {
+        let path = path.as_ref();
+        let img = decode(path)?;
+        let (width, height) = check_size(path, &img)?;
+        let (rgb, alpha) = to_linear(img);
+        let height_map = match height_path {
+            None => None,
+            Some(hp) => {
+                let hp = hp.as_ref();
+                let himg = decode(hp)?;
+                let (hw, hh) = (himg.width() as usize, himg.height() as usize);
+                if (hw, hh) != (width, height) {
+                    return Err(Error::file(
+                        hp,
+                        format!(
+                            "height map is {hw}x{hh} pixels but the example {} is {width}x{height}; they must be the same size",
+                            path.display()
+                        ),
+                    ));
+                }
+                Some(to_height(himg))
+            }
+        };
+        Ok(Self {
+            path: path.to_path_buf(),
+            width,
+            height,
+            rgb,
+            alpha,
+            height_map,
+        })
+    }
+
+    /// Builds an example from linear data (tests, generated examples).
+    pub fn from_linear(width: usize, height: usize, rgb: Vec<[f32; 3]>) -> Self {
+        assert!(width >= 1 && height >= 1);
+        assert_eq!(rgb.len(), width * height);
+        Self {
+            path: PathBuf::new(),
+            width,
+            height,
+            rgb,
+            alpha: None,
+            height_map: None,
+        }
+    }
+
+    /// Names of the channels [`Example::bilinear`] fills, in its order: `R G B`, then `A`
+    /// when present, then `height` when present (the facemaps.exr channel names).
+    pub fn channel_names(&self) -> Vec<&'static str> {
+        let mut v = vec!["R", "G", "B"];
+        if self.alpha.is_some() {
+            v.push("A");
+        }
+        if self.height_map.is_some() {
+            v.push("height");
+        }
+        v
+    }
+
+    /// Number of channels of [`Example::channel_names`].
+    pub fn num_channels(&self) -> usize {
+        3 + self.alpha.is_some() as usize + self.height_map.is_some() as usize
+    }
+
+    /// Pixel (i, j) (column, row from the top), all channels into `out`.
+    #[inline]
+    pub fn pixel(&self, i: usize, j: usize, out: &mut [f32]) {
+        let k = j * self.width + i;
+        out[..3].copy_from_slice(&self.rgb[k]);
+        let mut c = 3;
+        if let Some(a) = &self.alpha {
+            out[c] = a[k];
+            c += 1;
+        }
+        if let Some(h) = &self.height_map {
+            out[c] = h[k];
+        }
+    }
+
+    /// The four pixels and weights around continuous position (x, y), clamped to the image.
+    ///
+    /// Clamping (rather than wrapping) because examples are photographs or crops that are
+    /// generally not tileable: wrapping would blend the unrelated opposite edge into
+    /// lookups near the border and create seams inside the synthesized texture. With
+    /// clamping a lookup just outside the image repeats the border pixels, which is the
+    /// least surprising value; synthesizers keep their source positions inside the image
+    /// anyway.
+    #[inline]
+    pub fn bilinear_taps(&self, x: f32, y: f32) -> ([usize; 4], [f32; 4]) {
+        let fx = (x - 0.5).clamp(0.0, (self.width - 1) as f32);
+        let fy = (y - 0.5).clamp(0.0, (self.height - 1) as f32);
+        // NaN positions clamp to NaN; treat them as the top-left pixel rather than
+        // indexing with garbage.
+        let (fx, fy) = (
+            if fx.is_nan() { 0.0 } else { fx },
+            if fy.is_nan() { 0.0 } else { fy },
+        );
+        let (x0, y0) = (fx.floor() as usize, fy.floor() as usize);
+        let (x1, y1) = ((x0 + 1).min(self.width - 1), (y0 + 1).min(self.height - 1));
+        let (tx, ty) = (fx - x0 as f32, fy - y0 as f32);
+        let w = self.width;
+        (
+            [y0 * w + x0, y0 * w + x1, y1 * w + x0, y1 * w + x1],
+            [
+                (1.0 - tx) * (1.0 - ty),
+                tx * (1.0 - ty),
+                (1.0 - tx) * ty,
+                tx * ty,
+            ],
+        )
+    }
+
+    /// Bilinear linear RGB at continuous position (x, y) (pixel centres at +0.5).
+    #[inline]
+    pub fn bilinear_rgb(&self, x: f32, y: f32) -> [f32; 3] {
+        let (k, w) = self.bilinear_taps(x, y);
+        let mut c = [0.0f32; 3];
+        for t in 0..4 {
+            let p = self.rgb[k[t]];
+            for i in 0..3 {
+                c[i] += w[t] * p[i];
+            }
+        }
+        c
+    }
+
+    /// Bilinear lookup of all channels ([`Example::channel_names`] order) into `out`.
+    #[inline]
+    pub fn bilinear(&self, x: f32, y: f32, out: &mut [f32]) {
+        let (k, w) = self.bilinear_taps(x, y);
+        let lerp = |d: &[f32]| w[0] * d[k[0]] + w[1] * d[k[1]] + w[2] * d[k[2]] + w[3] * d[k[3]];
+        let rgb = self.bilinear_rgb(x, y);
+        out[..3].copy_from_slice(&rgb);
+        let mut c = 3;
+        if let Some(a) = &self.alpha {
+            out[c] = lerp(a);
+            c += 1;
+        }
+        if let Some(h) = &self.height_map {
+            out[c] = lerp(h);
+        }
+    }
+}
+
+/// Colour to linear RGB (+ alpha when the image has one). 8-bit goes through a table.
+fn to_linear(img: DynamicImage) -> (Vec<[f32; 3]>, Option<Vec<f32>>) {
+    let lut8: Vec<f32> = (0..256).map(|i| srgb_to_linear(i as f32 / 255.0)).collect();
+    let d16 = |v: u16| srgb_to_linear(v as f32 / 65535.0);
+    match img {
+        DynamicImage::ImageLuma8(b) => (
+            b.pixels().map(|p| [lut8[p.0[0] as usize]; 3]).collect(),
+            None,
+        ),
+        DynamicImage::ImageLumaA8(b) => (
+            b.pixels().map(|p| [lut8[p.0[0] as usize]; 3]).collect(),
+            Some(b.pixels().map(|p| p.0[1] as f32 / 255.0).collect()),
+        ),
+        DynamicImage::ImageRgb8(b) => (
+            b.pixels().map(|p| p.0.map(|v| lut8[v as usize])).collect(),
+            None,
+        ),
+        DynamicImage::ImageRgba8(b) => (
+            b.pixels()
+                .map(|p| [p.0[0], p.0[1], p.0[2]].map(|v| lut8[v as usize]))
+                .collect(),
+            Some(b.pixels().map(|p| p.0[3] as f32 / 255.0).collect()),
+        ),
+        DynamicImage::ImageLuma16(b) => (b.pixels().map(|p| [d16(p.0[0]); 3]).collect(), None),
+        DynamicImage::ImageLumaA16(b) => (
+            b.pixels().map(|p| [d16(p.0[0]); 3]).collect(),
+            Some(b.pixels().map(|p| p.0[1] as f32 / 65535.0).collect()),
+        ),
+        DynamicImage::ImageRgb16(b) => (b.pixels().map(|p| p.0.map(d16)).collect(), None),
+        DynamicImage::ImageRgba16(b) => (
+            b.pixels()
+                .map(|p| [p.0[0], p.0[1], p.0[2]].map(d16))
+                .collect(),
+            Some(b.pixels().map(|p| p.0[3] as f32 / 65535.0).collect()),
+        ),
+        // Float or future formats: treat values as sRGB-encoded 0..1 like the rest.
+        other => {
+            let has_alpha = other.color().has_alpha();
+            let b = other.to_rgba32f();
+            (
+                b.pixels()
+                    .map(|p| [p.0[0], p.0[1], p.0[2]].map(srgb_to_linear))
+                    .collect(),
+                has_alpha.then(|| b.pixels().map(|p| p.0[3]).collect()),
+            )
+        }
+    }
+}
+
+/// Height values in 0..1: the gray value as stored; for a colour file its Rec. 709 luma
+/// (of the stored values: heights are data, not light). Alpha is ignored.
+fn to_height(img: DynamicImage) -> Vec<f32> {
+    let luma = |r: f32, g: f32, b: f32| 0.2126 * r + 0.7152 * g + 0.0722 * b;
+    match img {
+        DynamicImage::ImageLuma8(b) => b.pixels().map(|p| p.0[0] as f32 / 255.0).collect(),
+        DynamicImage::ImageLumaA8(b) => b.pixels().map(|p| p.0[0] as f32 / 255.0).collect(),
+        DynamicImage::ImageLuma16(b) => b.pixels().map(|p| p.0[0] as f32 / 65535.0).collect(),
+        DynamicImage::ImageLumaA16(b) => b.pixels().map(|p| p.0[0] as f32 / 65535.0).collect(),
+        other => other
+            .to_rgb32f()
+            .pixels()
+            .map(|p| luma(p.0[0], p.0[1], p.0[2]))
+            .collect(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use image::{ImageBuffer, Luma, LumaA, Rgb, Rgba};
+
+    fn dir() -> tempfile::TempDir {
+        tempfile::tempdir().unwrap()
+    }
+
+    #[test]
+    fn srgb_round_trip_and_known_values() {
+        assert_eq!(srgb_to_linear(0.0), 0.0);
+        assert!((srgb_to_linear(1.0) - 1.0).abs() < 1e-6);
+        // 188/255 is the sRGB code closest to 50% linear light.
+        assert!((srgb_to_linear(188.0 / 255.0) - 0.5029).abs() < 1e-3);
+        for i in 0..=255 {
+            let v = i as f32 / 255.0;
+            assert!((linear_to_srgb(srgb_to_linear(v)) - v).abs() < 1e-5);
+        }
+    }
+
+    #[test]
+    fn rgb8_is_decoded_and_laid_out_row_major() {
+        let d = dir();
+        let p = d.path().join("a.png");
+        let img = ImageBuffer::from_fn(9, 8, |x, y| Rgb([x as u8 * 20, y as u8 * 30, 188]));
+        img.save(&p).unwrap();
+        let e = Example::load(&p).unwrap();
+        assert_eq!((e.width, e.height), (9, 8));
+        assert!(e.alpha.is_none() && e.height_map.is_none());
+        let px = e.rgb[3 * 9 + 2];
+        assert!((px[0] - srgb_to_linear(40.0 / 255.0)).abs() < 1e-7);
+        assert!((px[1] - srgb_to_linear(90.0 / 255.0)).abs() < 1e-7);
+        assert!((px[2] - 0.5029).abs() < 1e-3);
+        assert_eq!(e.channel_names(), vec!["R", "G", "B"]);
+    }
+
+    #[test]
+    fn alpha_gray_and_16_bit() {
+        let d = dir();
+        let p = d.path().join("rgba.png");
+        ImageBuffer::from_fn(8, 8, |x, _| Rgba([255u8, 0, 0, x as u8 * 30]))
+            .save(&p)
+            .unwrap();
+        let e = Example::load(&p).unwrap();
+        let a = e.alpha.as_ref().unwrap();
+        assert!(
+            (a[5] - 150.0 / 255.0).abs() < 1e-7,
+            "alpha is not sRGB-decoded"
+        );
+        assert_eq!(e.channel_names(), vec!["R", "G", "B", "A"]);
+
+        let p = d.path().join("la.png");
+        ImageBuffer::from_fn(8, 8, |_, _| LumaA([188u8, 255]))
+            .save(&p)
+            .unwrap();
+        let e = Example::load(&p).unwrap();
+        assert_eq!(e.rgb[0][0], e.rgb[0][1]);
+        assert!((e.rgb[0][2] - 0.5029).abs() < 1e-3);
+        assert_eq!(e.alpha.unwrap()[0], 1.0);
+
+        let p = d.path().join("g16.png");
+        ImageBuffer::from_fn(8, 8, |x, _| Luma([x as u16 * 9000]))
+            .save(&p)
+            .unwrap();
+        let e = Example::load(&p).unwrap();
+        assert!((e.rgb[7][1] - srgb_to_linear(63000.0 / 65535.0)).abs() < 1e-6);
+    }
+
+    #[test]
+    fn jpeg_loads() {
+        let d = dir();
+        let p = d.path().join("a.jpg");
+        ImageBuffer::from_fn(16, 16, |_, _| Rgb([128u8, 128, 128]))
+            .save(&p)
+            .unwrap();
+        let e = Example::load(&p).unwrap();
+        assert!((e.rgb[0][0] - srgb_to_linear(128.0 / 255.0)).abs() < 0.01);
+    }
+
+    #[test]
+    fn height_map_is_raw_and_must_match() {
+        let d = dir();
+        let p = d.path().join("c.png");
+        ImageBuffer::from_fn(8, 8, |_, _| Rgb([1u8, 2, 3]))
+            .save(&p)
+            .unwrap();
+        let h = d.path().join("h.png");
+        ImageBuffer::from_fn(8, 8, |x, _| Luma([x as u16 * 1000]))
+            .save(&h)
+            .unwrap();
+        let e = Example::load_with_height(&p, Some(&h)).unwrap();
+        assert_eq!(e.height_map.as_ref().unwrap()[3], 3000.0 / 65535.0);
+        assert_eq!(e.channel_names(), vec!["R", "G", "B", "height"]);
+        let h2 = d.path().join("h2.png");
+        ImageBuffer::from_fn(9, 8, |_, _| Luma([0u8]))
+            .save(&h2)
+            .unwrap();
+        let err = Example::load_with_height(&p, Some(&h2))
+            .unwrap_err()
+            .to_string();
+        assert!(err.starts_with(&h2.display().to_string()), "{err}");
+        assert!(err.contains("same size"), "{err}");
+    }
+
+    #[test]
+    fn bad_files_give_one_line_errors_naming_the_file() {
+        let d = dir();
+        let cases: Vec<(&str, Vec<u8>, &str)> = vec![
+            ("empty.png", vec![], "empty"),
+            (
+                "text.png",
+                b"hello, I am text\n".to_vec(),
+                "not a PNG or JPEG",
+            ),
+            ("small.png", Vec::new(), "at least 8x8"),
+            ("trunc.png", Vec::new(), "cannot decode"),
+        ];
+        // Real PNGs for the last two cases.
+        let small = d.path().join("small.png");
+        ImageBuffer::from_fn(4, 9, |_, _| Rgb([0u8, 0, 0]))
+            .save(&small)
+            .unwrap();
+        let full = d.path().join("full.png");
+        ImageBuffer::from_fn(64, 64, |x, y| Rgb([x as u8, y as u8, (x * y) as u8]))
+            .save(&full)
+            .unwrap();
+        let bytes = std::fs::read(&full).unwrap();
+        std::fs::write(d.path().join("trunc.png"), &bytes[..bytes.len() / 2]).unwrap();
+        for (name, content, want) in cases {
+            let p = d.path().join(name);
+            if !content.is_empty() || name == "empty.png" {
+                std::fs::write(&p, content).unwrap();
+            }
+            let err = Example::load(&p).unwrap_err().to_string();
+            assert!(err.starts_with(&p.display().to_string()), "{err}");
+            assert!(err.contains(want), "{name}: {err}");
+            assert!(!err.contains('\n'), "{err}");
+        }
+        let err = Example::load(d.path().join("missing.png"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("missing.png") && err.contains("cannot read"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn bilinear_hits_pixel_centres_and_clamps() {
+        let rgb: Vec<[f32; 3]> = (0..64).map(|i| [i as f32, 0.0, 1.0]).collect();
+        let e = Example::from_linear(8, 8, rgb);
+        // Pixel centre (2, 3) at (2.5, 3.5).
+        assert_eq!(e.bilinear_rgb(2.5, 3.5)[0], 26.0);
+        // Halfway between (2,3) and (3,3), and between rows 3 and 4.
+        assert!((e.bilinear_rgb(3.0, 3.5)[0] - 26.5).abs() < 1e-6);
+        assert!((e.bilinear_rgb(2.5, 4.0)[0] - 30.0).abs() < 1e-6);
+        // Clamped outside the image, including NaN.
+        assert_eq!(e.bilinear_rgb(-5.0, -5.0)[0], 0.0);
+        assert_eq!(e.bilinear_rgb(100.0, 100.0)[0], 63.0);
+        assert_eq!(e.bilinear_rgb(f32::NAN, 0.5)[0], 0.0);
+        let mut out = [0.0; 3];
+        e.bilinear(7.9, 0.2, &mut out);
+        assert_eq!(out[0], 7.0);
+    }
+}

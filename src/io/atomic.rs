@@ -1,0 +1,225 @@
+//! Atomic output files.
+//!
+//! Every file the tool writes goes through [`AtomicFile`]: the bytes go to a hidden
+//! temporary `DIR/.NAME.tmp-PID` beside the target, are flushed and fsynced, and only then
+//! renamed to `DIR/NAME`. A reader (a renderer, a DCC tool watching the directory, our own
+//! `render`) therefore never sees a half-written file, a crash or error leaves the previous
+//! version intact, and an error removes the temporary (via `Drop`, which also runs while a
+//! panic unwinds). The temporary lives in the same directory because `rename` is only
+//! atomic within one file system.
+
+use crate::error::{Error, Result};
+use std::fs::{self, File};
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+/// A file being written under a temporary name; [`AtomicFile::commit`] publishes it.
+#[derive(Debug)]
+pub struct AtomicFile {
+    target: PathBuf,
+    temp: PathBuf,
+    writer: Option<BufWriter<File>>,
+}
+
+impl AtomicFile {
+    /// Creates `DIR/.NAME.tmp-PID` for the target `DIR/NAME` (the directory must exist).
+    pub fn create(target: impl AsRef<Path>) -> Result<Self> {
+        let target = target.as_ref().to_path_buf();
+        let name = target
+            .file_name()
+            .ok_or_else(|| Error::file(&target, "output path has no file name"))?;
+        let mut temp_name = std::ffi::OsString::from(".");
+        temp_name.push(name);
+        temp_name.push(format!(".tmp-{}", std::process::id()));
+        let temp = target.with_file_name(temp_name);
+        let file = File::create(&temp).map_err(|e| Error::io(&target, "cannot create", e))?;
+        Ok(Self {
+            target,
+            temp,
+            writer: Some(BufWriter::with_capacity(1 << 20, file)),
+        })
+    }
+
+    /// The final path.
+    pub fn target(&self) -> &Path {
+        &self.target
+    }
+
+    /// The temporary path (exposed for tests and messages).
+    pub fn temp_path(&self) -> &Path {
+        &self.temp
+    }
+
+    /// The buffered writer (it is also `Seek`, which the EXR writer needs).
+    pub fn writer(&mut self) -> &mut BufWriter<File> {
+        self.writer
+            .as_mut()
+            .expect("writer is present until commit")
+    }
+
+    /// Flushes, fsyncs and renames the temporary to the target. On error the temporary is
+    /// removed and the target is left as it was.
+    pub fn commit(mut self) -> Result<()> {
+        let writer = self.writer.take().expect("writer is present until commit");
+        let file = writer
+            .into_inner()
+            .map_err(|e| Error::io(&self.target, "cannot write", e.into_error()))?;
+        file.sync_all()
+            .map_err(|e| Error::io(&self.target, "cannot write", e))?;
+        drop(file);
+        fs::rename(&self.temp, &self.target)
+            .map_err(|e| Error::io(&self.target, "cannot rename temporary file into place", e))?;
+        // The rename is done: nothing to clean up any more.
+        self.temp.clear();
+        // Persist the directory entry too (best effort: not every file system allows
+        // opening a directory for sync, and the data itself is already safe).
+        if let Some(dir) = self.target.parent() {
+            let dir = if dir.as_os_str().is_empty() {
+                Path::new(".")
+            } else {
+                dir
+            };
+            if let Ok(d) = File::open(dir) {
+                let _ = d.sync_all();
+            }
+        }
+        Ok(())
+    }
+}
+
+impl Drop for AtomicFile {
+    fn drop(&mut self) {
+        // Not committed: discard the partial output.
+        self.writer.take();
+        if !self.temp.as_os_str().is_empty() {
+            let _ = fs::remove_file(&self.temp);
+        }
+    }
+}
+
+/// Writes `target` atomically with `write`, which gets the buffered temporary file.
+/// Errors from `write` or from committing leave no file behind.
+pub fn write_atomic<T>(
+    target: impl AsRef<Path>,
+    write: impl FnOnce(&mut BufWriter<File>) -> Result<T>,
+) -> Result<T> {
+    let mut f = AtomicFile::create(target)?;
+    let value = write(f.writer())?;
+    f.commit()?;
+    Ok(value)
+}
+
+/// Writes a whole byte buffer atomically (small text outputs: JSON, OBJ, MTL).
+pub fn write_bytes_atomic(target: impl AsRef<Path>, bytes: &[u8]) -> Result<()> {
+    let target = target.as_ref();
+    write_atomic(target, |w| {
+        w.write_all(bytes)
+            .map_err(|e| Error::io(target, "cannot write", e))
+    })
+}
+
+/// Makes sure `dir` is a writable directory, creating it (and its parents) if missing.
+///
+/// Called before any expensive work so that a typo in `--out` fails in a second, with a
+/// message naming the directory, rather than after minutes of synthesis.
+pub fn prepare_out_dir(dir: impl AsRef<Path>) -> Result<()> {
+    let dir = dir.as_ref();
+    match fs::metadata(dir) {
+        Ok(m) if m.is_dir() => {}
+        Ok(_) => {
+            return Err(Error::file(
+                dir,
+                "output directory path exists and is not a directory",
+            ))
+        }
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            fs::create_dir_all(dir)
+                .map_err(|e| Error::io(dir, "cannot create output directory", e))?;
+        }
+        Err(e) => return Err(Error::io(dir, "cannot access output directory", e)),
+    }
+    // Permissions bits do not tell the whole story (read-only mounts, ACLs, root): try.
+    let probe = dir.join(format!(".surfsynth-write-test-{}", std::process::id()));
+    match fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(&probe)
+    {
+        Ok(_) => {
+            let _ = fs::remove_file(&probe);
+            Ok(())
+        }
+        Err(e) => Err(Error::io(dir, "output directory is not writable", e)),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn names(dir: &Path) -> Vec<String> {
+        let mut v: Vec<String> = fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        v.sort();
+        v
+    }
+
+    #[test]
+    fn commit_publishes_and_leaves_no_temporary() {
+        let d = tempfile::tempdir().unwrap();
+        let target = d.path().join("a.txt");
+        write_bytes_atomic(&target, b"hello").unwrap();
+        assert_eq!(fs::read(&target).unwrap(), b"hello");
+        assert_eq!(names(d.path()), vec!["a.txt"]);
+        // Overwrite keeps working.
+        write_bytes_atomic(&target, b"bye").unwrap();
+        assert_eq!(fs::read(&target).unwrap(), b"bye");
+    }
+
+    #[test]
+    fn error_removes_temporary_and_keeps_old_file() {
+        let d = tempfile::tempdir().unwrap();
+        let target = d.path().join("a.txt");
+        fs::write(&target, b"old").unwrap();
+        let r: Result<()> = write_atomic(&target, |w| {
+            w.write_all(b"partial").unwrap();
+            Err(Error::invalid("boom"))
+        });
+        assert!(r.is_err());
+        assert_eq!(fs::read(&target).unwrap(), b"old");
+        assert_eq!(names(d.path()), vec!["a.txt"]);
+    }
+
+    #[test]
+    fn temp_name_is_hidden_beside_target() {
+        let d = tempfile::tempdir().unwrap();
+        let f = AtomicFile::create(d.path().join("x.exr")).unwrap();
+        let t = f
+            .temp_path()
+            .file_name()
+            .unwrap()
+            .to_string_lossy()
+            .into_owned();
+        assert_eq!(t, format!(".x.exr.tmp-{}", std::process::id()));
+        assert!(f.temp_path().exists());
+        drop(f);
+        assert!(names(d.path()).is_empty());
+    }
+
+    #[test]
+    fn out_dir_is_created_or_rejected() {
+        let d = tempfile::tempdir().unwrap();
+        let sub = d.path().join("p/q");
+        prepare_out_dir(&sub).unwrap();
+        assert!(sub.is_dir());
+        assert!(names(&sub).is_empty());
+        let file = d.path().join("f");
+        fs::write(&file, b"").unwrap();
+        let e = prepare_out_dir(&file).unwrap_err().to_string();
+        assert!(e.contains("not a directory"), "{e}");
+        let e = prepare_out_dir(file.join("below")).unwrap_err().to_string();
+        assert!(e.contains("cannot"), "{e}");
+    }
+}

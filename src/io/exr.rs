@@ -1,0 +1,713 @@
+//! Per-face maps as one tiled OpenEXR image (BRIEF, "Output directory of `synth`").
+//!
+//! Layout: a single-part tiled image, tile size N x N, one tile per face domain. With F
+//! domains and C = ceil(sqrt(F)) tile columns, domain f is the tile at column f mod C, row
+//! f div C (rows from the top); the data window is C*N x ceil(F/C)*N; unused tiles are zero.
+//! The header carries the ints `surfsynth.faces` (F) and `surfsynth.resolution` (N). Inside a
+//! tile, texel (x, y) (x from the left, y from the top) is (u, v) = ((x+0.5)/N, (y+0.5)/N).
+//!
+//! Why tiles: one tile per domain makes each domain one contiguous, independently compressed
+//! block, so a domain can be produced (or read) alone. [`write_tiles`] exploits that: it
+//! asks a callback for one domain at a time, in parallel batches, and streams compressed
+//! tiles to disk in file order — `bake` never holds the whole mesh's maps in memory.
+//!
+//! In memory ([`FaceMaps`]) every channel is a flat `Vec<f32>` of F*N*N values, domain-major
+//! and row-major inside a domain (index `(f*N + y)*N + x`), the same order as
+//! `subdiv::Surface::eval_texels`. OpenEXR stores channels sorted by name; we sort on
+//! writing and [`read_face_maps`] returns them in that (file) order, so look channels up by
+//! name ([`FaceMaps::channel`]).
+//!
+//! Compression: [`DEFAULT_COMPRESSION`] is ZIP (measured, see docs/formats.md).
+
+use crate::error::{Error, Result};
+use crate::io::atomic::write_atomic;
+use exr::block::chunk::Chunk;
+use exr::block::reader::ChunksReader;
+use exr::block::writer::ChunksWriter;
+use exr::block::{BlockIndex, UncompressedBlock};
+use exr::math::{RoundingMode, Vec2};
+use exr::meta::attribute::{
+    AttributeValue, ChannelDescription, LevelMode, LineOrder, SampleType, Text, TileDescription,
+};
+use exr::meta::header::Header;
+use exr::meta::{BlockDescription, MetaData};
+use exr::prelude::SmallVec;
+use rayon::prelude::*;
+use std::fs::File;
+use std::io::BufReader;
+use std::path::Path;
+
+pub use exr::compression::Compression;
+
+/// Header attribute holding the number of face domains F.
+pub const ATTR_FACES: &str = "surfsynth.faces";
+/// Header attribute holding the tile resolution N.
+pub const ATTR_RESOLUTION: &str = "surfsynth.resolution";
+
+/// Compression used unless a caller asks for another one. ZIP (16 lines per block; a tile
+/// is compressed as one block anyway) shrinks geometry maps to about 80% and colour maps
+/// well, at a cost that the parallel writer hides behind evaluation; see docs/formats.md
+/// for the measurements behind this choice.
+pub const DEFAULT_COMPRESSION: Compression = Compression::ZIP16;
+
+/// Largest supported resolution (texels per tile side). Far beyond any practical use
+/// (8192² texels per face is 256 MiB per channel per face); a guard against typos.
+pub const MAX_RESOLUTION: usize = 8192;
+
+/// Where the tiles of F domains at resolution N sit in the image.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct TileLayout {
+    /// Number of face domains F.
+    pub faces: usize,
+    /// Texels per tile side N.
+    pub resolution: usize,
+    /// Tile columns C = ceil(sqrt(F)).
+    pub columns: usize,
+    /// Tile rows ceil(F / C).
+    pub rows: usize,
+}
+
+impl TileLayout {
+    /// The layout for `faces` domains at `resolution` (both must be at least 1).
+    pub fn new(faces: usize, resolution: usize) -> Self {
+        let columns = ceil_sqrt(faces).max(1);
+        Self {
+            faces,
+            resolution,
+            columns,
+            rows: faces.div_ceil(columns).max(1),
+        }
+    }
+
+    /// Data window width in pixels, C*N.
+    pub fn width(&self) -> usize {
+        self.columns * self.resolution
+    }
+
+    /// Data window height in pixels, ceil(F/C)*N.
+    pub fn height(&self) -> usize {
+        self.rows * self.resolution
+    }
+
+    /// (column, row) of domain `f`'s tile.
+    pub fn tile_of(&self, f: usize) -> (usize, usize) {
+        (f % self.columns, f / self.columns)
+    }
+
+    /// Pixel position of the top-left texel of domain `f`'s tile.
+    pub fn tile_origin(&self, f: usize) -> (usize, usize) {
+        let (c, r) = self.tile_of(f);
+        (c * self.resolution, r * self.resolution)
+    }
+
+    /// Total tiles, including the unused ones at the end of the last row.
+    pub fn tile_count(&self) -> usize {
+        self.columns * self.rows
+    }
+
+    /// Texels per domain, N².
+    pub fn texels_per_face(&self) -> usize {
+        self.resolution * self.resolution
+    }
+}
+
+/// Smallest c with c*c >= n.
+fn ceil_sqrt(n: usize) -> usize {
+    let mut c = (n as f64).sqrt() as usize;
+    while c * c < n {
+        c += 1;
+    }
+    while c > 0 && (c - 1) * (c - 1) >= n {
+        c -= 1;
+    }
+    c
+}
+
+/// Named f32 maps over all face domains (see the module docs for the memory layout).
+#[derive(Clone, Debug, PartialEq)]
+pub struct FaceMaps {
+    /// Number of face domains F.
+    pub faces: usize,
+    /// Texels per side N.
+    pub resolution: usize,
+    /// (name, F*N*N values), domain-major, row-major inside a domain.
+    pub channels: Vec<(String, Vec<f32>)>,
+}
+
+impl FaceMaps {
+    /// Zero-filled maps with the given channel names.
+    pub fn new(faces: usize, resolution: usize, names: &[&str]) -> Self {
+        let len = faces * resolution * resolution;
+        Self {
+            faces,
+            resolution,
+            channels: names
+                .iter()
+                .map(|n| (n.to_string(), vec![0.0; len]))
+                .collect(),
+        }
+    }
+
+    /// The tile layout these maps are written with.
+    pub fn layout(&self) -> TileLayout {
+        TileLayout::new(self.faces, self.resolution)
+    }
+
+    /// N².
+    pub fn texels_per_face(&self) -> usize {
+        self.resolution * self.resolution
+    }
+
+    /// Index of texel (x, y) of domain `face` in every channel's data.
+    #[inline]
+    pub fn index(&self, face: usize, x: usize, y: usize) -> usize {
+        (face * self.resolution + y) * self.resolution + x
+    }
+
+    /// A channel's data by name.
+    pub fn channel(&self, name: &str) -> Option<&[f32]> {
+        self.channels
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, d)| d.as_slice())
+    }
+
+    /// A channel's data by name, mutable.
+    pub fn channel_mut(&mut self, name: &str) -> Option<&mut [f32]> {
+        self.channels
+            .iter_mut()
+            .find(|(n, _)| n == name)
+            .map(|(_, d)| d.as_mut_slice())
+    }
+
+    /// Channel names in storage order.
+    pub fn names(&self) -> Vec<&str> {
+        self.channels.iter().map(|(n, _)| n.as_str()).collect()
+    }
+
+    /// Checks sizes and names; `write_face_maps` calls it.
+    pub fn validate(&self) -> Result<()> {
+        check_shape(self.faces, self.resolution)?;
+        let len = self.faces * self.texels_per_face();
+        for (name, data) in &self.channels {
+            if data.len() != len {
+                return Err(Error::invalid(format!(
+                    "face map channel '{name}' has {} values, expected {len} ({} faces x {}²)",
+                    data.len(),
+                    self.faces,
+                    self.resolution
+                )));
+            }
+        }
+        check_names(&self.names())
+    }
+}
+
+fn check_shape(faces: usize, resolution: usize) -> Result<()> {
+    if faces == 0 {
+        return Err(Error::invalid("face maps need at least one face domain"));
+    }
+    if resolution == 0 || resolution > MAX_RESOLUTION {
+        return Err(Error::invalid(format!(
+            "resolution {resolution} is out of range 1..={MAX_RESOLUTION}"
+        )));
+    }
+    let layout = TileLayout::new(faces, resolution);
+    if layout.width() > i32::MAX as usize / 2 || layout.height() > i32::MAX as usize / 2 {
+        return Err(Error::invalid(format!(
+            "{faces} faces at resolution {resolution} exceed the size an EXR image can have"
+        )));
+    }
+    Ok(())
+}
+
+fn check_names(names: &[&str]) -> Result<()> {
+    if names.is_empty() {
+        return Err(Error::invalid("face maps need at least one channel"));
+    }
+    for (i, n) in names.iter().enumerate() {
+        if n.is_empty() || n.len() > 255 || !n.is_ascii() {
+            return Err(Error::invalid(format!(
+                "channel name '{n}' must be 1 to 255 ASCII characters"
+            )));
+        }
+        if names[..i].contains(n) {
+            return Err(Error::invalid(format!("channel name '{n}' is repeated")));
+        }
+    }
+    Ok(())
+}
+
+/// Summary of a face-map file's header (cheap: does not read pixels).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct FaceMapsInfo {
+    pub faces: usize,
+    pub resolution: usize,
+    /// Channel names in file (sorted) order.
+    pub channels: Vec<String>,
+    pub compression: String,
+}
+
+/// Writes `maps` to `path` (atomically) with [`DEFAULT_COMPRESSION`].
+pub fn write_face_maps(path: impl AsRef<Path>, maps: &FaceMaps) -> Result<()> {
+    write_face_maps_with(path, maps, DEFAULT_COMPRESSION)
+}
+
+/// Writes `maps` to `path` (atomically) with the given compression. Only lossless
+/// compressions are accepted: the maps hold positions and source coordinates, not pictures.
+pub fn write_face_maps_with(
+    path: impl AsRef<Path>,
+    maps: &FaceMaps,
+    compression: Compression,
+) -> Result<()> {
+    maps.validate()?;
+    let names = maps.names();
+    let nn = maps.texels_per_face();
+    write_tiles(
+        path,
+        maps.layout(),
+        &names,
+        compression,
+        |f, tile| {
+            for (k, (_, data)) in maps.channels.iter().enumerate() {
+                tile[k * nn..(k + 1) * nn].copy_from_slice(&data[f * nn..(f + 1) * nn]);
+            }
+        },
+        &|_| {},
+    )
+}
+
+/// Streams a face-map file: `fill(f, tile)` is called once per domain f (in parallel on
+/// the current rayon pool) and must write the domain's N² texels of every channel into
+/// `tile` (zeroed, length `names.len()*N²`, channel-major in the order of `names`, each
+/// channel row-major). `progress(done)` gets the number of domains written so far.
+///
+/// Memory stays bounded by a batch of tiles (about 64 MiB, at least one tile per thread),
+/// and output bytes do not depend on the number of threads: tiles are filled
+/// independently and written in file order.
+pub fn write_tiles<F>(
+    path: impl AsRef<Path>,
+    layout: TileLayout,
+    names: &[&str],
+    compression: Compression,
+    fill: F,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Result<()>
+where
+    F: Fn(usize, &mut [f32]) + Sync,
+{
+    let path = path.as_ref();
+    check_shape(layout.faces, layout.resolution)?;
+    check_names(names)?;
+    if compression.may_loose_data() {
+        return Err(Error::invalid(format!(
+            "compression {compression} is lossy; face maps need a lossless one"
+        )));
+    }
+    let n = layout.resolution;
+    let nn = n * n;
+
+    // OpenEXR requires channels sorted by name (byte order).
+    let mut order: Vec<usize> = (0..names.len()).collect();
+    order.sort_by(|&a, &b| names[a].as_bytes().cmp(names[b].as_bytes()));
+    let channels: SmallVec<[ChannelDescription; 5]> = order
+        .iter()
+        .map(|&k| ChannelDescription::new(Text::from(names[k]), SampleType::F32, false))
+        .collect();
+
+    let mut header = Header::new(
+        Text::from("surfsynth"),
+        Vec2(layout.width(), layout.height()),
+        channels,
+    )
+    .with_encoding(
+        compression,
+        BlockDescription::Tiles(TileDescription {
+            tile_size: Vec2(n, n),
+            level_mode: LevelMode::Singular,
+            rounding_mode: RoundingMode::Down,
+        }),
+        LineOrder::Increasing,
+    );
+    // A single-part file needs no part name; leaving it out keeps other readers from
+    // treating the file as multi-part.
+    header.own_attributes.layer_name = None;
+    header.own_attributes.software_name = Some(Text::from("surfsynth"));
+    // The exr crate writes custom attributes in HashMap order, which is random per map:
+    // with both ints in one map, two runs would write different bytes. One attribute per
+    // map makes the order fixed (layer map first, then the image map); readers see both as
+    // ordinary header attributes.
+    header.own_attributes.other.insert(
+        Text::from(ATTR_FACES),
+        AttributeValue::I32(layout.faces as i32),
+    );
+    header.shared_attributes.other.insert(
+        Text::from(ATTR_RESOLUTION),
+        AttributeValue::I32(layout.resolution as i32),
+    );
+    let headers: exr::meta::Headers = SmallVec::from_elem(header, 1);
+
+    let tile_bytes = names.len() * nn * 4;
+    let threads = rayon::current_num_threads().max(1);
+    let batch = ((64usize << 20) / tile_bytes.max(1))
+        .clamp(threads, 4096)
+        .max(1);
+    let total = layout.tile_count();
+
+    write_atomic(path, |w| {
+        exr::block::write(w, headers, true, |meta, writer| {
+            let mut start = 0;
+            while start < total {
+                let end = (start + batch).min(total);
+                let chunks: Vec<exr::error::Result<Chunk>> = (start..end)
+                    .into_par_iter()
+                    .map_init(
+                        || vec![0f32; names.len() * nn],
+                        |buf, t| {
+                            buf.fill(0.0);
+                            if t < layout.faces {
+                                fill(t, buf);
+                            }
+                            let block = UncompressedBlock {
+                                index: block_index(&layout, t),
+                                data: interleave_rows(buf, &order, n),
+                            };
+                            block.compress_to_chunk(&meta.headers)
+                        },
+                    )
+                    .collect();
+                for (t, chunk) in (start..end).zip(chunks) {
+                    writer.write_chunk(t, chunk?)?;
+                }
+                progress(end.min(layout.faces));
+                start = end;
+            }
+            Ok(())
+        })
+        .map_err(|e| Error::file(path, format!("cannot write EXR: {e}")))
+    })
+}
+
+fn block_index(layout: &TileLayout, t: usize) -> BlockIndex {
+    let n = layout.resolution;
+    BlockIndex {
+        layer: 0,
+        pixel_position: Vec2((t % layout.columns) * n, (t / layout.columns) * n),
+        pixel_size: Vec2(n, n),
+        level: Vec2(0, 0),
+    }
+}
+
+/// EXR block byte order: for each row, each channel (sorted) contributes its N samples,
+/// native-endian (the exr crate converts to little-endian while compressing).
+fn interleave_rows(buf: &[f32], order: &[usize], n: usize) -> Vec<u8> {
+    let nn = n * n;
+    let mut out = Vec::with_capacity(buf.len() * 4);
+    for y in 0..n {
+        for &k in order {
+            for v in &buf[k * nn + y * n..k * nn + (y + 1) * n] {
+                out.extend_from_slice(&v.to_ne_bytes());
+            }
+        }
+    }
+    out
+}
+
+fn open(path: &Path) -> Result<exr::block::reader::Reader<BufReader<File>>> {
+    let file = File::open(path).map_err(|e| Error::io(path, "cannot open", e))?;
+    exr::block::read(BufReader::new(file), false)
+        .map_err(|e| Error::file(path, format!("not a readable OpenEXR file: {e}")))
+}
+
+/// Checks that the header describes face maps and returns their description.
+fn face_maps_header(path: &Path, headers: &[Header]) -> Result<(TileLayout, FaceMapsInfo)> {
+    let bad = |what: String| Error::file(path, format!("not a surfsynth face-map file: {what}"));
+    if headers.len() != 1 {
+        return Err(bad(format!("{} parts, expected 1", headers.len())));
+    }
+    let h = &headers[0];
+    let get_int = |name: &str| -> Result<usize> {
+        let key = Text::from(name);
+        match h
+            .own_attributes
+            .other
+            .get(&key)
+            .or_else(|| h.shared_attributes.other.get(&key))
+        {
+            Some(AttributeValue::I32(v)) if *v >= 1 => Ok(*v as usize),
+            Some(v) => Err(bad(format!("header attribute {name} is {v:?}"))),
+            None => Err(bad(format!("header attribute {name} is missing"))),
+        }
+    };
+    let faces = get_int(ATTR_FACES)?;
+    let resolution = get_int(ATTR_RESOLUTION)?;
+    if resolution > MAX_RESOLUTION {
+        return Err(bad(format!("resolution {resolution} is too large")));
+    }
+    let layout = TileLayout::new(faces, resolution);
+    match h.blocks {
+        BlockDescription::Tiles(t)
+            if t.tile_size == Vec2(resolution, resolution)
+                && t.level_mode == LevelMode::Singular => {}
+        _ => {
+            return Err(bad(format!(
+                "expected single-level tiles of {resolution}x{resolution}"
+            )))
+        }
+    }
+    if h.layer_size != Vec2(layout.width(), layout.height()) || h.deep {
+        return Err(bad(format!(
+            "data window is {}x{}, expected {}x{} for {faces} faces at N = {resolution}",
+            h.layer_size.0,
+            h.layer_size.1,
+            layout.width(),
+            layout.height()
+        )));
+    }
+    let info = FaceMapsInfo {
+        faces,
+        resolution,
+        channels: h.channels.list.iter().map(|c| c.name.to_string()).collect(),
+        compression: h.compression.to_string(),
+    };
+    Ok((layout, info))
+}
+
+/// Reads only the header of a face-map file.
+pub fn read_face_maps_info(path: impl AsRef<Path>) -> Result<FaceMapsInfo> {
+    let path = path.as_ref();
+    let reader = open(path)?;
+    Ok(face_maps_header(path, reader.headers())?.1)
+}
+
+/// Reads a face-map file written by [`write_face_maps`] / [`write_tiles`] (or any file with
+/// the same layout; f16 and u32 channels are converted to f32). Channels come back in file
+/// (name-sorted) order.
+pub fn read_face_maps(path: impl AsRef<Path>) -> Result<FaceMaps> {
+    let path = path.as_ref();
+    let reader = open(path)?;
+    let (layout, info) = face_maps_header(path, reader.headers())?;
+    let exr_err = |e: exr::error::Error| Error::file(path, format!("corrupt OpenEXR data: {e}"));
+    let chunks = reader.all_chunks(false).map_err(exr_err)?;
+    let meta: MetaData = chunks.meta_data().clone();
+    let header = &meta.headers[0];
+    let names: Vec<&str> = info.channels.iter().map(|s| s.as_str()).collect();
+    let mut maps = FaceMaps::new(layout.faces, layout.resolution, &names);
+    let n = layout.resolution;
+    let nn = n * n;
+    let batch = (((64usize << 20) / (names.len() * nn * 4).max(1))
+        .max(rayon::current_num_threads()))
+    .max(1);
+    let mut seen = vec![false; layout.tile_count()];
+
+    let mut chunks = chunks.peekable();
+    while chunks.peek().is_some() {
+        let raw: Vec<Chunk> = chunks
+            .by_ref()
+            .take(batch)
+            .collect::<exr::error::Result<_>>()
+            .map_err(exr_err)?;
+        let blocks: Vec<exr::error::Result<UncompressedBlock>> = raw
+            .into_par_iter()
+            .map(|c| UncompressedBlock::decompress_chunk(c, &meta, false))
+            .collect();
+        for block in blocks {
+            let block = block.map_err(exr_err)?;
+            let Vec2(px, py) = block.index.pixel_position;
+            if block.index.pixel_size != Vec2(n, n) || px % n != 0 || py % n != 0 {
+                return Err(Error::file(path, "tile does not match the face-map layout"));
+            }
+            let t = (py / n) * layout.columns + px / n;
+            if t >= seen.len() || seen[t] {
+                return Err(Error::file(path, "duplicate or misplaced tile"));
+            }
+            seen[t] = true;
+            if t >= layout.faces {
+                continue;
+            }
+            for line in block.lines(&header.channels) {
+                let k = line.location.channel;
+                let y = line.location.position.1 - py;
+                let dst = &mut maps.channels[k].1[t * nn + y * n..t * nn + (y + 1) * n];
+                match header.channels.list[k].sample_type {
+                    SampleType::F32 => line.read_samples_into_slice(dst).map_err(exr_err)?,
+                    SampleType::F16 => {
+                        for (d, s) in dst.iter_mut().zip(line.read_samples::<exr::prelude::f16>()) {
+                            *d = s.map_err(exr_err)?.to_f32();
+                        }
+                    }
+                    SampleType::U32 => {
+                        for (d, s) in dst.iter_mut().zip(line.read_samples::<u32>()) {
+                            *d = s.map_err(exr_err)? as f32;
+                        }
+                    }
+                }
+            }
+        }
+    }
+    if let Some(t) = seen.iter().position(|s| !s) {
+        return Err(Error::file(
+            path,
+            format!("file is truncated: tile {t} is missing"),
+        ));
+    }
+    Ok(maps)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn layout_follows_the_brief() {
+        let l = TileLayout::new(6, 8);
+        assert_eq!((l.columns, l.rows, l.width(), l.height()), (3, 2, 24, 16));
+        assert_eq!(l.tile_origin(4), (8, 8));
+        let l = TileLayout::new(10, 4);
+        assert_eq!((l.columns, l.rows), (4, 3));
+        assert_eq!(TileLayout::new(1, 3).tile_count(), 1);
+        for f in 1..2000usize {
+            let c = ceil_sqrt(f);
+            assert!(c * c >= f && (c - 1) * (c - 1) < f, "{f}");
+        }
+    }
+
+    fn sample_maps(faces: usize, n: usize) -> FaceMaps {
+        // Deliberately unsorted names, with values that identify (channel, face, x, y).
+        let mut m = FaceMaps::new(faces, n, &["source.u", "R", "height", "B", "A", "G"]);
+        for (k, (_, d)) in m.channels.iter_mut().enumerate() {
+            for (i, v) in d.iter_mut().enumerate() {
+                *v = (k as f32 * 1000.0 + i as f32).sqrt() * if i % 3 == 0 { -1.0 } else { 1.0 };
+            }
+        }
+        m
+    }
+
+    #[test]
+    fn round_trip_every_lossless_compression() {
+        let d = tempfile::tempdir().unwrap();
+        for (faces, n) in [(7usize, 5usize), (1, 1), (16, 4), (3, 16)] {
+            let m = sample_maps(faces, n);
+            for c in [
+                Compression::Uncompressed,
+                Compression::RLE,
+                Compression::ZIP1,
+                Compression::ZIP16,
+                Compression::PIZ,
+            ] {
+                let p = d.path().join(format!("m{faces}_{n}_{c:?}.exr"));
+                write_face_maps_with(&p, &m, c).unwrap();
+                let r = read_face_maps(&p).unwrap();
+                assert_eq!((r.faces, r.resolution), (faces, n));
+                assert_eq!(r.names(), vec!["A", "B", "G", "R", "height", "source.u"]);
+                for (name, data) in &m.channels {
+                    let got = r.channel(name).unwrap();
+                    assert!(
+                        got.iter()
+                            .zip(data)
+                            .all(|(a, b)| a.to_bits() == b.to_bits()),
+                        "{name} {c:?}"
+                    );
+                }
+                let info = read_face_maps_info(&p).unwrap();
+                assert_eq!((info.faces, info.resolution), (faces, n));
+            }
+        }
+    }
+
+    /// Reads our file with the exr crate's high-level reader (a separate code path from
+    /// our block-level reader) and checks layout, attributes and zeroed unused tiles.
+    #[test]
+    fn generic_reader_sees_the_brief_layout() {
+        use exr::prelude::*;
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("g.exr");
+        let (faces, n) = (7usize, 3usize);
+        let m = sample_maps(faces, n);
+        write_face_maps(&p, &m).unwrap();
+        let img = read_all_flat_layers_from_file(&p).unwrap();
+        assert_eq!(img.layer_data.len(), 1);
+        let layer = &img.layer_data[0];
+        assert_eq!(layer.size, Vec2(9, 9)); // C = 3, rows = 3
+        assert_eq!(
+            layer.attributes.other.get(&Text::from(ATTR_FACES)),
+            Some(&AttributeValue::I32(7))
+        );
+        assert_eq!(
+            layer.attributes.other.get(&Text::from(ATTR_RESOLUTION)),
+            Some(&AttributeValue::I32(3))
+        );
+        assert_eq!(
+            layer.encoding.blocks,
+            Blocks::Tiles(Vec2(3, 3)),
+            "one tile per face"
+        );
+        let layout = TileLayout::new(faces, n);
+        for ch in &layer.channel_data.list {
+            let name = ch.name.to_string();
+            let src = m.channel(&name).unwrap();
+            let FlatSamples::F32(flat) = &ch.sample_data else {
+                panic!("{name} is not f32")
+            };
+            for py in 0..9 {
+                for px in 0..9 {
+                    let (col, row) = (px / n, py / n);
+                    let f = row * layout.columns + col;
+                    let want = if f < faces {
+                        src[m.index(f, px % n, py % n)]
+                    } else {
+                        0.0
+                    };
+                    assert_eq!(
+                        flat[py * 9 + px].to_bits(),
+                        want.to_bits(),
+                        "{name} {px} {py}"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn streaming_output_is_independent_of_thread_count() {
+        let d = tempfile::tempdir().unwrap();
+        let m = sample_maps(23, 6);
+        let mut files = Vec::new();
+        for threads in [1, 2, 3] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let p = d.path().join(format!("t{threads}.exr"));
+            pool.install(|| write_face_maps(&p, &m)).unwrap();
+            files.push(std::fs::read(&p).unwrap());
+        }
+        assert!(files[0] == files[1], "1 vs 2 threads differ");
+        assert!(files[0] == files[2], "1 vs 3 threads differ");
+    }
+
+    #[test]
+    fn bad_inputs_are_reported() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("x.exr");
+        let mut m = sample_maps(2, 2);
+        m.channels[0].1.pop();
+        assert!(write_face_maps(&p, &m).is_err());
+        assert!(!p.exists());
+        let m = FaceMaps::new(2, 2, &["R", "R"]);
+        assert!(write_face_maps(&p, &m).is_err());
+        std::fs::write(&p, b"not an exr").unwrap();
+        let e = read_face_maps(&p).unwrap_err().to_string();
+        assert!(e.starts_with(&p.display().to_string()), "{e}");
+        let e = read_face_maps(d.path().join("missing.exr"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("cannot open"), "{e}");
+        // A truncated file is an error, not a panic.
+        let m = sample_maps(5, 4);
+        write_face_maps_with(&p, &m, Compression::Uncompressed).unwrap();
+        let bytes = std::fs::read(&p).unwrap();
+        std::fs::write(&p, &bytes[..bytes.len() - 100]).unwrap();
+        assert!(read_face_maps(&p).is_err());
+    }
+}
