@@ -3,6 +3,7 @@
 
 pub mod error;
 pub mod example;
+pub mod field;
 pub mod io;
 
 pub use error::{Error, Result};
