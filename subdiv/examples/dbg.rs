@@ -1,43 +1,41 @@
-use glam::DVec3;
+use std::time::Instant;
 use subdiv::*;
 fn main() {
-    let shape = std::env::args().nth(1).unwrap();
-    let dir = "/work/shared/data/opensubdiv-reference";
-    let s = Surface::new(ControlMesh::load_obj(format!("{dir}/{shape}.obj")).unwrap());
-    let text = std::fs::read_to_string(format!("{dir}/{shape}.limit.csv")).unwrap();
-    let mut worst = std::collections::BTreeMap::new();
-    for l in text.lines().skip(1) {
-        let c: Vec<f64> = l.split(',').map(|x| x.parse().unwrap()).collect();
-        let r = s.eval(DomainId(c[0] as u32), c[1], c[2]);
-        let e = (r.p - DVec3::new(c[3], c[4], c[5])).length();
-        let w = worst.entry(c[0] as u32).or_insert((0.0f64, 0.0, 0.0));
-        if e > w.0 {
-            *w = (e, c[1], c[2]);
-        }
+    let path = std::env::args().nth(1).unwrap();
+    let n: usize = std::env::args().nth(2).unwrap().parse().unwrap();
+    let t0 = Instant::now();
+    let mut cm = ControlMesh::load_obj(&path).unwrap();
+    let levels: usize = std::env::args()
+        .nth(3)
+        .map(|s| s.parse().unwrap())
+        .unwrap_or(0);
+    for _ in 0..levels {
+        let r = subdiv::refine::refine(&cm.mesh);
+        cm = ControlMesh::from_polygons(
+            r.positions.clone(),
+            r.face_starts().to_vec(),
+            r.half_edge_vertices().to_vec(),
+        )
+        .unwrap();
     }
-    for (f, w) in worst {
-        if w.0 > 1e-9 {
-            let face = subdiv::FaceId(f);
-            let vs = s.control.mesh.face_vertices(face);
-            let info: Vec<String> = vs
-                .iter()
-                .map(|&v| {
-                    format!(
-                        "{}:{}f{}",
-                        v,
-                        s.control.mesh.vertex_faces(VertexId(v)),
-                        if s.control.mesh.is_boundary_vertex(VertexId(v)) {
-                            "b"
-                        } else {
-                            ""
-                        }
-                    )
-                })
-                .collect();
-            println!(
-                "face {f} err {:.3e} at ({},{}) verts {:?}",
-                w.0, w.1, w.2, info
-            );
-        }
+    let t1 = Instant::now();
+    let s = Surface::new(cm);
+    let t2 = Instant::now();
+    let mut buf = vec![LimitSample::default(); n * n];
+    let mut acc = 0.0;
+    for d in 0..s.num_domains() {
+        s.eval_texels(DomainId(d as u32), n, &mut buf);
+        acc += buf[0].p.x;
     }
+    let t3 = Instant::now();
+    let texels = s.num_domains() * n * n;
+    println!(
+        "domains {} texels {} load {:?} build {:?} eval {:?} => {:.2} M texels/s/core ({acc})",
+        s.num_domains(),
+        texels,
+        t1 - t0,
+        t2 - t1,
+        t3 - t2,
+        texels as f64 / (t3 - t2).as_secs_f64() / 1e6
+    );
 }

@@ -61,8 +61,7 @@ impl Surface {
             mut t,
         } = from;
         let (mut ds, mut dt) = (ds, dt);
-        let mut crossed = 0;
-        for _ in 0..1024 {
+        for crossed in 0..1024u32 {
             let (es, et) = (s + ds, t + dt);
             if (0.0..=1.0).contains(&es) && (0.0..=1.0).contains(&et) {
                 return Some((BaseLocation { quad, s: es, t: et }, crossed));
@@ -104,7 +103,6 @@ impl Surface {
             t = nt;
             ds = ps - ns;
             dt = pt - nt;
-            crossed += 1;
         }
         None
     }

@@ -325,13 +325,23 @@ mod tests {
 
     #[test]
     fn nets_have_no_folds_over_the_served_quarter() {
-        for (boundary, ks) in [(false, 2..=12usize), (true, 1..=12usize)] {
+        // Dense sampling for the common valences, sparser up to the accepted maximum.
+        let cases = [
+            (false, 2..=12usize, 20),
+            (true, 1..=12, 20),
+            (false, 13..=64, 6),
+            (true, 13..=63, 6),
+        ];
+        for (boundary, ks, steps) in cases {
             for k in ks {
                 let net = ChartNet::new(boundary, k);
                 for j in 0..k {
-                    for ia in 0..=20 {
-                        for ib in 0..=20 {
-                            let (a, b) = (ia as f64 / 40.0, ib as f64 / 40.0);
+                    for ia in 0..=steps {
+                        for ib in 0..=steps {
+                            let (a, b) = (
+                                ia as f64 / (2 * steps) as f64,
+                                ib as f64 / (2 * steps) as f64,
+                            );
                             if a + b < 1e-9 {
                                 continue;
                             }

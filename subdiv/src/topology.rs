@@ -183,7 +183,7 @@ impl PolyMesh {
                 self.vert_out[v] = h as u32;
             }
         }
-        for v in 0..nv {
+        for (v, &corner_count) in corners.iter().enumerate() {
             let start = self.vert_out[v];
             if start == NONE {
                 continue;
@@ -195,7 +195,7 @@ impl PolyMesh {
                 count += 1;
                 let p = self.prev(h);
                 let t = self.he_twin[p as usize];
-                if t == NONE || t == start || count > corners[v] {
+                if t == NONE || t == start || count > corner_count {
                     break;
                 }
                 h = t;
@@ -203,9 +203,9 @@ impl PolyMesh {
             self.vert_faces[v] = count;
             self.vert_boundary[v] = boundary;
             if check == Check::Strict {
-                if count != corners[v] {
+                if count != corner_count {
                     // The faces at v do not form one fan: count the fans for the message.
-                    let fans = self.count_fans(v as u32, corners[v]);
+                    let fans = self.count_fans(v as u32);
                     return Err(MeshProblem::NonManifoldVertex { vertex: v, fans }.into());
                 }
                 let valence = count as usize + boundary as usize;
@@ -222,7 +222,7 @@ impl PolyMesh {
         Ok(())
     }
 
-    fn count_fans(&self, v: u32, corners: u32) -> usize {
+    fn count_fans(&self, v: u32) -> usize {
         let outgoing: Vec<u32> = (0..self.he_vert.len() as u32)
             .filter(|&h| self.he_vert[h as usize] == v)
             .collect();
@@ -253,7 +253,6 @@ impl PolyMesh {
                 }
             }
         }
-        let _ = corners;
         fans.max(2)
     }
 

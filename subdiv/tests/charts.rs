@@ -3,7 +3,7 @@
 
 use glam::DVec2;
 use std::path::PathBuf;
-use subdiv::{BaseLocation, BaseQuadId, Charts, ControlMesh, Surface, VertexId};
+use subdiv::{BaseLocation, BaseQuadId, Charts, Surface, VertexId};
 
 fn shared() -> PathBuf {
     std::env::var_os("SURFSYNTH_SHARED")

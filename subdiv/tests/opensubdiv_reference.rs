@@ -192,7 +192,7 @@ fn refined_vertices_match_opensubdiv_as_point_sets() {
             let next = refine(levels.last().unwrap());
             levels.push(next);
         }
-        for level in 1..=3usize {
+        for (level, refined) in levels.iter().enumerate().skip(1) {
             let refp: Vec<DVec3> = text
                 .lines()
                 .skip(1)
@@ -201,7 +201,7 @@ fn refined_vertices_match_opensubdiv_as_point_sets() {
                     (c[0] as usize == level).then(|| DVec3::new(c[2], c[3], c[4]))
                 })
                 .collect();
-            let ours = &levels[level].positions;
+            let ours = &refined.positions;
             assert_eq!(
                 ours.len(),
                 refp.len(),
