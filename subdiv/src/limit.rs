@@ -55,11 +55,10 @@ pub fn vertex_limit(m: &PolyMesh, v: VertexId) -> VertexLimit {
     }
     let position = (nf * nf * s + 4.0 * sum_e + sum_f) / (nf * (nf + 5.0));
     if n == 2 {
-        // Valence 2: the standard tangent masks vanish. The limit tangent plane is spanned
-        // by the two face-diagonal directions relative to the edge line.
+        // Valence 2: the closed-form tangent masks vanish; take the plane from refinement.
+        let normal = normal_by_refinement(m, v, position);
         let t1 = e[0] - e[1];
-        let t2 = (f[0] - f[1]) - (e[0] - e[1]) * 0.0;
-        return finish(position, t1, t2);
+        return finish(position, t1, normal.cross(t1));
     }
     let a = 1.0
         + (2.0 * PI / nf).cos()
@@ -108,22 +107,22 @@ pub fn normal_by_refinement(m: &PolyMesh, v: VertexId, limit: DVec3) -> DVec3 {
         ring = one_ring(&r, center);
         center = VertexId(0);
     }
+    // The whole ring in counter-clockwise order, edge and face neighbours interleaved (with
+    // edge neighbours alone, valence 2 would give two cancelling cross products).
     let outs: Vec<u32> = ring.outgoing(center).collect();
-    let mut d: Vec<DVec3> = outs
-        .iter()
-        .map(|&h| ring.pos(ring.dest(h)) - limit)
-        .collect();
-    if ring.is_boundary_vertex(center) {
+    let mut d: Vec<DVec3> = Vec::with_capacity(2 * outs.len() + 1);
+    for &h in &outs {
+        d.push(ring.pos(ring.dest(h)) - limit);
+        d.push(ring.pos(ring.dest(ring.next(h))) - limit);
+    }
+    let boundary = ring.is_boundary_vertex(center);
+    if boundary {
         let last = *outs.last().unwrap();
         d.push(ring.pos(ring.origin(ring.prev(last))) - limit);
     }
     let scale = d.iter().map(|x| x.length()).fold(0.0, f64::max).max(1e-300);
     let mut n = DVec3::ZERO;
-    let pairs = if ring.is_boundary_vertex(center) {
-        d.len() - 1
-    } else {
-        d.len()
-    };
+    let pairs = if boundary { d.len() - 1 } else { d.len() };
     for j in 0..pairs {
         n += (d[j] / scale).cross(d[(j + 1) % d.len()] / scale);
     }

@@ -39,9 +39,8 @@ fn patch_trees_agree_with_global_refinement_and_masks() {
             let vid = VertexId(v as u32);
             let l = vertex_limit(&lm.mesh, vid);
             worst_p = worst_p.max((l.position - lm.position[v]).length() / diag);
-            // Exact normals everywhere except valence-2 interior vertices (mask is an
-            // approximation) and boundary vertices with 3+ faces, whose limit normal
-            // OpenSubdiv itself calls not unique (compared loosely).
+            // Exact normals everywhere except boundary vertices with 3+ faces, whose limit
+            // normal OpenSubdiv itself calls not unique (compared loosely).
             let irregular_boundary =
                 lm.mesh.is_boundary_vertex(vid) && lm.mesh.vertex_faces(vid) >= 3;
             if irregular_boundary {
@@ -52,7 +51,7 @@ fn patch_trees_agree_with_global_refinement_and_masks() {
                     .acos()
                     .to_degrees();
                 worst_loose = worst_loose.max(ang);
-            } else if lm.mesh.is_boundary_vertex(vid) || lm.mesh.vertex_faces(vid) != 2 {
+            } else {
                 let ang = l
                     .normal
                     .dot(lm.normal[v])
