@@ -7,3 +7,4 @@ pub mod field;
 pub mod io;
 
 pub use error::{Error, Result};
+pub mod texels;

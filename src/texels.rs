@@ -1,0 +1,727 @@
+//! Texel geometry and the texel neighbourhood graph.
+//!
+//! Every face domain carries an `N x N` map; texel (x, y) of domain d sits at the domain
+//! point ((x+0.5)/N, (y+0.5)/N) and has the global index `(d*N + y)*N + x` (the
+//! [`crate::io::exr::FaceMaps`] order). [`TexelGeometry`] holds the exact limit position and
+//! normal of every texel centre.
+//!
+//! [`TexelGraph`] answers step 1 of coherent synthesis (Ying et al. 2001, §5): "collect all
+//! samples which are no more than 2 samples away from x. In the interior of the texture map
+//! this corresponds to a 5x5 neighbourhood ... near the boundary we also retrieve samples in
+//! the texture map sharing the boundary ... near a corner we also collect adjacent samples
+//! from all texture maps sharing the corner."
+//!
+//! How the cross-domain part is found, and why:
+//! - **Edges**: every offset (a, b) of the 5x5 block that leaves the domain is followed with
+//!   [`Surface::walk`], a straight move in parameter space that crosses domain edges with
+//!   the exact rigid change of coordinates, and the nearest texel where it lands is taken.
+//!   Walking (instead of a 3D radius search) follows the surface's topology, so parts of the
+//!   surface that merely come close in space (a leg touching a belly) are never neighbours,
+//!   and it needs no tolerance. The walk measures in the *starting* domain's parameter, so
+//!   at Ptex T-junctions — an n-gon's sub-face spans half of the shared edge with N texels,
+//!   so its texels are half as long along that edge as the quad's — a quad texel reaches
+//!   every other sub-face texel and a sub-face texel may reach the same quad texel twice
+//!   (deduplicated). Both are "texels within 2 of *my* samples", which is what matching
+//!   needs: displacements are measured in 3D afterwards, not assumed.
+//!   Walks that leave through an open boundary simply yield nothing.
+//! - **Corners**: straight walks around an extraordinary vertex (valence k != 4) reach only
+//!   some of the k domains, because the parameter plane covers 4 right angles. So a texel
+//!   in the 2x2 corner block of its domain also gets, from *every* domain sharing that corner
+//!   vertex (found by rotating around the vertex in the refined base mesh), the corner texel,
+//!   and the corner texel itself gets the whole 2x2 corner block of each. Corners that are
+//!   T-junctions (a sub-face corner at the middle of a quad's edge) are no domain corner of
+//!   the quad; the edge walks already cover them.
+//!
+//! Storage is compact: texels at least 2 away from every border ("interior") use the fixed
+//! 5x5 block and store nothing; the others store their whole list (in-domain and foreign,
+//! deduplicated, nearest first by 3D distance) in CSR arrays. The lists are built per domain
+//! in parallel and concatenated in domain order, so the graph does not depend on the number
+//! of threads.
+
+use glam::Vec3;
+use rayon::prelude::*;
+use subdiv::{BaseQuadId, DomainId, DomainLocation, FaceId, LimitSample, Surface, VertexId};
+
+/// Limit position and unit normal of every texel centre, f32 (the precision of
+/// `geometry.exr`; displacements between neighbours are ~1e-3 of the model and keep ~4
+/// significant digits, far more than matching needs).
+#[derive(Clone, Debug, PartialEq)]
+pub struct TexelGeometry {
+    /// Number of face domains F.
+    pub faces: usize,
+    /// Texels per side N.
+    pub resolution: usize,
+    /// Limit position per texel (global texel order).
+    pub pos: Vec<Vec3>,
+    /// Unit limit normal per texel.
+    pub normal: Vec<Vec3>,
+}
+
+impl TexelGeometry {
+    /// Evaluates all texel centres of `surface` at resolution `n` (in parallel, per domain).
+    pub fn compute(surface: &Surface, n: usize) -> Self {
+        assert!(n >= 1, "resolution must be at least 1");
+        let faces = surface.num_domains();
+        let nn = n * n;
+        let mut pos = vec![Vec3::ZERO; faces * nn];
+        let mut normal = vec![Vec3::ZERO; faces * nn];
+        pos.par_chunks_mut(nn)
+            .zip(normal.par_chunks_mut(nn))
+            .enumerate()
+            .for_each_init(
+                || vec![LimitSample::default(); nn],
+                |buf, (d, (p, nrm))| {
+                    surface.eval_texels(DomainId::from_idx(d), n, buf);
+                    for (i, s) in buf.iter().enumerate() {
+                        p[i] = s.p.as_vec3();
+                        nrm[i] = s.n.as_vec3();
+                    }
+                },
+            );
+        Self {
+            faces,
+            resolution: n,
+            pos,
+            normal,
+        }
+    }
+
+    /// Total number of texels F·N².
+    pub fn len(&self) -> usize {
+        self.pos.len()
+    }
+
+    /// True when there are no texels.
+    pub fn is_empty(&self) -> bool {
+        self.pos.is_empty()
+    }
+
+    /// Domain of a global texel index.
+    #[inline]
+    pub fn domain_of(&self, t: usize) -> usize {
+        t / (self.resolution * self.resolution)
+    }
+
+    /// h: the median distance between centres of horizontally or vertically adjacent
+    /// texels of the same domain — BRIEF's definition, used as the default `--scale` so
+    /// that one texel step samples about one example pixel. With N = 1 there are no such
+    /// pairs; then the median over domains of |∂P/∂u|/N and |∂P/∂v|/N at the centre (the
+    /// same quantity to first order) is used.
+    pub fn median_spacing(&self, surface: &Surface) -> f64 {
+        let n = self.resolution;
+        let mut d: Vec<f64> = if n >= 2 {
+            let nn = n * n;
+            (0..self.faces)
+                .into_par_iter()
+                .flat_map_iter(|f| {
+                    let p = &self.pos[f * nn..(f + 1) * nn];
+                    let mut v = Vec::with_capacity(2 * n * (n - 1));
+                    for y in 0..n {
+                        for x in 0..n {
+                            let i = y * n + x;
+                            if x + 1 < n {
+                                v.push(p[i].distance(p[i + 1]) as f64);
+                            }
+                            if y + 1 < n {
+                                v.push(p[i].distance(p[i + n]) as f64);
+                            }
+                        }
+                    }
+                    v
+                })
+                .collect()
+        } else {
+            (0..self.faces)
+                .into_par_iter()
+                .flat_map_iter(|f| {
+                    let s = surface.eval(DomainId::from_idx(f), 0.5, 0.5);
+                    [s.du.length(), s.dv.length()]
+                })
+                .collect()
+        };
+        median(&mut d)
+    }
+}
+
+/// Median (mean of the two middle values for even counts); 0 for an empty slice.
+pub fn median(v: &mut [f64]) -> f64 {
+    let n = v.len();
+    if n == 0 {
+        return 0.0;
+    }
+    let (_, hi, _) = v.select_nth_unstable_by(n / 2, |a, b| a.total_cmp(b));
+    let hi = *hi;
+    if n % 2 == 1 {
+        hi
+    } else {
+        let lo = v[..n / 2]
+            .iter()
+            .copied()
+            .max_by(|a, b| a.total_cmp(b))
+            .unwrap_or(hi);
+        0.5 * (lo + hi)
+    }
+}
+
+/// Offsets of the 5x5 block without the centre, nearest first (then by row, column):
+/// the interior neighbourhood of §5 step 1.
+pub const BLOCK: [(i32, i32); 24] = {
+    // Sorted by (a²+b², b, a); written out because const sorting is awkward.
+    [
+        (0, -1),
+        (-1, 0),
+        (1, 0),
+        (0, 1),
+        (-1, -1),
+        (1, -1),
+        (-1, 1),
+        (1, 1),
+        (0, -2),
+        (-2, 0),
+        (2, 0),
+        (0, 2),
+        (-1, -2),
+        (1, -2),
+        (-2, -1),
+        (2, -1),
+        (-2, 1),
+        (2, 1),
+        (-1, 2),
+        (1, 2),
+        (-2, -2),
+        (2, -2),
+        (-2, 2),
+        (2, 2),
+    ]
+};
+
+/// Domain corners in (u, v), corner c = 0..3 (the base-quad corner order too).
+const CORNER_UV: [(f64, f64); 4] = [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)];
+
+/// The neighbourhood graph over all texels (see the module docs).
+#[derive(Clone, Debug, PartialEq)]
+pub struct TexelGraph {
+    /// Number of face domains F.
+    pub faces: usize,
+    /// Texels per side N.
+    pub resolution: usize,
+    /// CSR starts, F·N²+1 entries; interior texels have empty ranges.
+    start: Vec<u32>,
+    /// Concatenated neighbour lists of the border texels.
+    list: Vec<u32>,
+}
+
+impl TexelGraph {
+    /// Builds the graph (in parallel per domain; the result does not depend on the number
+    /// of threads).
+    pub fn build(surface: &Surface, geom: &TexelGeometry) -> Self {
+        let n = geom.resolution;
+        let faces = geom.faces;
+        assert_eq!(faces, surface.num_domains());
+        let per_domain: Vec<(Vec<u32>, Vec<u32>)> = (0..faces)
+            .into_par_iter()
+            .map(|d| domain_lists(surface, geom, d))
+            .collect();
+        let total: usize = per_domain.iter().map(|(_, l)| l.len()).sum();
+        assert!(
+            total < u32::MAX as usize,
+            "texel graph larger than 2^32 entries"
+        );
+        let mut start = Vec::with_capacity(faces * n * n + 1);
+        let mut list = Vec::with_capacity(total);
+        start.push(0u32);
+        for (counts, l) in per_domain {
+            for c in counts {
+                let last = *start.last().expect("start is never empty");
+                start.push(last + c);
+            }
+            list.extend_from_slice(&l);
+        }
+        Self {
+            faces,
+            resolution: n,
+            start,
+            list,
+        }
+    }
+
+    /// Total number of texels.
+    pub fn len(&self) -> usize {
+        self.start.len() - 1
+    }
+
+    /// True when there are no texels.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Whether texel (x, y) is at least 2 texels away from every border of its domain (its
+    /// neighbourhood is the plain 5x5 block).
+    #[inline]
+    pub fn is_interior(&self, x: usize, y: usize) -> bool {
+        let n = self.resolution;
+        x >= 2 && y >= 2 && x + 2 < n && y + 2 < n
+    }
+
+    /// Appends the neighbours of texel `t` to `out`, nearest first.
+    #[inline]
+    pub fn neighbours(&self, t: usize, out: &mut Vec<u32>) {
+        let n = self.resolution;
+        let x = t % n;
+        let y = (t / n) % n;
+        if self.is_interior(x, y) {
+            let t = t as i64;
+            let n = n as i64;
+            out.extend(
+                BLOCK
+                    .iter()
+                    .map(|&(a, b)| (t + a as i64 + b as i64 * n) as u32),
+            );
+        } else {
+            let (s, e) = (self.start[t] as usize, self.start[t + 1] as usize);
+            out.extend_from_slice(&self.list[s..e]);
+        }
+    }
+
+    /// The explicit (border) list of texel `t`; empty for interior texels.
+    pub fn border_list(&self, t: usize) -> &[u32] {
+        &self.list[self.start[t] as usize..self.start[t + 1] as usize]
+    }
+
+    /// For every domain, the other domains some of its texels are neighbours of, or that
+    /// have texels listing it (symmetric, sorted). Two domains not related here can be
+    /// synthesized at the same time: neither reads the other's texels.
+    pub fn domain_conflicts(&self) -> Vec<Vec<u32>> {
+        let nn = self.resolution * self.resolution;
+        let mut out: Vec<Vec<u32>> = (0..self.faces)
+            .into_par_iter()
+            .map(|d| {
+                let mut v: Vec<u32> = self.list
+                    [self.start[d * nn] as usize..self.start[(d + 1) * nn] as usize]
+                    .iter()
+                    .map(|&t| (t as usize / nn) as u32)
+                    .filter(|&e| e as usize != d)
+                    .collect();
+                v.sort_unstable();
+                v.dedup();
+                v
+            })
+            .collect();
+        // Symmetrise: T-junctions make the texel relation one-sided.
+        let pairs: Vec<(u32, u32)> = out
+            .iter()
+            .enumerate()
+            .flat_map(|(d, v)| v.iter().map(move |&e| (e, d as u32)))
+            .collect();
+        for (e, d) in pairs {
+            out[e as usize].push(d);
+        }
+        for v in &mut out {
+            v.sort_unstable();
+            v.dedup();
+        }
+        out
+    }
+
+    /// Memory held by the graph, in bytes.
+    pub fn heap_bytes(&self) -> usize {
+        4 * (self.start.len() + self.list.len())
+    }
+}
+
+/// Per-texel counts and the concatenated lists of domain `d` (interior texels: count 0).
+fn domain_lists(surface: &Surface, geom: &TexelGeometry, d: usize) -> (Vec<u32>, Vec<u32>) {
+    let n = geom.resolution;
+    let nn = n * n;
+    let base = d * nn;
+    let inv = 1.0 / n as f64;
+    let fans: [Vec<(usize, usize)>; 4] = std::array::from_fn(|c| corner_fan(surface, d, c));
+    let mut counts = vec![0u32; nn];
+    let mut list = Vec::new();
+    let mut buf: Vec<u32> = Vec::with_capacity(64);
+    for y in 0..n {
+        for x in 0..n {
+            if x >= 2 && y >= 2 && x + 2 < n && y + 2 < n {
+                continue;
+            }
+            let t = base + y * n + x;
+            buf.clear();
+            for &(a, b) in &BLOCK {
+                let (xa, yb) = (x as i64 + a as i64, y as i64 + b as i64);
+                if (0..n as i64).contains(&xa) && (0..n as i64).contains(&yb) {
+                    buf.push((base + yb as usize * n + xa as usize) as u32);
+                    continue;
+                }
+                let from = DomainLocation {
+                    domain: DomainId::from_idx(d),
+                    u: (x as f64 + 0.5) * inv,
+                    v: (y as f64 + 0.5) * inv,
+                };
+                if let Some(to) = surface.walk(from, a as f64 * inv, b as f64 * inv) {
+                    let tx = texel_coord(to.u, n);
+                    let ty = texel_coord(to.v, n);
+                    buf.push((to.domain.idx() * nn + ty * n + tx) as u32);
+                }
+            }
+            // Corner fans: see the module docs.
+            for (c, fan) in fans.iter().enumerate() {
+                let (ci, cj) = corner_offsets(c, x, y, n);
+                if ci > 1 || cj > 1 {
+                    continue;
+                }
+                let whole_block = ci == 0 && cj == 0;
+                for &(e, ec) in fan {
+                    for j in 0..2usize.min(n) {
+                        for i in 0..2usize.min(n) {
+                            if !whole_block && (i > 0 || j > 0) {
+                                continue;
+                            }
+                            let (ex, ey) = corner_texel(ec, i, j, n);
+                            buf.push((e * nn + ey * n + ex) as u32);
+                        }
+                    }
+                }
+            }
+            buf.retain(|&u| u as usize != t);
+            buf.sort_unstable();
+            buf.dedup();
+            let p = geom.pos[t];
+            buf.sort_by(|&a, &b| {
+                let da = p.distance_squared(geom.pos[a as usize]);
+                let db = p.distance_squared(geom.pos[b as usize]);
+                da.total_cmp(&db).then(a.cmp(&b))
+            });
+            counts[y * n + x] = buf.len() as u32;
+            list.extend_from_slice(&buf);
+        }
+    }
+    (counts, list)
+}
+
+/// Texel index along one axis for a domain parameter in [0, 1].
+#[inline]
+fn texel_coord(u: f64, n: usize) -> usize {
+    ((u * n as f64).floor().max(0.0) as usize).min(n - 1)
+}
+
+/// Distances in texels (0 = the corner texel) of texel (x, y) from corner `c`.
+#[inline]
+fn corner_offsets(c: usize, x: usize, y: usize, n: usize) -> (usize, usize) {
+    let fx = if c == 1 || c == 2 { n - 1 - x } else { x };
+    let fy = if c >= 2 { n - 1 - y } else { y };
+    (fx, fy)
+}
+
+/// The texel (i, j) texels away from corner `c`.
+#[inline]
+fn corner_texel(c: usize, i: usize, j: usize, n: usize) -> (usize, usize) {
+    let i = i.min(n - 1);
+    let j = j.min(n - 1);
+    let x = if c == 1 || c == 2 { n - 1 - i } else { i };
+    let y = if c >= 2 { n - 1 - j } else { j };
+    (x, y)
+}
+
+/// Every (domain, corner) whose corner is the same surface point as corner `c` of domain
+/// `d`, excluding (d, c) itself. Found by rotating around the corresponding vertex of the
+/// refined base mesh; base-quad corners that are not domain corners (T-junctions, quad
+/// centres) are skipped.
+pub fn corner_fan(surface: &Surface, d: usize, c: usize) -> Vec<(usize, usize)> {
+    let (cu, cv) = CORNER_UV[c];
+    let (b, s, t, _) = surface.domain_to_base(DomainId::from_idx(d), cu, cv);
+    let bc = corner_of(s, t).expect("a domain corner is a base-quad corner");
+    let bv = surface.base.face_vertices(FaceId(b.0))[bc];
+    let mut out = Vec::new();
+    for h in surface.base.outgoing(VertexId(bv)) {
+        let f = surface.base.face_of(h);
+        let k = (h - surface.base.face_he(f)) as usize;
+        let (s2, t2) = CORNER_UV[k];
+        let loc = surface.base_to_domain(BaseQuadId(f.0), s2, t2);
+        if let Some(c2) = corner_of(loc.u, loc.v) {
+            let e = loc.domain.idx();
+            if (e, c2) != (d, c) {
+                out.push((e, c2));
+            }
+        }
+    }
+    out.sort_unstable();
+    out.dedup();
+    out
+}
+
+/// The corner index of a parameter point that is a corner of [0,1]², if it is one.
+fn corner_of(u: f64, v: f64) -> Option<usize> {
+    let near = |a: f64, b: f64| (a - b).abs() < 1e-9;
+    let iu = if near(u, 0.0) {
+        0
+    } else if near(u, 1.0) {
+        1
+    } else {
+        return None;
+    };
+    let iv = if near(v, 0.0) {
+        0
+    } else if near(v, 1.0) {
+        1
+    } else {
+        return None;
+    };
+    Some(match (iu, iv) {
+        (0, 0) => 0,
+        (1, 0) => 1,
+        (1, 1) => 2,
+        _ => 3,
+    })
+}
+
+/// For every domain, the domains across its edges (sorted): the adjacency the
+/// breadth-first synthesis order walks (§4: "we iterate over the surface texture maps in
+/// breadth-first order").
+pub fn domain_edge_adjacency(surface: &Surface) -> Vec<Vec<u32>> {
+    (0..surface.num_domains())
+        .map(|d| {
+            let mut v = Vec::new();
+            for b in domain_base_quads(surface, d) {
+                for e in 0..4 {
+                    if let Some((nb, _)) = surface.base_neighbor(b, e) {
+                        let other = surface.base_to_domain(nb, 0.5, 0.5).domain.idx();
+                        if other != d {
+                            v.push(other as u32);
+                        }
+                    }
+                }
+            }
+            v.sort_unstable();
+            v.dedup();
+            v
+        })
+        .collect()
+}
+
+/// The base quads a domain is made of (4 for a quad, 1 for a sub-face).
+fn domain_base_quads(surface: &Surface, d: usize) -> Vec<BaseQuadId> {
+    match surface.domain(DomainId::from_idx(d)) {
+        subdiv::Domain::Quad { face } => {
+            let h = surface.control.mesh.face_he(face);
+            (0..4).map(|c| BaseQuadId(h + c)).collect()
+        }
+        subdiv::Domain::SubFace { face, corner } => {
+            vec![BaseQuadId(surface.control.mesh.face_he(face) + corner)]
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::DVec3;
+    use subdiv::ControlMesh;
+
+    fn grid(n: usize) -> Surface {
+        let mut pos = Vec::new();
+        for y in 0..=n {
+            for x in 0..=n {
+                pos.push(DVec3::new(x as f64, y as f64, 0.0));
+            }
+        }
+        let w = (n + 1) as u32;
+        let mut faces = Vec::new();
+        for y in 0..n as u32 {
+            for x in 0..n as u32 {
+                let i = y * w + x;
+                faces.push(vec![i, i + 1, i + 1 + w, i + w]);
+            }
+        }
+        let refs: Vec<&[u32]> = faces.iter().map(|f| f.as_slice()).collect();
+        Surface::new(ControlMesh::from_faces(pos, &refs).unwrap())
+    }
+
+    fn cube() -> Surface {
+        let pos: Vec<DVec3> = (0..8)
+            .map(|i| DVec3::new((i & 1) as f64, ((i >> 1) & 1) as f64, (i >> 2) as f64))
+            .collect();
+        let faces: [&[u32]; 6] = [
+            &[0, 2, 3, 1],
+            &[4, 5, 7, 6],
+            &[0, 1, 5, 4],
+            &[2, 6, 7, 3],
+            &[0, 4, 6, 2],
+            &[1, 3, 7, 5],
+        ];
+        Surface::new(ControlMesh::from_faces(pos, &faces).unwrap())
+    }
+
+    fn shared(path: &str) -> Surface {
+        let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../shared/data/meshes")
+            .join(path);
+        Surface::load_obj(p).unwrap()
+    }
+
+    #[test]
+    fn median_is_exact() {
+        assert_eq!(median(&mut [3.0, 1.0, 2.0]), 2.0);
+        assert_eq!(median(&mut [4.0, 1.0, 3.0, 2.0]), 2.5);
+        assert_eq!(median(&mut []), 0.0);
+    }
+
+    #[test]
+    fn interior_grid_texel_has_the_5x5_block_across_domains() {
+        // On a flat 4x4 grid, a texel next to the edge between domains 5 and 6 must see the
+        // same 24 texels, at the same 3D offsets, as an interior texel.
+        let s = grid(4);
+        let n = 8;
+        let g = TexelGeometry::compute(&s, n);
+        let graph = TexelGraph::build(&s, &g);
+        let t = 5 * n * n + 4 * n + (n - 1); // domain 5, x = N-1, y = 4
+        let mut v = Vec::new();
+        graph.neighbours(t, &mut v);
+        assert_eq!(v.len(), 24);
+        let h = g.pos[t].distance(g.pos[t - 1]);
+        let mut offs: Vec<(i32, i32)> = v
+            .iter()
+            .map(|&j| {
+                let d = (g.pos[j as usize] - g.pos[t]) / h;
+                (d.x.round() as i32, d.y.round() as i32)
+            })
+            .collect();
+        offs.sort_unstable();
+        let mut want: Vec<(i32, i32)> = BLOCK.to_vec();
+        want.sort_unstable();
+        assert_eq!(offs, want);
+        // Nearest first.
+        let d: Vec<f32> = v
+            .iter()
+            .map(|&j| g.pos[j as usize].distance(g.pos[t]))
+            .collect();
+        assert!(d.windows(2).all(|w| w[0] <= w[1] + 1e-6));
+        assert!((d[0] - h).abs() < 1e-3 * h && (d[23] - 8f32.sqrt() * h).abs() < 1e-2 * h);
+    }
+
+    #[test]
+    fn open_boundary_and_corner_texels_keep_only_existing_neighbours() {
+        let s = grid(2);
+        let n = 4;
+        let g = TexelGeometry::compute(&s, n);
+        let graph = TexelGraph::build(&s, &g);
+        // Domain 0 corner texel (0,0) sits at the mesh corner: only the 3x3 quarter of the
+        // block exists (8 texels; nothing outside the mesh).
+        let mut v = Vec::new();
+        graph.neighbours(0, &mut v);
+        assert_eq!(v.len(), 8);
+        // Texel (3,3) of domain 0 touches the interior vertex shared by all four domains:
+        // the whole 5x5 block exists (24) and includes the diagonal domain 3's corner block.
+        v.clear();
+        graph.neighbours(3 * n + 3, &mut v);
+        assert_eq!(v.len(), 24);
+        assert!(v.contains(&(3 * 16)));
+        assert!(v.contains(&(3 * 16 + n as u32 + 1)));
+    }
+
+    #[test]
+    fn valence3_corners_collect_every_domain_sharing_the_corner() {
+        // Cube corners have valence 3: the corner texel of each face must list the corner
+        // texels of both other faces at that corner, and stay within ~2.5 samples.
+        let s = cube();
+        let n = 8;
+        let g = TexelGeometry::compute(&s, n);
+        let graph = TexelGraph::build(&s, &g);
+        let h = g.median_spacing(&s) as f32;
+        let nn = n * n;
+        for d in 0..6 {
+            for c in 0..4 {
+                let (x, y) = corner_texel(c, 0, 0, n);
+                let t = d * nn + y * n + x;
+                let mut v = Vec::new();
+                graph.neighbours(t, &mut v);
+                let fan = corner_fan(&s, d, c);
+                assert_eq!(fan.len(), 2, "valence 3");
+                for (e, ec) in fan {
+                    let (ex, ey) = corner_texel(ec, 0, 0, n);
+                    assert!(v.contains(&((e * nn + ey * n + ex) as u32)));
+                }
+                let far = v
+                    .iter()
+                    .map(|&j| g.pos[j as usize].distance(g.pos[t]) / h)
+                    .fold(0.0f32, f32::max);
+                assert!(far < 3.5, "farthest neighbour {far} samples");
+                // Every neighbour lies on the same side (normals agree).
+                for &j in &v {
+                    assert!(g.normal[j as usize].dot(g.normal[t]) > 0.5);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn spot_graph_reaches_all_domains_around_extraordinary_corners() {
+        // Spot has valence-3 and -5 vertices, triangles and pentagons (T-junctions).
+        let s = shared("spot_control_mesh.obj");
+        let n = 8;
+        let g = TexelGeometry::compute(&s, n);
+        let graph = TexelGraph::build(&s, &g);
+        let nn = n * n;
+        let mut worst = 0.0f32;
+        let mut counts = Vec::new();
+        for t in 0..g.len() {
+            let mut v = Vec::new();
+            graph.neighbours(t, &mut v);
+            counts.push(v.len());
+            let d = t / nn;
+            let (x, y) = (t % n, (t / n) % n);
+            for c in 0..4 {
+                if corner_offsets(c, x, y, n) == (0, 0) {
+                    for (e, ec) in corner_fan(&s, d, c) {
+                        let (ex, ey) = corner_texel(ec, 0, 0, n);
+                        assert!(v.contains(&((e * nn + ey * n + ex) as u32)));
+                    }
+                }
+            }
+            // Distances in local samples: the larger in-domain step at this texel.
+            let mut local = 0.0f32;
+            for (a, b) in [(1i64, 0i64), (-1, 0), (0, 1), (0, -1)] {
+                let (xa, yb) = (x as i64 + a, y as i64 + b);
+                if (0..n as i64).contains(&xa) && (0..n as i64).contains(&yb) {
+                    let j = d * nn + yb as usize * n + xa as usize;
+                    local = local.max(g.pos[j].distance(g.pos[t]));
+                }
+            }
+            for &j in &v {
+                let r = g.pos[j as usize].distance(g.pos[t]) / local;
+                worst = worst.max(r);
+            }
+        }
+        // Closed mesh: every texel has at least the in-domain part of its block.
+        assert!(counts.iter().all(|&c| c >= 15), "{:?}", counts.iter().min());
+        // Nothing far away. The worst case is a sub-face corner texel taking a quad's 2x2
+        // corner block across a T-junction corner: quad texels are twice as long there, so
+        // its far texel is ~(0.5 + 2·1.5)·√2 ≈ 5 local samples away, plus distortion.
+        assert!(worst < 6.5, "farthest neighbour {worst} samples");
+        // Conflicts are symmetric and include edge neighbours.
+        let conf = graph.domain_conflicts();
+        let adj = domain_edge_adjacency(&s);
+        for d in 0..g.faces {
+            for &e in &adj[d] {
+                assert!(conf[d].binary_search(&e).is_ok());
+                assert!(conf[e as usize].binary_search(&(d as u32)).is_ok());
+            }
+        }
+    }
+
+    #[test]
+    fn graph_is_identical_for_any_thread_count() {
+        let s = shared("spot_control_mesh.obj");
+        let build = |threads| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| {
+                    let g = TexelGeometry::compute(&s, 4);
+                    let gr = TexelGraph::build(&s, &g);
+                    (g, gr)
+                })
+        };
+        assert_eq!(build(1), build(2));
+    }
+}
