@@ -1,10 +1,13 @@
 //! surfsynth: texture synthesis directly on Catmull-Clark subdivision surfaces
 //! (Ying, Hertzmann, Biermann, Zorin 2001).
 
+pub mod bake;
+pub mod bench;
 pub mod error;
 pub mod example;
 pub mod field;
 pub mod io;
+pub mod progress;
+pub mod texels;
 
 pub use error::{Error, Result};
-pub mod texels;

@@ -129,7 +129,7 @@ pub fn prepare_out_dir(dir: impl AsRef<Path>) -> Result<()> {
         Ok(_) => {
             return Err(Error::file(
                 dir,
-                "output directory path exists and is not a directory",
+                "is an existing file; the output path (--out) must be a directory",
             ))
         }
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
@@ -218,7 +218,7 @@ mod tests {
         let file = d.path().join("f");
         fs::write(&file, b"").unwrap();
         let e = prepare_out_dir(&file).unwrap_err().to_string();
-        assert!(e.contains("not a directory"), "{e}");
+        assert!(e.contains("must be a directory"), "{e}");
         let e = prepare_out_dir(file.join("below")).unwrap_err().to_string();
         assert!(e.contains("cannot"), "{e}");
     }

@@ -1,0 +1,193 @@
+//! Benchmarks behind `surfsynth bench ...`.
+//!
+//! They live in the binary (not only `cargo bench`) so the figures in docs/benchmarks.md
+//! can be reproduced with the release build alone, on any machine, with one command, and so
+//! that peak memory is measured for exactly the process that does the work.
+
+use crate::bake::{bake_to_file, eval_only, GEOMETRY_FILE};
+use crate::error::{Error, Result};
+use crate::io::exr::Compression;
+use glam::DVec3;
+use indicatif::ProgressBar;
+use serde::Serialize;
+use std::f64::consts::TAU;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+use subdiv::{ControlMesh, Surface};
+
+/// A `/proc/self/status` field in bytes (Linux; `None` elsewhere).
+fn proc_status_bytes(field: &str) -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = s.lines().find(|l| l.starts_with(field))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
+/// Peak resident set size of this process so far (VmHWM).
+pub fn peak_rss_bytes() -> Option<u64> {
+    proc_status_bytes("VmHWM:")
+}
+
+/// Current resident set size (VmRSS).
+pub fn current_rss_bytes() -> Option<u64> {
+    proc_status_bytes("VmRSS:")
+}
+
+/// A closed quad-grid torus with about `min_domains` faces (rows x 2 rows), major radius 1,
+/// minor radius 0.35. All vertices are regular, so it measures the fast path of evaluation.
+pub fn torus_mesh(min_domains: usize) -> ControlMesh {
+    let rows = ((min_domains as f64 / 2.0).sqrt().ceil() as usize).max(3);
+    let cols = 2 * rows;
+    let (big, small) = (1.0, 0.35);
+    let mut positions = Vec::with_capacity(rows * cols);
+    for i in 0..cols {
+        let a = TAU * i as f64 / cols as f64;
+        for j in 0..rows {
+            let b = TAU * j as f64 / rows as f64;
+            let r = big + small * b.cos();
+            positions.push(DVec3::new(r * a.cos(), r * a.sin(), small * b.sin()));
+        }
+    }
+    let id = |i: usize, j: usize| ((i % cols) * rows + (j % rows)) as u32;
+    let mut face_start = vec![0u32];
+    let mut verts = Vec::with_capacity(4 * rows * cols);
+    for i in 0..cols {
+        for j in 0..rows {
+            verts.extend_from_slice(&[id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1)]);
+            face_start.push(verts.len() as u32);
+        }
+    }
+    ControlMesh::from_polygons(positions, face_start, verts).expect("torus is a valid mesh")
+}
+
+/// Uniform Catmull-Clark refinement of the control mesh until it has at least
+/// `min_domains` face domains (each step turns every domain into four quads).
+pub fn refine_to(mut mesh: ControlMesh, min_domains: usize) -> ControlMesh {
+    while mesh.num_domains() < min_domains {
+        let r = subdiv::refine::refine(&mesh.mesh);
+        let path = mesh.path.clone();
+        mesh = ControlMesh::from_polygons(
+            r.positions.clone(),
+            r.face_starts().to_vec(),
+            r.half_edge_vertices().to_vec(),
+        )
+        .expect("refinement of a valid mesh is valid");
+        mesh.path = path;
+    }
+    mesh
+}
+
+/// Where the benchmark mesh comes from.
+#[derive(Clone, Debug)]
+pub enum BenchMesh {
+    /// [`torus_mesh`] with this many domains (at least).
+    Torus(usize),
+    /// An OBJ file, refined with [`refine_to`] until it has this many domains (at least).
+    File(PathBuf, usize),
+}
+
+/// Figures of one `bench bake` run (printed as JSON).
+#[derive(Clone, Debug, Serialize)]
+pub struct BakeBenchReport {
+    pub mesh: String,
+    pub domains: usize,
+    pub resolution: usize,
+    pub texels: u64,
+    pub threads: usize,
+    pub compression: String,
+    pub surface_build_seconds: f64,
+    pub eval_seconds: f64,
+    pub eval_texels_per_second: f64,
+    pub bake_seconds: f64,
+    pub bake_texels_per_second: f64,
+    pub file_bytes: u64,
+    /// Resident memory after building the surface, before baking.
+    pub rss_before_bake_bytes: u64,
+    pub peak_rss_bytes: u64,
+    pub peak_bytes_per_texel: f64,
+    /// (peak - before bake) / texels: what baking itself costs per texel.
+    pub bake_overhead_bytes_per_texel: f64,
+}
+
+/// Builds the mesh, then times evaluation alone and the streaming bake into
+/// `out_dir/geometry.exr`, and reads peak memory.
+pub fn bake_bench(
+    mesh: &BenchMesh,
+    resolution: usize,
+    compression: Compression,
+    out_dir: &Path,
+) -> Result<BakeBenchReport> {
+    let t = Instant::now();
+    let (name, control) = match mesh {
+        BenchMesh::Torus(d) => (format!("generated torus (>= {d} quads)"), torus_mesh(*d)),
+        BenchMesh::File(p, d) => {
+            let m = ControlMesh::load_obj(p)?;
+            (
+                format!("{} refined to >= {d} domains", p.display()),
+                refine_to(m, *d),
+            )
+        }
+    };
+    let surface = Surface::new(control);
+    let surface_build_seconds = t.elapsed().as_secs_f64();
+    let domains = surface.num_domains();
+    let texels = (domains * resolution * resolution) as u64;
+    let rss_before = current_rss_bytes().unwrap_or(0);
+
+    let t = Instant::now();
+    std::hint::black_box(eval_only(&surface, resolution));
+    let eval_seconds = t.elapsed().as_secs_f64();
+
+    let path = out_dir.join(GEOMETRY_FILE);
+    let stats = bake_to_file(
+        &surface,
+        resolution,
+        &path,
+        compression,
+        &ProgressBar::hidden(),
+    )?;
+    let file_bytes = std::fs::metadata(&path)
+        .map_err(|e| Error::io(&path, "cannot stat", e))?
+        .len();
+    let peak = peak_rss_bytes().unwrap_or(0);
+    Ok(BakeBenchReport {
+        mesh: name,
+        domains,
+        resolution,
+        texels,
+        threads: rayon::current_num_threads(),
+        compression: compression.to_string(),
+        surface_build_seconds,
+        eval_seconds,
+        eval_texels_per_second: texels as f64 / eval_seconds.max(1e-9),
+        bake_seconds: stats.seconds,
+        bake_texels_per_second: stats.texels_per_second(),
+        file_bytes,
+        rss_before_bake_bytes: rss_before,
+        peak_rss_bytes: peak,
+        peak_bytes_per_texel: peak as f64 / texels as f64,
+        bake_overhead_bytes_per_texel: peak.saturating_sub(rss_before) as f64 / texels as f64,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn generated_and_refined_meshes_have_enough_domains() {
+        let t = torus_mesh(200);
+        assert!(t.num_domains() >= 200 && t.num_domains() < 260);
+        let r = refine_to(torus_mesh(20), 300);
+        assert!(r.num_domains() >= 300);
+        assert!(peak_rss_bytes().unwrap_or(1) > 0);
+    }
+
+    #[test]
+    fn bench_runs_small() {
+        let d = tempfile::tempdir().unwrap();
+        let r = bake_bench(&BenchMesh::Torus(50), 4, Compression::ZIP16, d.path()).unwrap();
+        assert_eq!(r.texels, r.domains as u64 * 16);
+        assert!(r.file_bytes > 0 && r.eval_texels_per_second > 0.0);
+    }
+}

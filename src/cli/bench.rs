@@ -1,0 +1,70 @@
+//! `surfsynth bench <what>`: performance benchmarks whose figures go into
+//! docs/benchmarks.md. Add further benchmarks as variants of [`BenchCommand`].
+
+use super::{parse_resolution, ExrCompression};
+use clap::{Args, Subcommand};
+use std::path::PathBuf;
+use surfsynth::bench::{bake_bench, BenchMesh};
+use surfsynth::io::atomic::prepare_out_dir;
+
+#[derive(Args, Debug)]
+pub struct BenchArgs {
+    #[command(subcommand)]
+    pub what: BenchCommand,
+}
+
+#[derive(Subcommand, Debug)]
+pub enum BenchCommand {
+    /// Geometry baking: evaluation alone and with EXR writing, texels/s and peak memory.
+    Bake(BenchBakeArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct BenchBakeArgs {
+    /// Mesh to bake, refined uniformly until it has --domains domains
+    /// (default: a generated quad torus with --domains faces).
+    #[arg(long, value_name = "M.obj")]
+    pub mesh: Option<PathBuf>,
+    /// Minimum number of face domains.
+    #[arg(long, value_name = "D", default_value_t = 20_000)]
+    pub domains: usize,
+    /// Texels per side of every face map.
+    #[arg(long, value_name = "N", default_value_t = 16, value_parser = parse_resolution)]
+    pub resolution: usize,
+    /// EXR compression (lossless).
+    #[arg(long, value_enum, default_value_t = ExrCompression::Zip)]
+    pub compression: ExrCompression,
+    /// Keep geometry.exr in this directory (default: a temporary directory, removed).
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+}
+
+pub fn run(a: BenchArgs) -> anyhow::Result<()> {
+    match a.what {
+        BenchCommand::Bake(b) => bake(b),
+    }
+}
+
+fn bake(a: BenchBakeArgs) -> anyhow::Result<()> {
+    if a.domains == 0 || a.domains > 50_000_000 {
+        anyhow::bail!("--domains {} must be between 1 and 50000000", a.domains);
+    }
+    let mesh = match a.mesh {
+        Some(p) => BenchMesh::File(p, a.domains),
+        None => BenchMesh::Torus(a.domains),
+    };
+    let (dir, temporary) = match a.out {
+        Some(d) => (d, false),
+        None => (
+            std::env::temp_dir().join(format!("surfsynth-bench-{}", std::process::id())),
+            true,
+        ),
+    };
+    prepare_out_dir(&dir)?;
+    let report = bake_bench(&mesh, a.resolution, a.compression.to_exr(), &dir);
+    if temporary {
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+    println!("{}", serde_json::to_string_pretty(&report?)?);
+    Ok(())
+}

@@ -1,0 +1,36 @@
+//! `surfsynth render DIR`: preview picture of a result (issue 6). Arguments are final; the
+//! handler is a placeholder until the renderer lands.
+
+use super::{not_implemented, parse_finite, parse_pixels};
+use clap::Args;
+use std::path::PathBuf;
+
+#[derive(Args, Debug)]
+pub struct RenderArgs {
+    /// A synthesis output directory (facemaps.exr + geometry.exr).
+    #[arg(value_name = "DIR")]
+    pub dir: PathBuf,
+    /// Output picture (default: DIR/preview.png).
+    #[arg(long, value_name = "FILE.png")]
+    pub out: Option<PathBuf>,
+    /// Picture width in pixels.
+    #[arg(long, value_name = "W", default_value_t = 1024, value_parser = parse_pixels)]
+    pub width: u32,
+    /// Picture height in pixels.
+    #[arg(long, value_name = "H", default_value_t = 768, value_parser = parse_pixels)]
+    pub height: u32,
+    /// Camera yaw in degrees (default: automatic 3/4 view).
+    #[arg(long, value_name = "DEG", value_parser = parse_finite, allow_negative_numbers = true)]
+    pub yaw: Option<f64>,
+    /// Camera pitch in degrees.
+    #[arg(long, value_name = "DEG", value_parser = parse_finite, allow_negative_numbers = true)]
+    pub pitch: Option<f64>,
+    /// Displace along the normal by AMOUNT x (height - 0.5).
+    #[arg(long, value_name = "AMOUNT", value_parser = parse_finite, allow_negative_numbers = true)]
+    pub displace: Option<f64>,
+}
+
+pub fn run(a: RenderArgs) -> anyhow::Result<()> {
+    let _ = a;
+    not_implemented("render")
+}

@@ -1,0 +1,65 @@
+//! `surfsynth synth`: the main job (issues 4 and 5). Arguments are final; the handler is a
+//! placeholder until the synthesizers land.
+
+use super::{not_implemented, parse_finite, parse_orient, parse_positive, parse_resolution};
+use clap::{Args, ValueEnum};
+use std::path::PathBuf;
+use surfsynth::field::Orientation;
+
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Method {
+    /// Single pass, copies coherent patches (000 §5).
+    Coherent,
+    /// Gaussian pyramid, two passes per level (000 §4).
+    Multiscale,
+}
+
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Search {
+    /// PCA-projected kd-tree, re-ranked exactly.
+    Ann,
+    /// k-coherence candidate sets (003 §5.2).
+    Kcoherence,
+}
+
+#[derive(Args, Debug)]
+pub struct SynthArgs {
+    /// Control mesh (OBJ).
+    #[arg(long, value_name = "M.obj")]
+    pub mesh: PathBuf,
+    /// Example texture (PNG or JPEG; sRGB; alpha kept).
+    #[arg(long, value_name = "E.png")]
+    pub example: PathBuf,
+    /// Height example of the same size (grayscale, synthesized jointly).
+    #[arg(long, value_name = "H.png")]
+    pub height: Option<PathBuf>,
+    /// Synthesis method.
+    #[arg(long, value_enum, default_value_t = Method::Coherent)]
+    pub method: Method,
+    /// Neighbourhood search for the multiscale method (default: the faster of equal quality).
+    #[arg(long, value_enum)]
+    pub search: Option<Search>,
+    /// Texels per side of every face map.
+    #[arg(long, value_name = "N", default_value_t = 32, value_parser = parse_resolution)]
+    pub resolution: usize,
+    /// Surface length covered by one example pixel (default: median texel spacing).
+    #[arg(long, value_name = "S", value_parser = parse_positive)]
+    pub scale: Option<f64>,
+    /// Orientation field: auto, +x|-x|+y|-y|+z|-z, or a constraints file.
+    #[arg(long, value_name = "auto|AXIS|FILE", default_value = "auto", value_parser = parse_orient, allow_hyphen_values = true)]
+    pub orient: Orientation,
+    /// Random seed; the same seed gives the same files for any thread count.
+    #[arg(long, value_name = "K", default_value_t = 1)]
+    pub seed: u64,
+    /// Also write displaced.obj, moved along the normal by AMOUNT x (height - 0.5).
+    #[arg(long, value_name = "AMOUNT", value_parser = parse_finite, allow_negative_numbers = true)]
+    pub displace: Option<f64>,
+    /// Output directory (created if missing).
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+}
+
+pub fn run(a: SynthArgs) -> anyhow::Result<()> {
+    let _ = a;
+    not_implemented("synth")
+}
