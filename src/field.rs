@@ -1,12 +1,43 @@
 //! Tangent orientation field (v1, v2 = n × v1) over the surface (Ying et al. 2001, §3
-//! "Surface orientation" and footnote 2).
+//! "Surface orientation" and footnote 2; sinks and sources after Zelinka & Garland 2003, §3).
 //!
-//! SKELETON: the public API below is fixed; the optimisation is being implemented.
-//! Until then `compute` projects the hint axis (or the domain's u direction) on the
-//! tangent plane.
+//! # What is optimised
+//! The field lives on the vertices of a [`LimitMesh`] (the surface uniformly refined to level
+//! L, vertices at exact limit positions). Every vertex i has a tangent frame (e_i, n_i × e_i)
+//! and the field there is the angle θ_i, held as the unit complex number z_i = e^{iθ_i}. For
+//! an edge i→j, φ_ij and φ_ji are the angles of the *same* edge vector x_j − x_i projected on
+//! the tangent planes of i and of j. The field is parallel along the edge when
+//! θ_i − φ_ij = θ_j − φ_ji, so the energy of footnote 2 (the vector, not the 4-symmetric,
+//! variant) is minimised in the form
+//!
+//! E = Σ_edges 1 − cos((θ_i − φ_ij) − (θ_j − φ_ji))  +  λ Σ_i |a_i| (1 − cos(θ_i − arg a_i)),
+//!
+//! where a_i is an optional *target* (an axis projected on the tangent plane, or the pull of
+//! sinks and sources) and λ its weight. E ≥ 0; 0 is a parallel field that meets every target.
+//!
+//! # How
+//! Coarse to fine over levels 1..=L (the levels are nested, so each is a good start for the
+//! next): on level 1 a linear relaxation gives the start — the smallest eigenvector of the
+//! connection Laplacian by inverse iteration for `auto` (Knöppel et al. 2013: this puts
+//! singularities only where topology forces them), or the quadratic relaxation of E with
+//! the targets — then on every level *nonlinear block Gauss–Seidel*: each vertex is set to
+//! the exact minimiser of E with its neighbours fixed, z_i = normalize(Σ_j c_ij z_j + λ a_i).
+//! Refined meshes are bipartite (every edge joins an edge point to a vertex or face point),
+//! so one sweep updates one colour class in parallel, then the other: no two updated
+//! vertices interact, so every half-sweep lowers E (recorded in [`OrientationField::history`])
+//! and the result does not depend on the thread count.
+//!
+//! # Inside faces
+//! [`OrientationField::frame`] blends the four corner vectors of the level face holding the
+//! point bilinearly (in 3D), projects on the exact tangent plane and normalises. Two faces
+//! sharing an edge blend the same two vectors along it, so the field is continuous across
+//! face and domain edges (except at singularities, where no continuous field exists).
 
-use glam::DVec3;
-use subdiv::{DomainId, Surface};
+use anyhow::{bail, Context};
+use glam::{DVec2, DVec3};
+use rayon::prelude::*;
+use std::path::{Path, PathBuf};
+use subdiv::{BaseLocation, DomainId, FaceId, LimitMesh, Surface, VertexId};
 
 /// How the field is chosen.
 #[derive(Clone, Debug, PartialEq)]
@@ -19,6 +50,46 @@ pub enum Orientation {
     Constraints(std::path::PathBuf),
 }
 
+impl Orientation {
+    /// Parses the `--orient` value: `auto`, `+x|-x|+y|-y|+z|-z`, or a constraints file path.
+    pub fn parse(s: &str) -> Self {
+        let axis = |v: DVec3| Orientation::Axis(v);
+        match s.trim() {
+            "auto" => Orientation::Auto,
+            "+x" | "x" => axis(DVec3::X),
+            "-x" => axis(DVec3::NEG_X),
+            "+y" | "y" => axis(DVec3::Y),
+            "-y" => axis(DVec3::NEG_Y),
+            "+z" | "z" => axis(DVec3::Z),
+            "-z" => axis(DVec3::NEG_Z),
+            other => Orientation::Constraints(PathBuf::from(other)),
+        }
+    }
+
+    /// The short name used in reports: `auto`, `+x`..., or the file path.
+    pub fn label(&self) -> String {
+        match self {
+            Orientation::Auto => "auto".into(),
+            Orientation::Axis(a) => {
+                let names = [
+                    (DVec3::X, "+x"),
+                    (DVec3::NEG_X, "-x"),
+                    (DVec3::Y, "+y"),
+                    (DVec3::NEG_Y, "-y"),
+                    (DVec3::Z, "+z"),
+                    (DVec3::NEG_Z, "-z"),
+                ];
+                names
+                    .iter()
+                    .find(|(v, _)| *v == *a)
+                    .map(|(_, n)| n.to_string())
+                    .unwrap_or_else(|| format!("axis({}, {}, {})", a.x, a.y, a.z))
+            }
+            Orientation::Constraints(p) => p.display().to_string(),
+        }
+    }
+}
+
 /// An orthonormal tangent frame: v1, v2 tangent, n the unit normal, v2 = n × v1.
 #[derive(Clone, Copy, Debug, PartialEq, Default)]
 pub struct Frame {
@@ -27,32 +98,809 @@ pub struct Frame {
     pub n: DVec3,
 }
 
+impl Frame {
+    /// The frame with v1 = `dir` projected on the plane of `n` (normalised); if `dir` is
+    /// (nearly) normal, `fallback` projected instead.
+    pub fn from_direction(dir: DVec3, n: DVec3, fallback: DVec3) -> Frame {
+        let mut t = dir - n * n.dot(dir);
+        if t.length_squared() < 1e-24 {
+            t = fallback - n * n.dot(fallback);
+        }
+        if t.length_squared() < 1e-24 {
+            t = n.any_orthonormal_vector();
+        }
+        let v1 = t.normalize();
+        Frame {
+            v1,
+            v2: n.cross(v1),
+            n,
+        }
+    }
+}
+
+/// Knobs of [`OrientationField::compute_with`]. The defaults are what `compute` uses.
+#[derive(Clone, Debug)]
+pub struct FieldOptions {
+    /// Refinement level of the limit mesh the field lives on. `None`: the finest level in
+    /// 1..=[`Self::max_level`] with at most [`Self::max_faces`] faces.
+    pub level: Option<u32>,
+    /// Highest automatic level. Level 5 has 256 faces per base quad (16 per side of a base
+    /// quad, 32 per side of a quad domain): finer than the 2-texel steps marching is used
+    /// for at 32 texels per side.
+    pub max_level: u32,
+    /// Face budget of the automatic level (memory and time grow linearly with it).
+    pub max_faces: usize,
+    /// λ, the weight of axis hints and sinks/sources against smoothness (per vertex; a
+    /// vertex has about four edges, so 8 makes a target twice as strong as its neighbours).
+    pub target_weight: f64,
+    /// Gauss–Seidel sweeps per level at most (the coarsest level gets 10x as many).
+    pub max_sweeps: usize,
+    /// A level stops when a sweep lowers E by less than this fraction.
+    pub tolerance: f64,
+}
+
+impl Default for FieldOptions {
+    fn default() -> Self {
+        Self {
+            level: None,
+            max_level: 5,
+            max_faces: 400_000,
+            target_weight: 8.0,
+            max_sweeps: 60,
+            tolerance: 1e-7,
+        }
+    }
+}
+
+/// One optimisation step's energy, for inspection and tests.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LevelHistory {
+    pub level: u32,
+    pub vertices: usize,
+    /// E after initialisation, then after every half-sweep (one colour class updated).
+    pub energy: Vec<f64>,
+}
+
+/// A singular face of the discrete field: the field turns `index` times around it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Singularity {
+    pub face: FaceId,
+    pub index: i32,
+    /// Limit position of the face's centre (mean of its corners).
+    pub position: DVec3,
+}
+
 /// A tangent field, defined at every (domain, u, v).
 #[derive(Clone, Debug)]
 pub struct OrientationField {
-    hint: Option<DVec3>,
+    mesh: LimitMesh,
+    /// Unit tangent v1 at every vertex of `mesh`.
+    v1: Vec<DVec3>,
+    history: Vec<LevelHistory>,
+    label: String,
+}
+
+/// A parsed constraints file (docs/field.md).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Constraints {
+    /// (control vertex index, 3D direction): v1 is pinned there.
+    pub vertices: Vec<(usize, DVec3)>,
+    /// (point, radius, +1 source / -1 sink).
+    pub points: Vec<(DVec3, Option<f64>, f64)>,
+    /// Global axis hints (direction, weight factor).
+    pub axes: Vec<(DVec3, f64)>,
+}
+
+impl Constraints {
+    /// Reads a constraints file; errors are one line naming the file and line.
+    pub fn load(path: &Path) -> anyhow::Result<Self> {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("{}: cannot read constraints file", path.display()))?;
+        Self::parse(&text).with_context(|| format!("{}", path.display()))
+    }
+
+    /// Parses the text of a constraints file (format in docs/field.md).
+    pub fn parse(text: &str) -> anyhow::Result<Self> {
+        let mut c = Constraints::default();
+        for (ln, raw) in text.lines().enumerate() {
+            let line = raw.split('#').next().unwrap_or("").trim();
+            if line.is_empty() {
+                continue;
+            }
+            let mut it = line.split_whitespace();
+            let key = it.next().unwrap_or("");
+            let nums: Vec<&str> = it.collect();
+            let num = |i: usize| -> anyhow::Result<f64> {
+                let s = nums[i];
+                let v: f64 = s
+                    .parse()
+                    .map_err(|_| anyhow::anyhow!("line {}: '{s}' is not a number", ln + 1))?;
+                if !v.is_finite() {
+                    bail!("line {}: '{s}' is not a finite number", ln + 1);
+                }
+                Ok(v)
+            };
+            let dir3 = |i: usize| -> anyhow::Result<DVec3> {
+                let d = DVec3::new(num(i)?, num(i + 1)?, num(i + 2)?);
+                if d.length() < 1e-12 {
+                    bail!(
+                        "line {}: direction ({}, {}, {}) has zero length",
+                        ln + 1,
+                        d.x,
+                        d.y,
+                        d.z
+                    );
+                }
+                Ok(d.normalize())
+            };
+            match key {
+                "vertex" => {
+                    if nums.len() != 4 {
+                        bail!(
+                            "line {}: expected `vertex INDEX DX DY DZ`, got `{line}`",
+                            ln + 1
+                        );
+                    }
+                    let idx: usize = nums[0].parse().map_err(|_| {
+                        anyhow::anyhow!(
+                            "line {}: vertex index '{}' is not a whole number",
+                            ln + 1,
+                            nums[0]
+                        )
+                    })?;
+                    c.vertices.push((idx, dir3(1)?));
+                }
+                "sink" | "source" => {
+                    if nums.len() != 3 && nums.len() != 4 {
+                        bail!(
+                            "line {}: expected `{key} X Y Z [RADIUS]`, got `{line}`",
+                            ln + 1
+                        );
+                    }
+                    let p = DVec3::new(num(0)?, num(1)?, num(2)?);
+                    let r = if nums.len() == 4 {
+                        let r = num(3)?;
+                        if r <= 0.0 {
+                            bail!("line {}: radius {r} must be positive", ln + 1);
+                        }
+                        Some(r)
+                    } else {
+                        None
+                    };
+                    c.points
+                        .push((p, r, if key == "source" { 1.0 } else { -1.0 }));
+                }
+                "axis" => {
+                    if nums.len() != 3 && nums.len() != 4 {
+                        bail!(
+                            "line {}: expected `axis DX DY DZ [WEIGHT]`, got `{line}`",
+                            ln + 1
+                        );
+                    }
+                    let w = if nums.len() == 4 { num(3)? } else { 1.0 };
+                    if w < 0.0 {
+                        bail!("line {}: weight {w} must not be negative", ln + 1);
+                    }
+                    c.axes.push((dir3(0)?, w));
+                }
+                other => bail!(
+                    "line {}: unknown keyword '{other}' (expected vertex, sink, source or axis)",
+                    ln + 1
+                ),
+            }
+        }
+        Ok(c)
+    }
+}
+
+// ---- complex numbers as DVec2 (x + iy) ----
+
+#[inline]
+fn cmul(a: DVec2, b: DVec2) -> DVec2 {
+    DVec2::new(a.x * b.x - a.y * b.y, a.x * b.y + a.y * b.x)
+}
+
+#[inline]
+fn conj(a: DVec2) -> DVec2 {
+    DVec2::new(a.x, -a.y)
+}
+
+/// The optimisation problem on one level.
+struct LevelProblem {
+    /// CSR adjacency: neighbours of i are nbr[start[i]..start[i+1]], with c_ij such that a
+    /// neighbour transported to i is c_ij z_j (c_ji = conj(c_ij)).
+    start: Vec<u32>,
+    nbr: Vec<u32>,
+    coef: Vec<DVec2>,
+    /// Tangent frame per vertex: e_i and f_i = n_i × e_i.
+    e: Vec<DVec3>,
+    f: Vec<DVec3>,
+    /// λ a_i in the vertex frame.
+    target: Vec<DVec2>,
+    /// Pinned values (NaN = free).
+    pinned: Vec<DVec2>,
+    /// Vertices of each colour class (bipartite split), or one class if not bipartite.
+    classes: Vec<Vec<u32>>,
+}
+
+impl LevelProblem {
+    fn new(lm: &LimitMesh) -> Self {
+        let m = &lm.mesh;
+        let nv = m.num_vertices();
+        let mut e = vec![DVec3::ZERO; nv];
+        let mut f = vec![DVec3::ZERO; nv];
+        for v in 0..nv {
+            let n = lm.normal[v];
+            // Reference direction: the first outgoing edge projected (any tangent would do;
+            // energies and the result do not depend on it).
+            let mut t = DVec3::ZERO;
+            if let Some(h) = m.vertex_out(VertexId::from_idx(v)) {
+                let d = lm.position[m.dest(h).idx()] - lm.position[v];
+                t = d - n * n.dot(d);
+            }
+            if t.length_squared() < 1e-30 {
+                t = n.any_orthonormal_vector();
+            }
+            e[v] = t.normalize();
+            f[v] = n.cross(e[v]);
+        }
+        let mut start = Vec::with_capacity(nv + 1);
+        let mut nbr = Vec::new();
+        let mut coef = Vec::new();
+        start.push(0u32);
+        for v in 0..nv {
+            let vid = VertexId::from_idx(v);
+            let mut push = |j: usize| {
+                let d = lm.position[j] - lm.position[v];
+                let ai = DVec2::new(d.dot(e[v]), d.dot(f[v]));
+                let aj = DVec2::new(d.dot(e[j]), d.dot(f[j]));
+                // c_ij = e^{i(φ_ij − φ_ji)}: rotates j's frame angle into i's.
+                let c = if ai.length_squared() > 0.0 && aj.length_squared() > 0.0 {
+                    cmul(ai.normalize(), conj(aj.normalize()))
+                } else {
+                    DVec2::X
+                };
+                nbr.push(j as u32);
+                coef.push(c);
+            };
+            let mut last = None;
+            for h in m.outgoing(vid) {
+                push(m.dest(h).idx());
+                last = Some(h);
+            }
+            // A boundary vertex's fan misses the edge arriving along the boundary.
+            if m.is_boundary_vertex(vid) {
+                if let Some(h) = last {
+                    let p = m.prev(h);
+                    push(m.origin(p).idx());
+                }
+            }
+            start.push(nbr.len() as u32);
+        }
+        let classes = two_colour(&start, &nbr);
+        LevelProblem {
+            start,
+            nbr,
+            coef,
+            e,
+            f,
+            target: vec![DVec2::ZERO; nv],
+            pinned: vec![DVec2::NAN; nv],
+            classes,
+        }
+    }
+
+    fn nv(&self) -> usize {
+        self.e.len()
+    }
+
+    fn to_complex(&self, v: usize, t: DVec3) -> DVec2 {
+        DVec2::new(t.dot(self.e[v]), t.dot(self.f[v]))
+    }
+
+    fn to_3d(&self, v: usize, z: DVec2) -> DVec3 {
+        self.e[v] * z.x + self.f[v] * z.y
+    }
+
+    /// E of the module doc (each edge counted once).
+    fn energy(&self, z: &[DVec2]) -> f64 {
+        let mut s = 0.0;
+        for i in 0..self.nv() {
+            let zi = conj(z[i]);
+            for k in self.start[i] as usize..self.start[i + 1] as usize {
+                let j = self.nbr[k] as usize;
+                if j > i {
+                    s += 1.0 - cmul(zi, cmul(self.coef[k], z[j])).x;
+                }
+            }
+            let a = self.target[i];
+            if a != DVec2::ZERO {
+                s += a.length() - cmul(zi, a).x;
+            }
+        }
+        s
+    }
+
+    /// The exact minimiser of E over z_i with the neighbours fixed.
+    #[inline]
+    fn local_optimum(&self, i: usize, z: &[DVec2]) -> DVec2 {
+        if !self.pinned[i].x.is_nan() {
+            return self.pinned[i];
+        }
+        let mut s = self.target[i];
+        for k in self.start[i] as usize..self.start[i + 1] as usize {
+            s += cmul(self.coef[k], z[self.nbr[k] as usize]);
+        }
+        let l = s.length();
+        if l > 1e-300 {
+            s / l
+        } else {
+            z[i]
+        }
+    }
+
+    /// Nonlinear block Gauss–Seidel until E stalls; returns E after every half-sweep.
+    fn optimise(&self, z: &mut [DVec2], sweeps: usize, tol: f64) -> Vec<f64> {
+        let mut hist = vec![self.energy(z)];
+        let mut buf: Vec<DVec2> = Vec::new();
+        for _ in 0..sweeps {
+            let before = *hist.last().unwrap();
+            for class in &self.classes {
+                if self.classes.len() == 1 {
+                    // Not bipartite: sequential sweep (still monotone, still deterministic).
+                    for &i in class {
+                        z[i as usize] = self.local_optimum(i as usize, z);
+                    }
+                } else {
+                    buf.clear();
+                    buf.resize(class.len(), DVec2::ZERO);
+                    let zr: &[DVec2] = z;
+                    buf.par_iter_mut()
+                        .with_min_len(1024)
+                        .zip(class.par_iter())
+                        .for_each(|(out, &i)| *out = self.local_optimum(i as usize, zr));
+                    for (k, &i) in class.iter().enumerate() {
+                        z[i as usize] = buf[k];
+                    }
+                }
+                hist.push(self.energy(z));
+            }
+            let after = *hist.last().unwrap();
+            if before - after <= tol * before.max(1e-300) {
+                break;
+            }
+        }
+        hist
+    }
+
+    /// y = (L + W) x, W = diag(w) (the connection Laplacian plus a diagonal).
+    fn apply(&self, w: &[f64], x: &[DVec2], y: &mut [DVec2]) {
+        for i in 0..self.nv() {
+            let (a, b) = (self.start[i] as usize, self.start[i + 1] as usize);
+            let mut s = x[i] * ((b - a) as f64 + w[i]);
+            for k in a..b {
+                s -= cmul(self.coef[k], x[self.nbr[k] as usize]);
+            }
+            y[i] = s;
+        }
+    }
+
+    /// Conjugate gradients for the Hermitian positive definite (L + W) x = b.
+    fn solve(&self, w: &[f64], b: &[DVec2], x: &mut [DVec2], iters: usize, tol: f64) {
+        let n = self.nv();
+        let dot = |a: &[DVec2], b: &[DVec2]| -> f64 {
+            // Re <a, b>; for Hermitian systems the imaginary parts cancel in CG.
+            a.iter().zip(b).map(|(p, q)| p.dot(*q)).sum()
+        };
+        let mut r = vec![DVec2::ZERO; n];
+        self.apply(w, x, &mut r);
+        for i in 0..n {
+            r[i] = b[i] - r[i];
+        }
+        let mut p = r.clone();
+        let mut ap = vec![DVec2::ZERO; n];
+        let mut rr = dot(&r, &r);
+        let bb = dot(b, b).max(1e-300);
+        for _ in 0..iters {
+            if rr <= tol * tol * bb {
+                break;
+            }
+            self.apply(w, &p, &mut ap);
+            let pap = dot(&p, &ap);
+            if pap <= 0.0 {
+                break;
+            }
+            let alpha = rr / pap;
+            for i in 0..n {
+                x[i] += p[i] * alpha;
+                r[i] -= ap[i] * alpha;
+            }
+            let rr2 = dot(&r, &r);
+            let beta = rr2 / rr;
+            rr = rr2;
+            for i in 0..n {
+                p[i] = r[i] + p[i] * beta;
+            }
+        }
+    }
+
+    /// Start of level 1: the linear relaxation (see the module doc).
+    fn initial(&self) -> Vec<DVec2> {
+        let n = self.nv();
+        let has_targets = self.target.iter().any(|a| *a != DVec2::ZERO)
+            || self.pinned.iter().any(|p| !p.x.is_nan());
+        let mut z: Vec<DVec2> = (0..n)
+            .map(|i| {
+                // Deterministic pseudo-random start (a hash of the index).
+                let h = (i as u64 + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+                let a = (h >> 11) as f64 / (1u64 << 53) as f64 * std::f64::consts::TAU;
+                DVec2::new(a.cos(), a.sin())
+            })
+            .collect();
+        if has_targets {
+            // min z^H L z + Σ w_i |z_i − â_i|^2  →  (L + W) z = W â = target.
+            let mut w = vec![0.0; n];
+            let mut b = vec![DVec2::ZERO; n];
+            for i in 0..n {
+                if !self.pinned[i].x.is_nan() {
+                    w[i] = 1e4;
+                    b[i] = self.pinned[i] * 1e4;
+                } else {
+                    w[i] = self.target[i].length();
+                    b[i] = self.target[i];
+                }
+                w[i] += 1e-9;
+            }
+            self.solve(&w, &b, &mut z, 4 * n + 100, 1e-10);
+        } else {
+            // Inverse iteration: the smallest eigenvector of L.
+            let w = vec![1e-6; n];
+            let mut x = vec![DVec2::ZERO; n];
+            for _ in 0..30 {
+                let norm = z.iter().map(|c| c.length_squared()).sum::<f64>().sqrt();
+                for c in z.iter_mut() {
+                    *c /= norm;
+                }
+                x.copy_from_slice(&z);
+                self.solve(&w, &z, &mut x, 2 * n + 100, 1e-8);
+                std::mem::swap(&mut z, &mut x);
+            }
+        }
+        for (i, c) in z.iter_mut().enumerate() {
+            let l = c.length();
+            *c = if !self.pinned[i].x.is_nan() {
+                self.pinned[i]
+            } else if l > 1e-300 && l.is_finite() {
+                *c / l
+            } else {
+                DVec2::X
+            };
+        }
+        z
+    }
+}
+
+/// Splits vertices into two classes with no edge inside a class (BFS), or one class if the
+/// graph is not bipartite.
+fn two_colour(start: &[u32], nbr: &[u32]) -> Vec<Vec<u32>> {
+    let n = start.len() - 1;
+    let mut col = vec![u8::MAX; n];
+    let mut queue = Vec::new();
+    for s in 0..n {
+        if col[s] != u8::MAX {
+            continue;
+        }
+        col[s] = 0;
+        queue.clear();
+        queue.push(s as u32);
+        let mut head = 0;
+        while head < queue.len() {
+            let i = queue[head] as usize;
+            head += 1;
+            for &j in &nbr[start[i] as usize..start[i + 1] as usize] {
+                let j = j as usize;
+                if col[j] == u8::MAX {
+                    col[j] = 1 - col[i];
+                    queue.push(j as u32);
+                } else if col[j] == col[i] {
+                    return vec![(0..n as u32).collect()];
+                }
+            }
+        }
+    }
+    let a = (0..n as u32).filter(|&i| col[i as usize] == 0).collect();
+    let b = (0..n as u32).filter(|&i| col[i as usize] == 1).collect();
+    vec![a, b]
+}
+
+/// Faces of a limit mesh at `level`.
+fn faces_at(surface: &Surface, level: u32) -> usize {
+    surface.num_base_quads() << (2 * (level - 1))
+}
+
+/// Bilinear weights of corners (0,0), (1,0), (1,1), (0,1).
+#[inline]
+fn bilinear(s: f64, t: f64) -> [f64; 4] {
+    [(1.0 - s) * (1.0 - t), s * (1.0 - t), s * t, (1.0 - s) * t]
+}
+
+/// Blend of per-vertex vectors over the level face holding a base point.
+fn blend(lm: &LimitMesh, v1: &[DVec3], loc: BaseLocation) -> (DVec3, DVec3) {
+    let (f, s, t) = lm.locate(loc.quad, loc.s, loc.t);
+    let vs = lm.mesh.face_vertices(f);
+    let w = bilinear(s, t);
+    let mut acc = DVec3::ZERO;
+    let mut best = (0.0, DVec3::ZERO);
+    for c in 0..4 {
+        let x = v1[vs[c] as usize];
+        acc += x * w[c];
+        if w[c] > best.0 {
+            best = (w[c], x);
+        }
+    }
+    (acc, best.1)
 }
 
 impl OrientationField {
-    /// Computes the field for `surface`.
+    /// Computes the field for `surface` with the default [`FieldOptions`].
     pub fn compute(surface: &Surface, orientation: &Orientation) -> anyhow::Result<Self> {
-        let _ = surface;
-        let hint = match orientation {
-            Orientation::Axis(a) => Some(*a),
-            _ => None,
+        Self::compute_with(surface, orientation, &FieldOptions::default())
+    }
+
+    /// Computes the field (see the module doc for the method).
+    pub fn compute_with(
+        surface: &Surface,
+        orientation: &Orientation,
+        opts: &FieldOptions,
+    ) -> anyhow::Result<Self> {
+        let constraints = match orientation {
+            Orientation::Auto => Constraints::default(),
+            Orientation::Axis(a) => {
+                if a.length() < 1e-12 || !a.is_finite() {
+                    bail!(
+                        "orientation axis ({}, {}, {}) has no direction",
+                        a.x,
+                        a.y,
+                        a.z
+                    );
+                }
+                Constraints {
+                    axes: vec![(a.normalize(), 1.0)],
+                    ..Default::default()
+                }
+            }
+            Orientation::Constraints(p) => Constraints::load(p)?,
         };
-        Ok(Self { hint })
+        let nctl = surface.control.mesh.num_vertices();
+        for &(i, _) in &constraints.vertices {
+            if i >= nctl {
+                bail!("constraint on vertex {i}, but the mesh has {nctl} vertices (0-based)");
+            }
+        }
+        let level = match opts.level {
+            Some(l) => l.max(1),
+            None => {
+                let mut l = 1;
+                while l < opts.max_level.max(1) && faces_at(surface, l + 1) <= opts.max_faces {
+                    l += 1;
+                }
+                l
+            }
+        };
+        let (lo, hi) = surface.bounds();
+        let diag = (hi - lo).length().max(1e-300);
+
+        let mut history = Vec::new();
+        let mut prev: Option<(LimitMesh, Vec<DVec3>)> = None;
+        for lev in 1..=level {
+            let lm = surface.limit_mesh(lev);
+            let mut prob = LevelProblem::new(&lm);
+            set_targets(&mut prob, &lm, &constraints, opts.target_weight, diag)?;
+            let mut z = match &prev {
+                None => prob.initial(),
+                Some((plm, pv1)) => (0..prob.nv())
+                    .map(|i| {
+                        if !prob.pinned[i].x.is_nan() {
+                            return prob.pinned[i];
+                        }
+                        let (acc, best) = blend(plm, pv1, lm.vertex_location[i]);
+                        let mut c = prob.to_complex(i, acc);
+                        if c.length() < 1e-9 {
+                            c = prob.to_complex(i, best);
+                        }
+                        c.try_normalize().unwrap_or(DVec2::X)
+                    })
+                    .collect(),
+            };
+            let sweeps = if lev == 1 {
+                opts.max_sweeps * 10
+            } else {
+                opts.max_sweeps
+            };
+            let energy = prob.optimise(&mut z, sweeps, opts.tolerance);
+            history.push(LevelHistory {
+                level: lev,
+                vertices: prob.nv(),
+                energy,
+            });
+            let v1: Vec<DVec3> = (0..prob.nv()).map(|i| prob.to_3d(i, z[i])).collect();
+            prev = Some((lm, v1));
+        }
+        let (mesh, v1) = prev.expect("at least one level");
+        Ok(OrientationField {
+            mesh,
+            v1,
+            history,
+            label: orientation.label(),
+        })
+    }
+
+    /// The limit mesh the field lives on (also the mesh surface marching walks on).
+    pub fn limit_mesh(&self) -> &LimitMesh {
+        &self.mesh
+    }
+
+    /// v1 at every vertex of [`Self::limit_mesh`] (unit, tangent).
+    pub fn vertex_v1(&self) -> &[DVec3] {
+        &self.v1
+    }
+
+    /// The level of the limit mesh.
+    pub fn level(&self) -> u32 {
+        self.mesh.level
+    }
+
+    /// Energy after every half-sweep, per level (coarse to fine).
+    pub fn history(&self) -> &[LevelHistory] {
+        &self.history
+    }
+
+    /// `auto`, `+x`, ... or the constraints file, as given.
+    pub fn label(&self) -> &str {
+        &self.label
     }
 
     /// The frame at a domain point.
     pub fn frame(&self, surface: &Surface, d: DomainId, u: f64, v: f64) -> Frame {
         let e = surface.eval(d, u, v);
-        let mut dir = self.hint.unwrap_or(e.du);
-        dir -= e.n * e.n.dot(dir);
-        if dir.length_squared() < 1e-20 {
-            dir = e.du - e.n * e.n.dot(e.du);
-        }
-        let v1 = dir.normalize_or_zero();
-        Frame { v1, v2: e.n.cross(v1), n: e.n }
+        let loc = surface.base_location(subdiv::DomainLocation { domain: d, u, v });
+        self.frame_at(loc, e.n, e.du)
     }
+
+    /// The frame at a base point whose unit normal `n` is already known (saves an
+    /// evaluation); `fallback` is used only where the field vanishes (at a singularity).
+    pub fn frame_at(&self, loc: BaseLocation, n: DVec3, fallback: DVec3) -> Frame {
+        let (acc, best) = blend(&self.mesh, &self.v1, loc);
+        let t = acc - n * n.dot(acc);
+        let dir = if t.length_squared() > 1e-16 { t } else { best };
+        Frame::from_direction(dir, n, fallback)
+    }
+
+    /// Frames at all texel centres of `n`×`n` maps: domain-major, then row (v) then column
+    /// (u), i.e. index (d·n + y)·n + x for (u, v) = ((x+0.5)/n, (y+0.5)/n). Computed in
+    /// parallel; the result does not depend on the thread count.
+    pub fn texel_frames(&self, surface: &Surface, n: usize) -> Vec<Frame> {
+        let nd = surface.num_domains();
+        let mut out = vec![Frame::default(); nd * n * n];
+        if n == 0 {
+            return out;
+        }
+        out.par_chunks_mut(n * n)
+            .enumerate()
+            .for_each(|(d, chunk)| {
+                let inv = 1.0 / n as f64;
+                for y in 0..n {
+                    for x in 0..n {
+                        let (u, v) = ((x as f64 + 0.5) * inv, (y as f64 + 0.5) * inv);
+                        chunk[y * n + x] = self.frame(surface, DomainId::from_idx(d), u, v);
+                    }
+                }
+            });
+        out
+    }
+
+    /// Singular faces of the discrete field on [`Self::limit_mesh`]: faces around which the
+    /// field turns a non-zero number of times relative to parallel transport (the sum of
+    /// all indices is the Euler characteristic on a closed surface).
+    pub fn singularities(&self) -> Vec<Singularity> {
+        let lm = &self.mesh;
+        let m = &lm.mesh;
+        let mut out = Vec::new();
+        for f in 0..m.num_faces() {
+            let fid = FaceId::from_idx(f);
+            let vs = m.face_vertices(fid);
+            let k = vs.len();
+            // Around the loop, the angle of v1 relative to the current edge changes along
+            // every edge (by the field's own turning: 0 when parallel, principal value) and
+            // at every corner (by minus the corner's exterior angle ε_j). Back at the start
+            // it has changed by 2π·m; a parallel field on a small face has m = -1, so the
+            // index is m + 1.
+            let mut along = 0.0;
+            let mut corners = 0.0;
+            for c in 0..k {
+                let (i, j, l) = (
+                    vs[c] as usize,
+                    vs[(c + 1) % k] as usize,
+                    vs[(c + 2) % k] as usize,
+                );
+                let d = lm.position[j] - lm.position[i];
+                let fi = frame_along(d, lm.normal[i]);
+                let fj = frame_along(d, lm.normal[j]);
+                let thi = self.v1[i].dot(fi.1).atan2(self.v1[i].dot(fi.0));
+                let thj = self.v1[j].dot(fj.1).atan2(self.v1[j].dot(fj.0));
+                along += wrap(thj - thi);
+                let next = frame_along(lm.position[l] - lm.position[j], lm.normal[j]);
+                corners += next.0.dot(fj.1).atan2(next.0.dot(fj.0));
+            }
+            let idx = ((along - corners) / std::f64::consts::TAU).round() as i32 + 1;
+            if idx != 0 {
+                let pos = vs.iter().map(|&v| lm.position[v as usize]).sum::<DVec3>() / k as f64;
+                out.push(Singularity {
+                    face: fid,
+                    index: idx,
+                    position: pos,
+                });
+            }
+        }
+        out
+    }
+}
+
+/// Orthonormal tangent frame at a vertex with unit normal `n` whose first axis is `d`
+/// projected (d, n × d).
+fn frame_along(d: DVec3, n: DVec3) -> (DVec3, DVec3) {
+    let t = (d - n * n.dot(d)).normalize_or(n.any_orthonormal_vector());
+    (t, n.cross(t))
+}
+
+#[inline]
+fn wrap(a: f64) -> f64 {
+    let mut a = a % std::f64::consts::TAU;
+    if a > std::f64::consts::PI {
+        a -= std::f64::consts::TAU;
+    } else if a <= -std::f64::consts::PI {
+        a += std::f64::consts::TAU;
+    }
+    a
+}
+
+/// Fills the targets (λ a_i) and pins of one level from the constraints.
+fn set_targets(
+    prob: &mut LevelProblem,
+    lm: &LimitMesh,
+    c: &Constraints,
+    weight: f64,
+    diag: f64,
+) -> anyhow::Result<()> {
+    for i in 0..prob.nv() {
+        let (x, n) = (lm.position[i], lm.normal[i]);
+        let mut a = DVec3::ZERO;
+        for &(axis, w) in &c.axes {
+            a += (axis - n * n.dot(axis)) * w;
+        }
+        for &(p, r, sign) in &c.points {
+            let r = r.unwrap_or(0.25 * diag);
+            let d = (x - p) * sign;
+            let t = d - n * n.dot(d);
+            let l = t.length();
+            if l > 1e-12 * diag {
+                a += t / l * (-(d.length() / r).powi(2)).exp();
+            }
+        }
+        prob.target[i] = prob.to_complex(i, a) * weight;
+    }
+    for &(v, dir) in &c.vertices {
+        let n = lm.normal[v];
+        let t = dir - n * n.dot(dir);
+        if t.length() < 1e-6 {
+            bail!(
+                "constraint direction ({}, {}, {}) at vertex {v} is normal to the surface",
+                dir.x,
+                dir.y,
+                dir.z
+            );
+        }
+        prob.pinned[v] = prob.to_complex(v, t).normalize();
+    }
+    Ok(())
 }

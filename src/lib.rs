@@ -11,3 +11,4 @@ pub mod progress;
 pub mod texels;
 
 pub use error::{Error, Result};
+pub mod sampling;

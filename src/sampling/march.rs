@@ -1,0 +1,277 @@
+//! Surface marching (Ying et al. 2001, §4.1) on a triangulated copy of the limit surface.
+//!
+//! The mesh is the field's [`LimitMesh`] (exact limit positions at its vertices), every
+//! level face split along its (0,0)–(1,1) diagonal. A sample at pattern offset (l, m) is
+//! reached by a straight path from the centre in the direction l·v1 + m·v2 of length
+//! |(l, m)|·δ. Inside a triangle the path is a straight segment; where it crosses an edge
+//! it continues in the next triangle *at the same angle to that edge* — the neighbour is
+//! unfolded into the plane of the current one, which is exact for a polyhedral surface
+//! (the path is a "straightest geodesic").
+//!
+//! Each triangle keeps 2D coordinates of its corners (P0 = (0,0), P1 = (x1, 0),
+//! P2 = (x2, y2)); the walk state is a barycentric point and a 2D direction, so there is no
+//! 3D projection (and no drift off the surface) along the way. Robustness:
+//! - a path through a vertex is moved off it by 1e-9 of the edge, so it passes the vertex
+//!   on one side (which side is deterministic) and cannot loop around it;
+//! - at most [`MAX_CROSSINGS`] edge crossings per path (a path of a few δ crosses tens);
+//!   reaching the cap ends the path where it is and is counted, never an endless loop;
+//! - degenerate triangles cannot produce NaN: lengths are floored before dividing.
+
+use glam::{DVec2, DVec3};
+use subdiv::{BaseLocation, DomainLocation, FaceId, LimitMesh, Surface};
+
+/// Safety cap on edge crossings of one path.
+pub const MAX_CROSSINGS: usize = 1 << 16;
+const NONE: u32 = u32::MAX;
+/// Paths are kept this far (in barycentric units) from triangle corners.
+const VERTEX_EPS: f64 = 1e-9;
+
+/// Corner parameters (in the level face) of the two triangles of a face.
+const TRI_PARAM: [[(f64, f64); 3]; 2] = [
+    [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0)],
+    [(0.0, 0.0), (1.0, 1.0), (0.0, 1.0)],
+];
+/// Quad edge q of a face → (triangle k of the face, local edge j of that triangle).
+const QUAD_EDGE: [(usize, usize); 4] = [(0, 0), (0, 1), (1, 1), (1, 2)];
+
+#[derive(Clone, Copy, Debug)]
+struct TriGeo {
+    x1: f64,
+    x2: f64,
+    y2: f64,
+    /// 3D axes of the local 2D frame (ex along P0→P1; ey = n × ex).
+    ex: DVec3,
+    ey: DVec3,
+}
+
+/// A point of the triangulated mesh.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TriPoint {
+    pub tri: u32,
+    pub bary: [f64; 3],
+}
+
+/// The triangulated limit mesh with unfolding data.
+#[derive(Clone, Debug)]
+pub struct MarchMesh {
+    geo: Vec<TriGeo>,
+    /// Per triangle and local edge: (neighbour triangle << 2) | its local edge, or NONE.
+    adj: Vec<[u32; 3]>,
+}
+
+/// Result of one path.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum PathEnd {
+    /// Ended at this point.
+    At(TriPoint),
+    /// Left the surface through an open boundary.
+    Boundary,
+    /// Hit [`MAX_CROSSINGS`] (ends where it was).
+    Stalled(TriPoint),
+}
+
+impl MarchMesh {
+    /// Triangulates `lm` and precomputes each triangle's 2D frame and neighbours.
+    pub fn new(lm: &LimitMesh) -> Self {
+        let m = &lm.mesh;
+        let nf = m.num_faces();
+        let mut geo = Vec::with_capacity(2 * nf);
+        let mut adj = Vec::with_capacity(2 * nf);
+        for f in 0..nf {
+            let fid = FaceId::from_idx(f);
+            let vs = m.face_vertices(fid);
+            let corners = [[vs[0], vs[1], vs[2]], [vs[0], vs[2], vs[3]]];
+            for (k, tv) in corners.iter().enumerate() {
+                let p: [DVec3; 3] = tv.map(|v| lm.position[v as usize]);
+                let e1 = p[1] - p[0];
+                let e2 = p[2] - p[0];
+                let x1 = e1.length().max(1e-300);
+                let ex = e1 / x1;
+                // Triangle normal from the cross product; fall back to the limit normal for
+                // a degenerate triangle.
+                let mut n = e1.cross(e2);
+                if n.length_squared() < 1e-300 {
+                    n = lm.normal[tv[0] as usize];
+                }
+                let n = n.normalize_or(DVec3::Z);
+                let ey = n.cross(ex);
+                geo.push(TriGeo {
+                    x1,
+                    x2: e2.dot(ex),
+                    y2: e2.dot(ey).max(1e-300),
+                    ex,
+                    ey,
+                });
+                let mut a = [NONE; 3];
+                // The diagonal joins the face's two triangles.
+                if k == 0 {
+                    a[2] = ((2 * f + 1) as u32) << 2;
+                } else {
+                    a[0] = (((2 * f) as u32) << 2) | 2;
+                }
+                adj.push(a);
+            }
+            for (q, &(k, j)) in QUAD_EDGE.iter().enumerate() {
+                let h = m.face_he(fid) + q as u32;
+                if let Some(t) = m.twin(h) {
+                    let g = m.face_of(t);
+                    let q2 = (t - m.face_he(g)) as usize;
+                    let (k2, j2) = QUAD_EDGE[q2];
+                    adj[2 * f + k][j] = (((2 * g.idx() + k2) as u32) << 2) | j2 as u32;
+                }
+            }
+        }
+        MarchMesh { geo, adj }
+    }
+
+    /// The triangle point of a level-face point (kept strictly inside its triangle).
+    pub fn point_in_face(&self, f: FaceId, s: f64, t: f64) -> TriPoint {
+        let s = s.clamp(VERTEX_EPS, 1.0 - VERTEX_EPS);
+        let t = t.clamp(VERTEX_EPS, 1.0 - VERTEX_EPS);
+        let (tri, bary) = if s >= t {
+            (2 * f.idx(), [1.0 - s, s - t, t])
+        } else {
+            (2 * f.idx() + 1, [1.0 - t, s, t - s])
+        };
+        TriPoint {
+            tri: tri as u32,
+            bary,
+        }
+    }
+
+    /// The level-face point of a triangle point.
+    pub fn face_point(&self, p: TriPoint) -> (FaceId, f64, f64) {
+        let k = (p.tri & 1) as usize;
+        let f = FaceId(p.tri >> 1);
+        let mut s = 0.0;
+        let mut t = 0.0;
+        for (b, (cs, ct)) in p.bary.iter().zip(TRI_PARAM[k]) {
+            s += b * cs;
+            t += b * ct;
+        }
+        (f, s.clamp(0.0, 1.0), t.clamp(0.0, 1.0))
+    }
+
+    /// Triangle normal and 3D axes of the local 2D frame of `tri`.
+    pub fn tri_axes(&self, tri: u32) -> (DVec3, DVec3, DVec3) {
+        let g = &self.geo[tri as usize];
+        (g.ex, g.ey, g.ex.cross(g.ey))
+    }
+
+    /// A 3D tangent direction at a point with unit normal `n`, turned into the plane of
+    /// triangle `tri` by the smallest rotation taking `n` to the triangle's normal (angles
+    /// between directions are kept), in the triangle's 2D frame.
+    pub fn to_local(&self, tri: u32, n: DVec3, d: DVec3) -> DVec2 {
+        let (ex, ey, nt) = self.tri_axes(tri);
+        let c = n.dot(nt);
+        let r = if c > -0.999_999 {
+            let v = n.cross(nt);
+            d * c + v.cross(d) + v * (v.dot(d) / (1.0 + c))
+        } else {
+            d
+        };
+        DVec2::new(r.dot(ex), r.dot(ey))
+    }
+
+    /// Walks from `start` along the 2D direction `dir` (unit, in the start triangle's frame)
+    /// for `length`.
+    pub fn walk(&self, start: TriPoint, dir: DVec2, length: f64) -> PathEnd {
+        let mut tri = start.tri as usize;
+        let mut b = start.bary;
+        let mut d = dir;
+        let mut rest = length;
+        if rest.is_nan() || rest <= 0.0 || !d.is_finite() {
+            return PathEnd::At(start);
+        }
+        for _ in 0..MAX_CROSSINGS {
+            let g = &self.geo[tri];
+            // Barycentric rate of change per unit length along d.
+            let db2 = d.y / g.y2;
+            let db1 = (d.x - g.x2 * db2) / g.x1;
+            let db = [-db1 - db2, db1, db2];
+            let mut lambda = f64::INFINITY;
+            let mut hit = 3;
+            for c in 0..3 {
+                if db[c] < 0.0 {
+                    let l = b[c].max(0.0) / -db[c];
+                    if l < lambda {
+                        lambda = l;
+                        hit = c;
+                    }
+                }
+            }
+            if hit == 3 || lambda >= rest {
+                for c in 0..3 {
+                    b[c] += db[c] * rest;
+                }
+                return PathEnd::At(TriPoint {
+                    tri: tri as u32,
+                    bary: clean(b),
+                });
+            }
+            rest -= lambda;
+            for c in 0..3 {
+                b[c] += db[c] * lambda;
+            }
+            // Leaves through the edge opposite corner `hit`: local edge j = hit + 1, from
+            // corner j to corner j + 1; `a` is the position along it.
+            let j = (hit + 1) % 3;
+            let j1 = (j + 1) % 3;
+            let (bj, bj1) = (b[j].max(0.0), b[j1].max(0.0));
+            let a = (bj1 / (bj + bj1).max(1e-300)).clamp(VERTEX_EPS, 1.0 - VERTEX_EPS);
+            let link = self.adj[tri][j];
+            if link == NONE {
+                return PathEnd::Boundary;
+            }
+            let (ntri, nj) = ((link >> 2) as usize, (link & 3) as usize);
+            // Direction relative to the edge: along (α) and across (β, negative: leaving).
+            let (e, w) = edge_axes(g, j);
+            let (alpha, beta) = (d.dot(e), d.dot(w));
+            let (e2, w2) = edge_axes(&self.geo[ntri], nj);
+            // The shared edge runs the other way in the neighbour.
+            d = (-alpha * e2 - beta * w2).normalize_or(w2);
+            let mut nb = [0.0; 3];
+            nb[nj] = a;
+            nb[(nj + 1) % 3] = 1.0 - a;
+            b = nb;
+            tri = ntri;
+        }
+        PathEnd::Stalled(TriPoint {
+            tri: tri as u32,
+            bary: clean(b),
+        })
+    }
+
+    /// Domain location of a triangle point.
+    pub fn to_domain(&self, surface: &Surface, lm: &LimitMesh, p: TriPoint) -> DomainLocation {
+        let (f, s, t) = self.face_point(p);
+        let BaseLocation { quad, s, t } = lm.to_base(f, s, t);
+        surface.base_to_domain(quad, s, t)
+    }
+}
+
+/// Unit direction of local edge j (corner j → j+1) and the unit normal into the triangle.
+#[inline]
+fn edge_axes(g: &TriGeo, j: usize) -> (DVec2, DVec2) {
+    let p = [DVec2::ZERO, DVec2::new(g.x1, 0.0), DVec2::new(g.x2, g.y2)];
+    let e = (p[(j + 1) % 3] - p[j]).normalize_or(DVec2::X);
+    // Corners are counter-clockwise, so the interior is to the left of every edge.
+    (e, DVec2::new(-e.y, e.x))
+}
+
+/// Clamps rounding errors so the coordinates stay a convex combination.
+#[inline]
+fn clean(mut b: [f64; 3]) -> [f64; 3] {
+    for x in b.iter_mut() {
+        *x = x.max(0.0);
+    }
+    let s = b[0] + b[1] + b[2];
+    if s > 0.0 && s.is_finite() {
+        for x in b.iter_mut() {
+            *x /= s;
+        }
+        b
+    } else {
+        [1.0 / 3.0; 3]
+    }
+}

@@ -1,0 +1,373 @@
+//! K×K surface neighbourhoods at step δ: the one sampler interface both synthesizers use.
+//!
+//! `Sampler::sample(centre, δ, K, kind, out)` writes, for every pattern offset (l, m) with
+//! l, m = −h..h (K = 2h + 1, any odd K), the surface point reached from `centre` by
+//! l·δ·v1 + m·δ·v2 — as a (domain, u, v) — or `None` where that point is off the surface
+//! (past an open boundary). Offsets are stored row by row: `out[(m + h)·K + (l + h)]`; the
+//! centre is `out[h·K + h]`. l runs along v1 (the example's x, columns), m along v2 =
+//! n × v1 (the example's y, rows).
+//!
+//! Two samplers (see docs/sampling.md):
+//! - [`SamplerKind::Chart`]: chart sampling (000 §4.2, [`chart`]); where the pattern does
+//!   not fit any vertex chart around the centre it falls back to marching, and the fallback
+//!   is counted ([`SamplerStats::fallbacks`]).
+//! - [`SamplerKind::March`]: surface marching (000 §4.1, [`march`]) on the field's limit
+//!   mesh.
+//!
+//! No allocation per pattern or sample: the caller owns `out`; statistics are atomics, so one
+//! `Sampler` is shared by all threads (results never depend on the thread count — each
+//! pattern is computed independently of the others).
+
+pub mod chart;
+pub mod march;
+
+use crate::field::{Frame, OrientationField};
+pub use chart::PatternOrder;
+use glam::DVec3;
+use march::{MarchMesh, PathEnd};
+use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
+use std::sync::OnceLock;
+use subdiv::{BaseLocation, Charts, DomainLocation, Surface, VertexId};
+
+/// Which sampler to use.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum SamplerKind {
+    /// Chart sampling, marching where the pattern fits no chart.
+    Chart,
+    /// Surface marching.
+    March,
+}
+
+impl std::str::FromStr for SamplerKind {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "chart" => Ok(SamplerKind::Chart),
+            "march" => Ok(SamplerKind::March),
+            _ => Err(format!("unknown sampler '{s}' (expected chart or march)")),
+        }
+    }
+}
+
+impl SamplerKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            SamplerKind::Chart => "chart",
+            SamplerKind::March => "march",
+        }
+    }
+}
+
+/// How one pattern was sampled.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Method {
+    /// In the chart of this base-mesh vertex.
+    Chart(VertexId),
+    /// By marching (asked for, or as the fallback of chart sampling).
+    March,
+}
+
+/// What [`Sampler::sample`] did for one pattern.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PatternInfo {
+    pub method: Method,
+    /// Chart sampling was asked for but the pattern fit no chart.
+    pub fallback: bool,
+    /// Samples off the surface (`None`).
+    pub missing: usize,
+}
+
+/// Counters over all patterns sampled so far (sums, so independent of the thread count).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct SamplerStats {
+    pub patterns: u64,
+    /// Patterns asked for with [`SamplerKind::Chart`].
+    pub chart_requests: u64,
+    /// ... of which fit no chart and were marched.
+    pub fallbacks: u64,
+    pub samples: u64,
+    pub missing: u64,
+    /// Marching paths that hit the crossing cap (should stay 0).
+    pub stalled: u64,
+}
+
+impl SamplerStats {
+    /// Share of chart requests that fell back to marching.
+    pub fn fallback_rate(&self) -> f64 {
+        if self.chart_requests == 0 {
+            0.0
+        } else {
+            self.fallbacks as f64 / self.chart_requests as f64
+        }
+    }
+}
+
+#[derive(Default)]
+struct Counters {
+    patterns: AtomicU64,
+    chart_requests: AtomicU64,
+    fallbacks: AtomicU64,
+    samples: AtomicU64,
+    missing: AtomicU64,
+    stalled: AtomicU64,
+}
+
+/// Neighbourhood sampler over one surface and orientation field.
+pub struct Sampler<'a> {
+    surface: &'a Surface,
+    field: &'a OrientationField,
+    charts: Charts,
+    march: OnceLock<MarchMesh>,
+    counters: Counters,
+    order: PatternOrder,
+}
+
+/// Base point used for derivatives: a corner (a possible extraordinary vertex, where Df and
+/// DΦ are singular) is moved 1e-7 inside; the chart map g = f∘Φ⁻¹ is C¹ there, so the
+/// pattern is the limit of the patterns of nearby points.
+fn regular_point(loc: BaseLocation) -> BaseLocation {
+    const EPS: f64 = 1e-7;
+    let near = |x: f64| !(EPS..=1.0 - EPS).contains(&x);
+    if near(loc.s) && near(loc.t) {
+        BaseLocation {
+            quad: loc.quad,
+            s: loc.s.clamp(EPS, 1.0 - EPS),
+            t: loc.t.clamp(EPS, 1.0 - EPS),
+        }
+    } else {
+        loc
+    }
+}
+
+impl<'a> Sampler<'a> {
+    /// Builds the vertex charts; the marching mesh is built on first use of marching.
+    pub fn new(surface: &'a Surface, field: &'a OrientationField) -> Self {
+        Sampler {
+            surface,
+            field,
+            charts: Charts::new(surface),
+            march: OnceLock::new(),
+            counters: Counters::default(),
+            order: PatternOrder::default(),
+        }
+    }
+
+    /// How closely chart patterns follow geodesics (default [`PatternOrder::Cubic`];
+    /// [`PatternOrder::Linear`] is the paper's step 3 as printed).
+    pub fn with_order(mut self, order: PatternOrder) -> Self {
+        self.order = order;
+        self
+    }
+
+    pub fn surface(&self) -> &Surface {
+        self.surface
+    }
+
+    pub fn field(&self) -> &OrientationField {
+        self.field
+    }
+
+    /// The triangulated limit mesh marching walks on.
+    pub fn march_mesh(&self) -> &MarchMesh {
+        self.march
+            .get_or_init(|| MarchMesh::new(self.field.limit_mesh()))
+    }
+
+    /// The field's frame at a domain point.
+    pub fn frame(&self, centre: DomainLocation) -> Frame {
+        self.field
+            .frame(self.surface, centre.domain, centre.u, centre.v)
+    }
+
+    /// The K×K neighbourhood of `centre` at step `delta` (see the module doc), oriented by
+    /// the field. `out.len()` must be at least K², K odd.
+    pub fn sample(
+        &self,
+        centre: DomainLocation,
+        delta: f64,
+        k: usize,
+        kind: SamplerKind,
+        out: &mut [Option<DomainLocation>],
+    ) -> PatternInfo {
+        self.sample_impl(centre, None, delta, k, kind, out)
+    }
+
+    /// As [`Self::sample`] with a given frame (e.g. from
+    /// [`OrientationField::texel_frames`]; only v1, v2 are used).
+    pub fn sample_with_frame(
+        &self,
+        centre: DomainLocation,
+        frame: &Frame,
+        delta: f64,
+        k: usize,
+        kind: SamplerKind,
+        out: &mut [Option<DomainLocation>],
+    ) -> PatternInfo {
+        self.sample_impl(centre, Some(frame), delta, k, kind, out)
+    }
+
+    fn sample_impl(
+        &self,
+        centre: DomainLocation,
+        frame: Option<&Frame>,
+        delta: f64,
+        k: usize,
+        kind: SamplerKind,
+        out: &mut [Option<DomainLocation>],
+    ) -> PatternInfo {
+        assert!(k % 2 == 1, "pattern size {k} must be odd");
+        assert!(
+            out.len() >= k * k,
+            "output buffer holds {} < {k}x{k}",
+            out.len()
+        );
+        let loc = self.surface.base_location(centre);
+        let reg = regular_point(loc);
+        let e = self.surface.eval_base(reg.quad, reg.s, reg.t);
+        let own;
+        let frame = match frame {
+            Some(f) => f,
+            None => {
+                own = self.field.frame_at(loc, e.n, e.du);
+                &own
+            }
+        };
+        let c = &self.counters;
+        c.patterns.fetch_add(1, Relaxed);
+        c.samples.fetch_add((k * k) as u64, Relaxed);
+        let mut info = PatternInfo {
+            method: Method::March,
+            fallback: false,
+            missing: 0,
+        };
+        if kind == SamplerKind::Chart {
+            c.chart_requests.fetch_add(1, Relaxed);
+            match chart::sample_pattern(
+                self.surface,
+                &self.charts,
+                centre,
+                reg,
+                e.du,
+                e.dv,
+                frame,
+                delta,
+                k,
+                self.order,
+                out,
+            ) {
+                Some(v) => info.method = Method::Chart(v),
+                None => {
+                    c.fallbacks.fetch_add(1, Relaxed);
+                    info.fallback = true;
+                }
+            }
+        }
+        if info.method == Method::March {
+            let stalled = self.march_pattern(centre, loc, e.n, frame, delta, k, out);
+            if stalled > 0 {
+                c.stalled.fetch_add(stalled as u64, Relaxed);
+            }
+        }
+        info.missing = out[..k * k].iter().filter(|s| s.is_none()).count();
+        if info.missing > 0 {
+            c.missing.fetch_add(info.missing as u64, Relaxed);
+        }
+        info
+    }
+
+    /// Marches every offset of the pattern; returns the number of stalled paths.
+    #[allow(clippy::too_many_arguments)]
+    fn march_pattern(
+        &self,
+        centre: DomainLocation,
+        loc: BaseLocation,
+        n: DVec3,
+        frame: &Frame,
+        delta: f64,
+        k: usize,
+        out: &mut [Option<DomainLocation>],
+    ) -> usize {
+        let mm = self.march_mesh();
+        let lm = self.field.limit_mesh();
+        let (f, fs, ft) = lm.locate(loc.quad, loc.s, loc.t);
+        let p0 = mm.point_in_face(f, fs, ft);
+        let a1 = mm.to_local(p0.tri, n, frame.v1);
+        let a2 = mm.to_local(p0.tri, n, frame.v2);
+        let h = (k / 2) as i64;
+        let mut stalled = 0;
+        for m in -h..=h {
+            for l in -h..=h {
+                let i = ((m + h) as usize) * k + (l + h) as usize;
+                if l == 0 && m == 0 {
+                    out[i] = Some(centre);
+                    continue;
+                }
+                let dir = a1 * l as f64 + a2 * m as f64;
+                let len = dir.length();
+                out[i] = match mm.walk(p0, dir / len, len * delta) {
+                    PathEnd::At(p) => Some(mm.to_domain(self.surface, lm, p)),
+                    PathEnd::Boundary => None,
+                    PathEnd::Stalled(p) => {
+                        stalled += 1;
+                        Some(mm.to_domain(self.surface, lm, p))
+                    }
+                };
+            }
+        }
+        stalled
+    }
+
+    /// Counters so far.
+    pub fn stats(&self) -> SamplerStats {
+        let c = &self.counters;
+        SamplerStats {
+            patterns: c.patterns.load(Relaxed),
+            chart_requests: c.chart_requests.load(Relaxed),
+            fallbacks: c.fallbacks.load(Relaxed),
+            samples: c.samples.load(Relaxed),
+            missing: c.missing.load(Relaxed),
+            stalled: c.stalled.load(Relaxed),
+        }
+    }
+
+    /// Sets all counters to zero.
+    pub fn reset_stats(&self) {
+        let c = &self.counters;
+        for a in [
+            &c.patterns,
+            &c.chart_requests,
+            &c.fallbacks,
+            &c.samples,
+            &c.missing,
+            &c.stalled,
+        ] {
+            a.store(0, Relaxed);
+        }
+    }
+}
+
+/// Median distance between the limit positions of horizontally or vertically adjacent texel
+/// centres of one face at resolution `n` (BRIEF.md's h).
+pub fn median_texel_spacing(surface: &Surface, n: usize) -> f64 {
+    let mut d = Vec::new();
+    let mut buf = vec![Default::default(); n * n];
+    for dom in 0..surface.num_domains() {
+        surface.eval_texels(subdiv::DomainId::from_idx(dom), n, &mut buf);
+        for y in 0..n {
+            for x in 0..n {
+                let p: DVec3 = buf[y * n + x].p;
+                if x + 1 < n {
+                    d.push((buf[y * n + x + 1].p - p).length());
+                }
+                if y + 1 < n {
+                    d.push((buf[(y + 1) * n + x].p - p).length());
+                }
+            }
+        }
+    }
+    if d.is_empty() {
+        return 0.0;
+    }
+    let mid = d.len() / 2;
+    *d.select_nth_unstable_by(mid, |a, b| a.total_cmp(b)).1
+}
