@@ -1,0 +1,701 @@
+//! Renderer-ready export: `surface.obj` + `surface.mtl` + `atlas.png` (BRIEF, "Output
+//! directory of `synth`"; layout and gutters are described in docs/outputs.md).
+//!
+//! Per-face maps are the natural result of synthesis on a subdivision surface, but no DCC
+//! tool reads Ptex-style EXR tiles with our conventions. So we also write the limit surface
+//! as an ordinary polygon mesh whose UVs point into one packed image:
+//!
+//! - **Atlas**: one tile of (N+2g)×(N+2g) pixels per face domain, in the same column/row
+//!   order as `facemaps.exr` (C = ceil(sqrt(F)) columns). The N×N interior is the domain's
+//!   map; the g-pixel *gutter* around it holds the colours that lie just across the domain's
+//!   edges on the surface, found by walking the gutter texel's centre across the edge in
+//!   parameter space ([`subdiv::Surface::walk`]) and fetching the neighbouring domain's map
+//!   there bilinearly. A renderer filtering bilinearly near a tile's border therefore blends
+//!   the same colours the neighbouring tile shows on the other side of the edge: no seams.
+//!   Where the walk leaves the surface (open boundary) the gutter repeats the border texel.
+//! - **Mesh**: the exact limit surface refined `level` times ([`subdiv::Surface::limit_mesh`]),
+//!   one shared vertex per surface point, so positions along shared edges are not merely
+//!   close but the same vertex: no cracks by construction. Texture coordinates are per
+//!   domain (a point on an edge has one UV in each tile), and they map the domain's unit
+//!   square onto the tile *interior*, so the UV (u, v) lands on the texel grid exactly where
+//!   the per-face map has it: texel centre ((x+0.5)/N, (y+0.5)/N) is atlas pixel centre
+//!   (g+x+0.5, g+y+0.5) inside the tile.
+//!
+//! Colours are linear in the maps and sRGB-encoded (8 bit) in the PNG, as image viewers and
+//! DCC tools expect for colour textures; alpha is stored straight (not premultiplied) and
+//! linearly. All three files go through [`crate::io::atomic`] and are published only after
+//! all three were written, so an error leaves none of them behind.
+
+use crate::error::{Error, Result};
+use crate::io::atomic::AtomicFile;
+use crate::io::exr::FaceMaps;
+use rayon::prelude::*;
+use std::io::Write;
+use std::path::Path;
+use subdiv::{BaseQuadId, DomainId, DomainLocation, FaceId, Surface, VertexId};
+
+/// Default gutter width in pixels. Bilinear filtering needs one; two keep the first
+/// mip level (where a renderer averages 2×2 pixels) free of bleeding from other tiles.
+pub const DEFAULT_GUTTER: usize = 2;
+
+/// Names of the files [`export`] writes.
+pub const OBJ_NAME: &str = "surface.obj";
+/// See [`OBJ_NAME`].
+pub const MTL_NAME: &str = "surface.mtl";
+/// See [`OBJ_NAME`].
+pub const ATLAS_NAME: &str = "atlas.png";
+/// Material name used in the MTL file.
+pub const MATERIAL: &str = "surfsynth";
+
+/// Where the tiles of F domains at resolution N with gutter g sit in the atlas.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct AtlasLayout {
+    /// Number of face domains F.
+    pub faces: usize,
+    /// Texels per domain side N.
+    pub resolution: usize,
+    /// Gutter width g in pixels on each side of a tile.
+    pub gutter: usize,
+    /// Tile columns C = ceil(sqrt(F)) (as in `facemaps.exr`).
+    pub columns: usize,
+    /// Tile rows ceil(F / C).
+    pub rows: usize,
+}
+
+impl AtlasLayout {
+    /// Layout for `faces` domains of `resolution`² texels with `gutter` pixels around each.
+    pub fn new(faces: usize, resolution: usize, gutter: usize) -> Self {
+        let t = crate::io::exr::TileLayout::new(faces, resolution);
+        Self {
+            faces,
+            resolution,
+            gutter,
+            columns: t.columns,
+            rows: t.rows,
+        }
+    }
+
+    /// Tile side N + 2g.
+    pub fn tile(&self) -> usize {
+        self.resolution + 2 * self.gutter
+    }
+
+    /// Atlas width in pixels.
+    pub fn width(&self) -> usize {
+        self.columns * self.tile()
+    }
+
+    /// Atlas height in pixels.
+    pub fn height(&self) -> usize {
+        self.rows * self.tile()
+    }
+
+    /// Pixel position of domain `f`'s texel (0, 0) (the top-left of its tile interior).
+    pub fn interior_origin(&self, f: usize) -> (usize, usize) {
+        let t = self.tile();
+        (
+            (f % self.columns) * t + self.gutter,
+            (f / self.columns) * t + self.gutter,
+        )
+    }
+
+    /// Continuous atlas pixel coordinates (x right, y down, pixel centres at +0.5) of
+    /// domain point (u, v).
+    pub fn pixel(&self, f: usize, u: f64, v: f64) -> (f64, f64) {
+        let (x0, y0) = self.interior_origin(f);
+        let n = self.resolution as f64;
+        (x0 as f64 + u * n, y0 as f64 + v * n)
+    }
+
+    /// OBJ texture coordinates (origin at the image's bottom-left) of domain point (u, v).
+    pub fn obj_uv(&self, f: usize, u: f64, v: f64) -> (f64, f64) {
+        let (x, y) = self.pixel(f, u, v);
+        (x / self.width() as f64, 1.0 - y / self.height() as f64)
+    }
+}
+
+/// The atlas in linear colour, before encoding.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Atlas {
+    pub layout: AtlasLayout,
+    /// 3 (RGB) or 4 (RGBA).
+    pub channels: usize,
+    /// Row-major, interleaved, linear values (alpha straight).
+    pub pixels: Vec<f32>,
+}
+
+/// The colour channels of `maps` (R, G, B and A if present), checked for presence.
+fn colour_channels(maps: &FaceMaps) -> Result<Vec<&[f32]>> {
+    let mut out = Vec::with_capacity(4);
+    for name in ["R", "G", "B"] {
+        out.push(maps.channel(name).ok_or_else(|| {
+            Error::invalid(format!(
+                "face maps have no '{name}' channel; an atlas needs colour"
+            ))
+        })?);
+    }
+    if let Some(a) = maps.channel("A") {
+        out.push(a);
+    }
+    Ok(out)
+}
+
+/// Bilinear lookup of every channel of domain `d` at domain point (u, v), clamping to the
+/// domain's own border texels (the caller has already walked into the right domain).
+fn fetch_in_domain(chans: &[&[f32]], n: usize, d: usize, u: f64, v: f64, out: &mut [f32]) {
+    let nf = n as f64;
+    let px = (u * nf - 0.5).clamp(0.0, nf - 1.0);
+    let py = (v * nf - 0.5).clamp(0.0, nf - 1.0);
+    let x0 = (px.floor() as usize).min(n - 1);
+    let y0 = (py.floor() as usize).min(n - 1);
+    let x1 = (x0 + 1).min(n - 1);
+    let y1 = (y0 + 1).min(n - 1);
+    let fx = (px - x0 as f64) as f32;
+    let fy = (py - y0 as f64) as f32;
+    let base = d * n * n;
+    for (c, ch) in chans.iter().enumerate() {
+        let t = |x: usize, y: usize| ch[base + y * n + x];
+        let top = t(x0, y0) + (t(x1, y0) - t(x0, y0)) * fx;
+        let bot = t(x0, y1) + (t(x1, y1) - t(x0, y1)) * fx;
+        out[c] = top + (bot - top) * fy;
+    }
+}
+
+/// Where the gutter texel at tile-interior position (x, y) (outside 0..N on at least one
+/// axis) lies on the surface: the domain point reached by walking from the nearest texel
+/// centre of domain `d` by the texel offset. When the straight walk leaves the surface
+/// (open boundary), the offset is tried one axis at a time, which amounts to clamping
+/// along the boundary; when that fails too, the nearest texel of `d` itself is used.
+pub fn gutter_location(
+    surface: &Surface,
+    n: usize,
+    d: usize,
+    x: isize,
+    y: isize,
+) -> DomainLocation {
+    let last = n as isize - 1;
+    let (xc, yc) = (x.clamp(0, last), y.clamp(0, last));
+    let nf = n as f64;
+    let start = DomainLocation {
+        domain: DomainId::from_idx(d),
+        u: (xc as f64 + 0.5) / nf,
+        v: (yc as f64 + 0.5) / nf,
+    };
+    let du = (x - xc) as f64 / nf;
+    let dv = (y - yc) as f64 / nf;
+    surface
+        .walk(start, du, dv)
+        .or_else(|| {
+            if du != 0.0 && dv != 0.0 {
+                surface
+                    .walk(start, du, 0.0)
+                    .or_else(|| surface.walk(start, 0.0, dv))
+            } else {
+                None
+            }
+        })
+        .unwrap_or(start)
+}
+
+/// Domain corners in (u, v), in quad corner order.
+const CORNERS: [(f64, f64); 4] = [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)];
+
+/// All domain corners at the surface vertex at corner `corner` of domain `d`, as (domain,
+/// u, v) with u, v in {0, 1}, one per face around the vertex (the whole fan at an open
+/// boundary), sorted so that every domain of the ring sees the same list. `None` when the
+/// vertex is not a corner of every domain around it (the middle of a quad domain's edge at a
+/// T-junction with n-gon sub-faces).
+fn corner_ring(surface: &Surface, d: usize, corner: usize) -> Option<Vec<(usize, f64, f64)>> {
+    let (u, v) = CORNERS[corner];
+    let b = surface.base_location(DomainLocation {
+        domain: DomainId::from_idx(d),
+        u,
+        v,
+    });
+    let c = CORNERS.iter().position(|&st| st == (b.s, b.t))?;
+    let base = &surface.base;
+    let vert = VertexId(base.face_vertices(FaceId(b.quad.0))[c]);
+    let mut ring = Vec::new();
+    for h in base.outgoing(vert) {
+        let q = base.face_of(h);
+        let (s, t) = CORNERS[(h - base.face_he(q)) as usize];
+        let loc = surface.base_to_domain(BaseQuadId(q.0), s, t);
+        let corner = |w: f64| w == 0.0 || w == 1.0;
+        if !corner(loc.u) || !corner(loc.v) {
+            return None;
+        }
+        ring.push((loc.domain.idx(), loc.u, loc.v));
+    }
+    ring.sort_by(|a, b| a.partial_cmp(b).expect("corner coordinates are 0 or 1"));
+    Some(ring)
+}
+
+/// Tile-interior coordinates of the corner texel of corner (u, v) (u, v in {0, 1}) and of
+/// the gutter texels beside it along x, along y and diagonally.
+fn corner_texels(n: usize, u: f64, v: f64) -> [(isize, isize); 4] {
+    let (x, sx) = if u == 0.0 {
+        (0, -1)
+    } else {
+        (n as isize - 1, 1)
+    };
+    let (y, sy) = if v == 0.0 {
+        (0, -1)
+    } else {
+        (n as isize - 1, 1)
+    };
+    [(x, y), (x + sx, y), (x, y + sy), (x + sx, y + sy)]
+}
+
+/// Makes every tile around a vertex agree on the vertex's colour.
+///
+/// Bilinear filtering exactly at a domain corner averages four pixels: the corner texel C,
+/// the two edge-gutter texels beside it (G1, G2: the neighbours' texels across the two
+/// edges, or C again across an open boundary) and the diagonal gutter texel X. With k
+/// domains around the vertex there is a true diagonal only when k = 4; otherwise whatever
+/// the walk picks differs from tile to tile and the vertex colour would jump. X is the one
+/// free value, so we choose one target T for the whole ring and set X = 4T - (C + G1 + G2)
+/// in every tile: all tiles then filter to T at the vertex. T is the mean M of the k corner
+/// texels (for k = 4 that reproduces the true diagonal; for k = 3, X = M), moved as little
+/// as needed so that every tile's X stays inside [0, 1] (widened to the ring's own range for
+/// values outside it): a stored 8-bit texel cannot leave that range, and an overshooting
+/// extrapolation would have to be clamped per tile, breaking the agreement. Only if no
+/// such T exists (extreme contrast at a high-valence vertex) is X clamped. X only ever gets
+/// bilinear weight within half a texel of the vertex.
+#[allow(clippy::too_many_arguments)]
+fn fix_corner_gutter(
+    surface: &Surface,
+    chans: &[&[f32]],
+    n: usize,
+    gutter: usize,
+    d: usize,
+    corner: usize,
+    tile: &mut [f32],
+) {
+    let Some(ring) = corner_ring(surface, d, corner) else {
+        return;
+    };
+    let k = chans.len();
+    let t = n + 2 * gutter;
+    // Per ring member: its corner texel and C + G1 + G2, computed by the same walks and
+    // fetches that filled the gutters, so each tile's own sum is bit-identical to its pixels.
+    let mut corner_vals = vec![0f32; ring.len() * k];
+    let mut sums = vec![0f32; ring.len() * k];
+    let mut tmp = [0f32; 4];
+    for (r, &(dr, u, v)) in ring.iter().enumerate() {
+        let [c, g1, g2, _] = corner_texels(n, u, v);
+        let i = dr * n * n + c.1 as usize * n + c.0 as usize;
+        for (ch, data) in chans.iter().enumerate() {
+            corner_vals[r * k + ch] = data[i];
+            sums[r * k + ch] = data[i];
+        }
+        for g in [g1, g2] {
+            let loc = gutter_location(surface, n, dr, g.0, g.1);
+            fetch_in_domain(chans, n, loc.domain.idx(), loc.u, loc.v, &mut tmp[..k]);
+            for ch in 0..k {
+                sums[r * k + ch] += tmp[ch];
+            }
+        }
+    }
+    let me = ring
+        .iter()
+        .position(|&(dr, u, v)| dr == d && (u, v) == CORNERS[corner])
+        .expect("a domain is in the ring of its own corner");
+    let [_, _, _, x] = corner_texels(n, CORNERS[corner].0, CORNERS[corner].1);
+    let px = ((x.1 + gutter as isize) as usize * t + (x.0 + gutter as isize) as usize) * k;
+    for ch in 0..k {
+        let vals = (0..ring.len()).map(|r| corner_vals[r * k + ch]);
+        let m = vals.clone().sum::<f32>() / ring.len() as f32;
+        let lo = vals.clone().fold(0.0, f32::min);
+        let hi = vals.fold(1.0, f32::max);
+        let s = (0..ring.len()).map(|r| sums[r * k + ch]);
+        let t_lo = s.clone().fold(f32::NEG_INFINITY, f32::max) + lo;
+        let t_hi = s.fold(f32::INFINITY, f32::min) + hi;
+        let target = if t_lo <= t_hi {
+            m.clamp(t_lo / 4.0, t_hi / 4.0)
+        } else {
+            m
+        };
+        let val = 4.0 * target - sums[me * k + ch];
+        tile[px + ch] = if val.is_finite() {
+            val.clamp(lo, hi)
+        } else {
+            m
+        };
+    }
+}
+/// Builds the atlas (linear colours) for `maps` on `surface` with a gutter of `gutter`
+/// pixels (at least 1). Tiles are independent, so they are filled in parallel; the result
+/// does not depend on the number of threads.
+pub fn build_atlas(surface: &Surface, maps: &FaceMaps, gutter: usize) -> Result<Atlas> {
+    if maps.faces != surface.num_domains() {
+        return Err(Error::invalid(format!(
+            "face maps have {} domains but the mesh has {}",
+            maps.faces,
+            surface.num_domains()
+        )));
+    }
+    if gutter == 0 {
+        return Err(Error::invalid("atlas gutter must be at least 1 pixel"));
+    }
+    let n = maps.resolution;
+    if n == 0 {
+        return Err(Error::invalid("face maps have resolution 0"));
+    }
+    let chans = colour_channels(maps)?;
+    let k = chans.len();
+    let layout = AtlasLayout::new(maps.faces, n, gutter);
+    let (w, t) = (layout.width(), layout.tile());
+    // Fill each tile into its own buffer, then copy rows into place.
+    let tiles: Vec<Vec<f32>> = (0..maps.faces)
+        .into_par_iter()
+        .map(|d| {
+            let mut tile = vec![0f32; t * t * k];
+            let g = gutter as isize;
+            for ty in 0..t {
+                for tx in 0..t {
+                    let (x, y) = (tx as isize - g, ty as isize - g);
+                    let px = &mut tile[(ty * t + tx) * k..(ty * t + tx + 1) * k];
+                    if (0..n as isize).contains(&x) && (0..n as isize).contains(&y) {
+                        let i = d * n * n + y as usize * n + x as usize;
+                        for (c, ch) in chans.iter().enumerate() {
+                            px[c] = ch[i];
+                        }
+                    } else {
+                        let loc = gutter_location(surface, n, d, x, y);
+                        fetch_in_domain(&chans, n, loc.domain.idx(), loc.u, loc.v, px);
+                    }
+                }
+            }
+            for corner in 0..4 {
+                fix_corner_gutter(surface, &chans, n, gutter, d, corner, &mut tile);
+            }
+            tile
+        })
+        .collect();
+    let mut pixels = vec![0f32; w * layout.height() * k];
+    for (d, tile) in tiles.iter().enumerate() {
+        let (x0, y0) = layout.interior_origin(d);
+        let (x0, y0) = (x0 - gutter, y0 - gutter);
+        for ty in 0..t {
+            let dst = ((y0 + ty) * w + x0) * k;
+            pixels[dst..dst + t * k].copy_from_slice(&tile[ty * t * k..(ty + 1) * t * k]);
+        }
+    }
+    Ok(Atlas {
+        layout,
+        channels: k,
+        pixels,
+    })
+}
+
+/// Linear [0, 1] → 8-bit sRGB (IEC 61966-2-1); NaN and negatives give 0.
+pub fn linear_to_srgb8(c: f32) -> u8 {
+    let c = if c.is_nan() { 0.0 } else { c.clamp(0.0, 1.0) };
+    let s = if c <= 0.003_130_8 {
+        12.92 * c
+    } else {
+        1.055 * c.powf(1.0 / 2.4) - 0.055
+    };
+    (s * 255.0 + 0.5).floor().clamp(0.0, 255.0) as u8
+}
+
+/// 8-bit sRGB → linear [0, 1].
+pub fn srgb8_to_linear(b: u8) -> f32 {
+    let s = b as f32 / 255.0;
+    if s <= 0.040_45 {
+        s / 12.92
+    } else {
+        ((s + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+impl Atlas {
+    /// 8-bit pixels as stored in the PNG: colour sRGB-encoded, alpha linear.
+    pub fn to_8bit(&self) -> Vec<u8> {
+        let k = self.channels;
+        self.pixels
+            .par_chunks(k)
+            .flat_map_iter(|px| {
+                px.iter().enumerate().map(move |(c, &v)| {
+                    if c == 3 {
+                        let v = if v.is_nan() { 0.0 } else { v.clamp(0.0, 1.0) };
+                        (v * 255.0 + 0.5).floor() as u8
+                    } else {
+                        linear_to_srgb8(v)
+                    }
+                })
+            })
+            .collect()
+    }
+
+    /// PNG bytes of [`Self::to_8bit`] (deterministic: fixed compression and filter).
+    pub fn encode_png(&self, out: &mut impl Write) -> std::result::Result<(), String> {
+        use image::codecs::png::{CompressionType, FilterType, PngEncoder};
+        use image::{ExtendedColorType, ImageEncoder};
+        let colour = if self.channels == 4 {
+            ExtendedColorType::Rgba8
+        } else {
+            ExtendedColorType::Rgb8
+        };
+        PngEncoder::new_with_quality(out, CompressionType::Default, FilterType::Adaptive)
+            .write_image(
+                &self.to_8bit(),
+                self.layout.width() as u32,
+                self.layout.height() as u32,
+                colour,
+            )
+            .map_err(|e| e.to_string())
+    }
+}
+
+/// A tessellated limit surface with per-domain texture coordinates (OBJ-ready, 0-based).
+#[derive(Clone, Debug, PartialEq)]
+pub struct SurfaceMesh {
+    /// Limit positions, one per surface point (shared by all faces touching it).
+    pub positions: Vec<[f64; 3]>,
+    /// Unit limit normals, parallel to `positions`.
+    pub normals: Vec<[f64; 3]>,
+    /// OBJ texture coordinates (bottom-left origin), a grid per domain.
+    pub uvs: Vec<[f64; 2]>,
+    /// Quads: (position/normal index, uv index) per corner, counter-clockwise like the
+    /// control mesh.
+    pub quads: Vec<[(u32, u32); 4]>,
+    /// The domain each quad belongs to (parallel to `quads`).
+    pub quad_domain: Vec<u32>,
+    /// Refinement level of the tessellation (see [`tessellate`]).
+    pub level: u32,
+}
+
+/// The refinement level [`export`] uses for resolution `n`: a quad domain gets 2^level
+/// segments per side (an n-gon sub-face half that), aiming at about one segment per four
+/// texels — finer adds file size but no visible smoothness, the limit surface being C² almost
+/// everywhere — clamped to 2..=5 (4 to 32 segments per quad domain side).
+pub fn level_for_resolution(n: usize) -> u32 {
+    let target = n.div_ceil(4).max(1);
+    let mut level = 0;
+    while (1usize << level) < target {
+        level += 1;
+    }
+    level.clamp(2, 5)
+}
+
+/// Tessellates the limit surface at `level` (>= 1; see [`level_for_resolution`]) with UVs
+/// into `layout`.
+pub fn tessellate(surface: &Surface, layout: &AtlasLayout, level: u32) -> SurfaceMesh {
+    let level = level.max(1);
+    let lm = surface.limit_mesh(level);
+    let per_base = 1usize << (level - 1);
+    // UV grid per domain: (M+1)² points, M = segments per domain side.
+    let segments = |d: usize| match surface.domain(DomainId::from_idx(d)) {
+        subdiv::Domain::Quad { .. } => 2 * per_base,
+        subdiv::Domain::SubFace { .. } => per_base,
+    };
+    let mut uv_start = Vec::with_capacity(layout.faces + 1);
+    let mut uvs = Vec::new();
+    for d in 0..layout.faces {
+        uv_start.push(uvs.len() as u32);
+        let m = segments(d);
+        for j in 0..=m {
+            for i in 0..=m {
+                let (a, b) = layout.obj_uv(d, i as f64 / m as f64, j as f64 / m as f64);
+                uvs.push([a, b]);
+            }
+        }
+    }
+    let nf = lm.mesh.num_faces();
+    let mut quads = Vec::with_capacity(nf);
+    let mut quad_domain = Vec::with_capacity(nf);
+    for f in 0..nf {
+        let fid = FaceId::from_idx(f);
+        let verts = lm.mesh.face_vertices(fid);
+        let mut q = [(0u32, 0u32); 4];
+        let mut domain = 0;
+        for (c, &(s, t)) in CORNERS.iter().enumerate() {
+            let b = lm.to_base(fid, s, t);
+            let loc = surface.base_to_domain(b.quad, b.s, b.t);
+            let d = loc.domain.idx();
+            let m = segments(d);
+            // Corners of level faces are dyadic, so these are exact integers.
+            let i = (loc.u * m as f64).round() as u32;
+            let j = (loc.v * m as f64).round() as u32;
+            q[c] = (verts[c], uv_start[d] + j * (m as u32 + 1) + i);
+            domain = d as u32;
+        }
+        quads.push(q);
+        quad_domain.push(domain);
+    }
+    SurfaceMesh {
+        positions: lm.position.iter().map(|p| p.to_array()).collect(),
+        normals: lm.normal.iter().map(|p| p.to_array()).collect(),
+        uvs,
+        quads,
+        quad_domain,
+        level,
+    }
+}
+
+impl SurfaceMesh {
+    /// Writes the mesh as OBJ text referencing `mtl` and [`MATERIAL`]. Coordinates are
+    /// printed as f32 in shortest round-trip form: exact enough for any renderer, half the
+    /// size of f64, and identical text for identical values (the shared vertex already
+    /// guarantees crack-free edges; the text form keeps them crack-free after parsing).
+    pub fn write_obj(&self, out: &mut impl Write, mtl: &str) -> std::io::Result<()> {
+        writeln!(
+            out,
+            "# surfsynth: Catmull-Clark limit surface, level {} tessellation",
+            self.level
+        )?;
+        writeln!(
+            out,
+            "# {} vertices, {} texture coordinates, {} quads",
+            self.positions.len(),
+            self.uvs.len(),
+            self.quads.len()
+        )?;
+        writeln!(out, "mtllib {mtl}")?;
+        for p in &self.positions {
+            writeln!(out, "v {} {} {}", p[0] as f32, p[1] as f32, p[2] as f32)?;
+        }
+        for t in &self.uvs {
+            writeln!(out, "vt {} {}", t[0] as f32, t[1] as f32)?;
+        }
+        for n in &self.normals {
+            writeln!(out, "vn {} {} {}", n[0] as f32, n[1] as f32, n[2] as f32)?;
+        }
+        writeln!(out, "usemtl {MATERIAL}")?;
+        for q in &self.quads {
+            write!(out, "f")?;
+            for &(v, t) in q {
+                write!(out, " {}/{}/{}", v + 1, t + 1, v + 1)?;
+            }
+            writeln!(out)?;
+        }
+        Ok(())
+    }
+}
+
+/// MTL text for the atlas; `alpha` adds `map_d` (cut-outs) from the atlas's alpha.
+pub fn mtl_text(atlas: &str, alpha: bool) -> String {
+    let mut s = format!(
+        "# surfsynth material\nnewmtl {MATERIAL}\nKa 0 0 0\nKd 1 1 1\nKs 0 0 0\nd 1\nillum 1\nmap_Kd {atlas}\n"
+    );
+    if alpha {
+        s.push_str(&format!("map_d -imfchan m {atlas}\n"));
+    }
+    s
+}
+
+/// Options of [`export`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ExportOptions {
+    /// Gutter width in pixels (>= 1; [`DEFAULT_GUTTER`]).
+    pub gutter: usize,
+    /// Tessellation level; `None` picks [`level_for_resolution`].
+    pub level: Option<u32>,
+}
+
+impl Default for ExportOptions {
+    fn default() -> Self {
+        Self {
+            gutter: DEFAULT_GUTTER,
+            level: None,
+        }
+    }
+}
+
+/// What [`export`] wrote.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct ExportSummary {
+    pub atlas_width: usize,
+    pub atlas_height: usize,
+    pub vertices: usize,
+    pub quads: usize,
+    pub level: u32,
+    pub alpha: bool,
+}
+
+/// Writes `DIR/surface.obj`, `DIR/surface.mtl` and `DIR/atlas.png` for `maps` (which need
+/// `R`, `G`, `B` and may have `A`) on `surface`. The directory must exist. Nothing is
+/// published unless all three files were written.
+pub fn export(
+    dir: impl AsRef<Path>,
+    surface: &Surface,
+    maps: &FaceMaps,
+    opts: &ExportOptions,
+) -> Result<ExportSummary> {
+    let dir = dir.as_ref();
+    let atlas = build_atlas(surface, maps, opts.gutter)?;
+    let level = opts
+        .level
+        .unwrap_or_else(|| level_for_resolution(maps.resolution));
+    let mesh = tessellate(surface, &atlas.layout, level);
+    let alpha = atlas.channels == 4;
+
+    let png_path = dir.join(ATLAS_NAME);
+    let mut png = AtomicFile::create(&png_path)?;
+    atlas
+        .encode_png(png.writer())
+        .map_err(|e| Error::file(&png_path, format!("cannot write PNG: {e}")))?;
+
+    let mtl_path = dir.join(MTL_NAME);
+    let mut mtl = AtomicFile::create(&mtl_path)?;
+    mtl.writer()
+        .write_all(mtl_text(ATLAS_NAME, alpha).as_bytes())
+        .map_err(|e| Error::io(&mtl_path, "cannot write", e))?;
+
+    let obj_path = dir.join(OBJ_NAME);
+    let mut obj = AtomicFile::create(&obj_path)?;
+    mesh.write_obj(obj.writer(), MTL_NAME)
+        .map_err(|e| Error::io(&obj_path, "cannot write", e))?;
+
+    // The OBJ refers to the MTL, which refers to the PNG: publish in that dependency order.
+    png.commit()?;
+    mtl.commit()?;
+    obj.commit()?;
+    Ok(ExportSummary {
+        atlas_width: atlas.layout.width(),
+        atlas_height: atlas.layout.height(),
+        vertices: mesh.positions.len(),
+        quads: mesh.quads.len(),
+        level,
+        alpha,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn srgb_round_trips_every_byte() {
+        for b in 0..=255u8 {
+            assert_eq!(linear_to_srgb8(srgb8_to_linear(b)), b);
+        }
+        assert_eq!(linear_to_srgb8(f32::NAN), 0);
+        assert_eq!(linear_to_srgb8(2.0), 255);
+        // Reference value: linear 0.5 is sRGB 0.7354 → 188.
+        assert_eq!(linear_to_srgb8(0.5), 188);
+    }
+
+    #[test]
+    fn layout_maps_texel_centres_to_pixel_centres() {
+        let l = AtlasLayout::new(7, 4, 2);
+        assert_eq!((l.columns, l.rows, l.tile()), (3, 3, 8));
+        assert_eq!((l.width(), l.height()), (24, 24));
+        // Domain 4 is column 1, row 1: interior starts at (8+2, 8+2).
+        assert_eq!(l.interior_origin(4), (10, 10));
+        let (x, y) = l.pixel(4, 2.5 / 4.0, 0.5 / 4.0);
+        assert_eq!((x, y), (12.5, 10.5));
+        let (s, t) = l.obj_uv(4, 0.0, 0.0);
+        assert_eq!((s, t), (10.0 / 24.0, 1.0 - 10.0 / 24.0));
+    }
+
+    #[test]
+    fn level_follows_resolution() {
+        assert_eq!(level_for_resolution(1), 2);
+        assert_eq!(level_for_resolution(16), 2);
+        assert_eq!(level_for_resolution(32), 3);
+        assert_eq!(level_for_resolution(64), 4);
+        assert_eq!(level_for_resolution(4096), 5);
+    }
+}
