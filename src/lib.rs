@@ -12,3 +12,5 @@ pub mod texels;
 
 pub use error::{Error, Result};
 pub mod sampling;
+pub mod maps;
+pub mod probe;

@@ -1,7 +1,7 @@
 //! `surfsynth probe`: sampling pattern around a surface point as JSON (issue 3).
-//! Arguments are final; the handler is a placeholder until the samplers land.
+//! Arguments are final; the work is `surfsynth::probe::run_probe`.
 
-use super::{not_implemented, parse_orient, parse_positive};
+use super::{parse_orient, parse_positive};
 use clap::{Args, ValueEnum};
 use std::path::PathBuf;
 use surfsynth::field::Orientation;
@@ -62,6 +62,19 @@ pub struct ProbeArgs {
 }
 
 pub fn run(a: ProbeArgs) -> anyhow::Result<()> {
-    let _ = a;
-    not_implemented("probe")
+    let req = surfsynth::probe::ProbeRequest {
+        mesh: a.mesh,
+        face: a.face,
+        u: a.uv[0],
+        v: a.uv[1],
+        step: a.step,
+        size: a.size,
+        sampler: match a.sampler {
+            Sampler::Chart => surfsynth::sampling::SamplerKind::Chart,
+            Sampler::March => surfsynth::sampling::SamplerKind::March,
+        },
+        orient: a.orient,
+    };
+    println!("{}", surfsynth::probe::run_probe(&req)?);
+    Ok(())
 }

@@ -1,0 +1,336 @@
+//! Per-face texel maps and bilinear fetch at any (domain, u, v), across face edges and
+//! corners (Ying et al. 2001, §5 step 1: "neighbouring domains' texels are used near
+//! borders").
+//!
+//! Layout: F domains × N×N texels × C f32 channels, texel (x, y) of domain d at global index
+//! (d·N + y)·N + x, centre (u, v) = ((x + 0.5)/N, (y + 0.5)/N) — the same layout as
+//! `facemaps.exr` tiles and [`crate::field::OrientationField::texel_frames`].
+//!
+//! A bilinear fetch near a border needs texel centres just outside [0,1]², which belong to
+//! a neighbouring domain (possibly rotated, possibly at a different scale where a quad
+//! domain meets an n-gon sub-face, possibly around an extraordinary corner). [`MapLayout`]
+//! precomputes, once per resolution, a *ring* of 4N + 4 such outside centres per domain:
+//! each is found by walking straight from the nearest inside centre across the edge
+//! ([`subdiv::Surface::walk`]) and stored as the (edge-clamped) bilinear taps of the
+//! neighbour at the point reached. A fetch is then at most 4 × 4 table reads, with no walk
+//! and no allocation. Outside an open boundary the ring repeats the nearest inside texel.
+
+use rayon::prelude::*;
+use std::sync::Arc;
+use subdiv::{DomainId, DomainLocation, Surface};
+
+/// Texel-index and weight pairs whose weighted sum is a bilinear fetch.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Taps {
+    pub idx: [u32; 16],
+    pub w: [f32; 16],
+    pub len: usize,
+}
+
+impl Taps {
+    #[inline]
+    fn push(&mut self, i: u32, w: f32) {
+        if w != 0.0 {
+            self.idx[self.len] = i;
+            self.w[self.len] = w;
+            self.len += 1;
+        }
+    }
+
+    /// The (index, weight) pairs.
+    pub fn iter(&self) -> impl Iterator<Item = (usize, f32)> + '_ {
+        self.idx[..self.len]
+            .iter()
+            .zip(&self.w[..self.len])
+            .map(|(&i, &w)| (i as usize, w))
+    }
+}
+
+/// Neighbour taps of one ring texel (weights sum to 1).
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Ring {
+    idx: [u32; 4],
+    w: [f32; 4],
+}
+
+/// Texel layout at one resolution, with the cross-face ring (see the module doc).
+#[derive(Clone, Debug)]
+pub struct MapLayout {
+    faces: usize,
+    n: usize,
+    /// 4n + 4 entries per domain (see [`ring_slot`]).
+    ring: Vec<Ring>,
+}
+
+/// Position of outside texel (x, y) ∈ [−1, n]² \ [0, n)² in a domain's ring: the row
+/// y = −1 (x = −1..=n), the row y = n, then the columns x = −1 and x = n (y = 0..n).
+#[inline]
+fn ring_slot(n: usize, x: i64, y: i64) -> usize {
+    let n = n as i64;
+    (if y < 0 {
+        x + 1
+    } else if y >= n {
+        n + 2 + x + 1
+    } else if x < 0 {
+        2 * (n + 2) + y
+    } else {
+        2 * (n + 2) + n + y
+    }) as usize
+}
+
+/// Clamped bilinear taps of a point of domain `d` (texel centres outside are clamped to the
+/// border row/column: used for ring texels, whose points lie within half a texel of an
+/// edge of their own domain).
+fn clamped_taps(n: usize, d: usize, u: f64, v: f64) -> Ring {
+    let base = (d * n * n) as u32;
+    let axis = |t: f64| -> (usize, usize, f64) {
+        let f = (t * n as f64 - 0.5).clamp(0.0, (n - 1) as f64);
+        let i0 = (f.floor() as usize).min(n.saturating_sub(2));
+        let i1 = (i0 + 1).min(n - 1);
+        (i0, i1, (f - i0 as f64).clamp(0.0, 1.0))
+    };
+    let (x0, x1, ax) = axis(u);
+    let (y0, y1, ay) = axis(v);
+    let at = |x: usize, y: usize| base + (y * n + x) as u32;
+    Ring {
+        idx: [at(x0, y0), at(x1, y0), at(x0, y1), at(x1, y1)],
+        w: [
+            ((1.0 - ax) * (1.0 - ay)) as f32,
+            (ax * (1.0 - ay)) as f32,
+            ((1.0 - ax) * ay) as f32,
+            (ax * ay) as f32,
+        ],
+    }
+}
+
+impl MapLayout {
+    /// Builds the layout and ring for `n`×`n` maps on every domain of `surface` (parallel;
+    /// the result does not depend on the thread count).
+    pub fn new(surface: &Surface, n: usize) -> Self {
+        assert!(n >= 1, "map resolution must be at least 1");
+        let faces = surface.num_domains();
+        let per = 4 * n + 4;
+        let mut ring = vec![
+            Ring {
+                idx: [0; 4],
+                w: [0.0; 4],
+            };
+            faces * per
+        ];
+        ring.par_chunks_mut(per).enumerate().for_each(|(d, slots)| {
+            let inv = 1.0 / n as f64;
+            let ni = n as i64;
+            let mut fill = |x: i64, y: i64| {
+                let cx = x.clamp(0, ni - 1);
+                let cy = y.clamp(0, ni - 1);
+                let start = DomainLocation {
+                    domain: DomainId::from_idx(d),
+                    u: (cx as f64 + 0.5) * inv,
+                    v: (cy as f64 + 0.5) * inv,
+                };
+                let du = (x - cx) as f64 * inv;
+                let dv = (y - cy) as f64 * inv;
+                slots[ring_slot(n, x, y)] = match surface.walk(start, du, dv) {
+                    Some(l) => clamped_taps(n, l.domain.idx(), l.u, l.v),
+                    None => Ring {
+                        idx: [(d * n * n) as u32 + (cy * ni + cx) as u32, 0, 0, 0],
+                        w: [1.0, 0.0, 0.0, 0.0],
+                    },
+                };
+            };
+            for x in -1..=ni {
+                fill(x, -1);
+                fill(x, ni);
+            }
+            for y in 0..ni {
+                fill(-1, y);
+                fill(ni, y);
+            }
+        });
+        MapLayout { faces, n, ring }
+    }
+
+    /// Texels per side.
+    pub fn n(&self) -> usize {
+        self.n
+    }
+
+    /// Number of face domains.
+    pub fn faces(&self) -> usize {
+        self.faces
+    }
+
+    /// F·N·N.
+    pub fn texels(&self) -> usize {
+        self.faces * self.n * self.n
+    }
+
+    /// Global index of texel (x, y) of domain `d`.
+    #[inline]
+    pub fn texel_index(&self, d: DomainId, x: usize, y: usize) -> usize {
+        (d.idx() * self.n + y) * self.n + x
+    }
+
+    /// Domain and texel-centre location of a global texel index.
+    #[inline]
+    pub fn texel_location(&self, i: usize) -> DomainLocation {
+        let n = self.n;
+        let (d, r) = (i / (n * n), i % (n * n));
+        DomainLocation {
+            domain: DomainId::from_idx(d),
+            u: ((r % n) as f64 + 0.5) / n as f64,
+            v: ((r / n) as f64 + 0.5) / n as f64,
+        }
+    }
+
+    /// Bilinear taps at a domain point: the four texel centres around (u, v), those outside
+    /// the domain taken from the neighbours through the ring. (u, v) is clamped to [0,1]².
+    #[inline]
+    pub fn taps(&self, loc: DomainLocation) -> Taps {
+        let n = self.n;
+        let ni = n as i64;
+        let d = loc.domain.idx();
+        let fx = loc.u.clamp(0.0, 1.0) * n as f64 - 0.5;
+        let fy = loc.v.clamp(0.0, 1.0) * n as f64 - 0.5;
+        let (x0, y0) = (fx.floor() as i64, fy.floor() as i64);
+        let (ax, ay) = ((fx - x0 as f64) as f32, (fy - y0 as f64) as f32);
+        let mut t = Taps {
+            idx: [0; 16],
+            w: [0.0; 16],
+            len: 0,
+        };
+        let base = (d * n * n) as u32;
+        let ring = &self.ring[d * (4 * n + 4)..(d + 1) * (4 * n + 4)];
+        for (dy, wy) in [(0, 1.0 - ay), (1, ay)] {
+            for (dx, wx) in [(0, 1.0 - ax), (1, ax)] {
+                let w = wx * wy;
+                if w == 0.0 {
+                    continue;
+                }
+                let (x, y) = (x0 + dx, y0 + dy);
+                if (0..ni).contains(&x) && (0..ni).contains(&y) {
+                    t.push(base + (y * ni + x) as u32, w);
+                } else {
+                    let r = &ring[ring_slot(n, x, y)];
+                    for k in 0..4 {
+                        t.push(r.idx[k], w * r.w[k]);
+                    }
+                }
+            }
+        }
+        t
+    }
+}
+
+/// F domains × N×N texels × C channels of f32 (layout in the module doc).
+#[derive(Clone, Debug)]
+pub struct FaceMaps {
+    layout: Arc<MapLayout>,
+    channels: usize,
+    data: Vec<f32>,
+}
+
+impl FaceMaps {
+    /// Zero-filled maps.
+    pub fn new(layout: Arc<MapLayout>, channels: usize) -> Self {
+        let len = layout.texels() * channels;
+        FaceMaps {
+            layout,
+            channels,
+            data: vec![0.0; len],
+        }
+    }
+
+    /// Maps over existing data (`data.len()` must be texels × channels).
+    pub fn from_data(layout: Arc<MapLayout>, channels: usize, data: Vec<f32>) -> Self {
+        assert_eq!(
+            data.len(),
+            layout.texels() * channels,
+            "map data does not match {} texels x {channels} channels",
+            layout.texels()
+        );
+        FaceMaps {
+            layout,
+            channels,
+            data,
+        }
+    }
+
+    pub fn layout(&self) -> &Arc<MapLayout> {
+        &self.layout
+    }
+
+    pub fn channels(&self) -> usize {
+        self.channels
+    }
+
+    pub fn data(&self) -> &[f32] {
+        &self.data
+    }
+
+    pub fn data_mut(&mut self) -> &mut [f32] {
+        &mut self.data
+    }
+
+    /// Channels of global texel `i`.
+    #[inline]
+    pub fn texel(&self, i: usize) -> &[f32] {
+        &self.data[i * self.channels..(i + 1) * self.channels]
+    }
+
+    #[inline]
+    pub fn texel_mut(&mut self, i: usize) -> &mut [f32] {
+        let c = self.channels;
+        &mut self.data[i * c..(i + 1) * c]
+    }
+
+    /// Bilinear fetch of all channels at `loc` into `out` (length ≥ channels).
+    #[inline]
+    pub fn sample(&self, loc: DomainLocation, out: &mut [f32]) {
+        let c = self.channels;
+        out[..c].fill(0.0);
+        let t = self.layout.taps(loc);
+        for (i, w) in t.iter() {
+            let src = &self.data[i * c..(i + 1) * c];
+            for (o, s) in out[..c].iter_mut().zip(src) {
+                *o += w * s;
+            }
+        }
+    }
+
+    /// The paper's fetch during synthesis (000 §4): bilinear if every texel involved is
+    /// `valid`, else the valid texel with the largest bilinear weight, else nothing
+    /// (returns false and leaves `out` unspecified).
+    #[inline]
+    pub fn sample_valid(
+        &self,
+        loc: DomainLocation,
+        valid: impl Fn(usize) -> bool,
+        out: &mut [f32],
+    ) -> bool {
+        let c = self.channels;
+        let t = self.layout.taps(loc);
+        let mut all = true;
+        let mut best: Option<(usize, f32)> = None;
+        for (i, w) in t.iter() {
+            if valid(i) {
+                if best.is_none_or(|(_, bw)| w > bw) {
+                    best = Some((i, w));
+                }
+            } else {
+                all = false;
+            }
+        }
+        if all && t.len > 0 {
+            self.sample(loc, out);
+            return true;
+        }
+        match best {
+            Some((i, _)) => {
+                out[..c].copy_from_slice(self.texel(i));
+                true
+            }
+            None => false,
+        }
+    }
+}
