@@ -14,3 +14,6 @@ pub use error::{Error, Result};
 pub mod sampling;
 pub mod maps;
 pub mod probe;
+pub mod report;
+pub mod synth;
+pub mod synthesizer;

@@ -1,0 +1,136 @@
+//! `report.json`: what was run, with which resolved parameters, and how long it took.
+//!
+//! BRIEF requires the top-level keys `method`, `seed`, `scale` (the resolved value),
+//! `resolution`, `faces`, `texels`, `seconds` (per-stage times) and `texels_per_second`.
+//! Everything needed to repeat the run is here too (inputs, orientation, weights, tuning),
+//! because a result directory is often looked at long after the command line is gone.
+//! `faces` is the number of face *domains* F (the EXR tiles), as in the `surfsynth.faces`
+//! header attribute; `control_faces` is the OBJ's face count.
+
+use crate::error::{Error, Result};
+use crate::io::atomic::write_bytes_atomic;
+use crate::synth::{CoherentParams, Method, Stats, Weights};
+use serde::Serialize;
+use std::path::Path;
+
+/// File name inside the output directory.
+pub const REPORT_FILE: &str = "report.json";
+
+/// Input files.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Inputs {
+    pub mesh: String,
+    pub example: String,
+    pub height: Option<String>,
+}
+
+/// The example's size and channels.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ExampleInfo {
+    pub width: usize,
+    pub height: usize,
+    pub channels: Vec<String>,
+}
+
+/// Wall-clock seconds per stage. `total` covers everything up to writing this report.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Seconds {
+    /// Reading and validating the mesh and example, building the limit surface.
+    pub load: f64,
+    /// Limit positions and normals of all texels.
+    pub geometry: f64,
+    /// Orientation field and per-texel frames.
+    pub field: f64,
+    /// Neighbourhood graph, default scale and schedule.
+    pub graph: f64,
+    /// The synthesis pass alone.
+    pub synthesis: f64,
+    /// Looking up output channels at the source positions.
+    pub maps: f64,
+    /// Writing facemaps.exr, geometry.exr and any other outputs.
+    pub write: f64,
+    pub total: f64,
+}
+
+/// Schedule shape.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ScheduleInfo {
+    /// Breadth-first layers.
+    pub layers: usize,
+    /// Parallel waves.
+    pub waves: usize,
+}
+
+/// The whole report.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Report {
+    pub tool: String,
+    pub version: String,
+    pub inputs: Inputs,
+    pub method: Method,
+    pub seed: u64,
+    /// Surface length per example pixel, resolved.
+    pub scale: f64,
+    /// "median texel spacing" (the default) or "given".
+    pub scale_source: String,
+    /// h: median distance between adjacent texel centres (BRIEF), for reference.
+    pub texel_spacing: f64,
+    pub resolution: usize,
+    pub orientation: String,
+    /// Face domains F.
+    pub faces: usize,
+    /// Faces of the control mesh.
+    pub control_faces: usize,
+    pub texels: u64,
+    pub example: ExampleInfo,
+    /// Channels of facemaps.exr.
+    pub channels: Vec<String>,
+    pub weights: Weights,
+    pub coherent: CoherentParams,
+    pub threads: usize,
+    pub schedule: ScheduleInfo,
+    pub stats: Stats,
+    pub seconds: Seconds,
+    /// Texels per second of the whole run (`texels / seconds.total`).
+    pub texels_per_second: f64,
+    /// Texels per second of the synthesis stage alone.
+    pub synthesis_texels_per_second: f64,
+    /// Peak resident memory of the process (bytes), where the OS tells it.
+    pub peak_memory_bytes: Option<u64>,
+}
+
+impl Report {
+    /// Pretty JSON with a trailing newline.
+    pub fn to_json(&self) -> String {
+        let mut s = serde_json::to_string_pretty(self).expect("report serializes");
+        s.push('\n');
+        s
+    }
+
+    /// Writes `DIR/report.json` atomically.
+    pub fn write(&self, dir: &Path) -> Result<()> {
+        write_bytes_atomic(dir.join(REPORT_FILE), self.to_json().as_bytes())
+    }
+
+    /// Fills `texels_per_second` and `synthesis_texels_per_second` from the times.
+    pub fn update_rates(&mut self) {
+        let rate = |s: f64| if s > 0.0 { self.texels as f64 / s } else { 0.0 };
+        self.texels_per_second = rate(self.seconds.total);
+        self.synthesis_texels_per_second = rate(self.seconds.synthesis);
+    }
+}
+
+/// Peak resident set size of this process (Linux `VmHWM`), `None` elsewhere.
+pub fn peak_memory_bytes() -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
+/// Reads back a report's top-level JSON (for tools and tests).
+pub fn read(dir: &Path) -> Result<serde_json::Value> {
+    let p = dir.join(REPORT_FILE);
+    let text = std::fs::read_to_string(&p).map_err(|e| Error::io(&p, "cannot read", e))?;
+    serde_json::from_str(&text).map_err(|e| Error::file(&p, format!("invalid JSON: {e}")))
+}

@@ -1,0 +1,493 @@
+//! Coherent synthesis (Ying, Hertzmann, Biermann & Zorin 2001, §5), after Ashikhmin's
+//! image algorithm: instead of searching the whole example, every texel only considers
+//! *continuations* of the patches its already-synthesized neighbours were copied from.
+//!
+//! For texel x with position P(x) and frame (v1, v2) (the orientation field):
+//! 1. Its synthesized neighbours x_i come from [`crate::texels::TexelGraph`] (5x5 block,
+//!    across edges and around corners); unsynthesized ones are ignored.
+//! 2. Tangent displacements e_i = ((P(x_i) − P(x))·v1, −(P(x_i) − P(x))·v2) / S, in example
+//!    pixels (S = scale, surface length per pixel). Image rows grow *downwards* while v2 =
+//!    n × v1 turns counter-clockwise seen from outside, hence the minus: without it the
+//!    texture would appear mirrored on the surface.
+//! 3. Candidates y'_i = x'_i − e_i, x'_i the recorded (floating point) source of x_i —
+//!    "the value located in the example in the same way with respect to x'_i as x is with
+//!    respect to x_i". Candidates closer than [`CoherentParams::merge_radius`] pixels to an
+//!    earlier one are the same continuation seen from two neighbours and are compared once
+//!    (the earlier, from the nearer neighbour, is kept). Candidates whose centre is outside
+//!    the example's pixel-centre rectangle [0.5, w−0.5]×[0.5, h−0.5] are rejected: the
+//!    patch has run off the example (Ashikhmin does the same); neighbourhood samples of a
+//!    valid candidate that fall outside are clamped to the border (repeated border pixels),
+//!    so every candidate is compared on the same number of samples and none is favoured
+//!    for having fewer.
+//! 4. Each candidate's neighbourhood {y'_i + e_j} is compared with the colours of the x_j
+//!    by bilinear example lookups; squared l2 over all matched channels with their weights
+//!    ([`super::features`]). The best one is copied: x gets source y' and the features
+//!    there.
+//!
+//! Beyond the paper:
+//! - **No continuation left** (all candidates outside the example): the best of
+//!   [`CoherentParams::restart_candidates`] random positions by the same neighbourhood
+//!   distance starts a new patch that fits its surroundings, rather than one blind random
+//!   pick.
+//! - **Random candidates** ([`CoherentParams::random_candidates`] per texel, default 0):
+//!   an escape from "garbage growth", where a poor patch keeps continuing because all
+//!   candidates are its own continuations. They only win when strictly better than every
+//!   continuation, so they mostly act at patch borders. Measured on gravel and brick (see
+//!   docs/synthesis.md) they lower coherence without improving seams, so they are off by
+//!   default.
+//! - **No neighbour at all** (the first texel of a connected component): a random position.
+//!
+//! Randomness is a counter-based hash of (seed, texel index, draw), so a texel's draws do
+//! not depend on what ran before it or on which thread. With the wave schedule of
+//! [`super::schedule`] the result is bit-identical for any number of threads.
+//!
+//! Scan-line order inside a domain (§4: "starting from a scan-line that is adjacent to an
+//! already-synthesized texture"): the side whose outermost line has the most synthesized
+//! foreign neighbours is scanned first, lines parallel to it move away from it, and each
+//! line starts at the end whose perpendicular side has more synthesized texture.
+
+use super::features::Features;
+use super::schedule::Schedule;
+use crate::texels::{TexelGeometry, TexelGraph};
+use glam::Vec3;
+use rayon::prelude::*;
+use serde::Serialize;
+
+/// Tuning of the coherent synthesizer (defaults measured, see docs/synthesis.md).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct CoherentParams {
+    /// Random candidates added to every texel's continuations.
+    pub random_candidates: u32,
+    /// Random candidates compared when no continuation is valid.
+    pub restart_candidates: u32,
+    /// Candidates closer than this (example pixels) are compared once.
+    pub merge_radius: f32,
+    /// Texel order inside a domain.
+    pub order: Order,
+}
+
+/// Texel order inside a domain.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Order {
+    /// The paper's scan lines, starting from the side touching most synthesized texture.
+    Scanline,
+    /// Growing fronts: texels by grid distance from the border texels that touch
+    /// synthesized texture (scan-line order inside each front).
+    Front,
+}
+
+impl Default for CoherentParams {
+    fn default() -> Self {
+        Self {
+            random_candidates: 0,
+            restart_candidates: 16,
+            merge_radius: 0.5,
+            order: Order::Front,
+        }
+    }
+}
+
+/// What the synthesizer needs besides the example.
+#[derive(Clone, Copy, Debug)]
+pub struct Inputs<'a> {
+    pub geometry: &'a TexelGeometry,
+    pub graph: &'a TexelGraph,
+    /// (v1, v2) per texel (global texel order).
+    pub frames: &'a [[Vec3; 2]],
+    pub schedule: &'a Schedule,
+    /// Surface length per example pixel.
+    pub scale: f64,
+    pub seed: u64,
+}
+
+/// Counters of what happened (reported in report.json).
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Stats {
+    /// Texels synthesized.
+    pub texels: u64,
+    /// Texels with no synthesized neighbour (random position).
+    pub seeded: u64,
+    /// Texels whose continuations all left the example (best random restart).
+    pub restarts: u64,
+    /// Texels where a random candidate beat every continuation.
+    pub random_wins: u64,
+    /// Candidate neighbourhoods compared in total.
+    pub candidates: u64,
+    /// Synthesized neighbours used in total.
+    pub neighbours: u64,
+    /// Waves of parallel domains.
+    pub waves: u64,
+}
+
+impl Stats {
+    fn add(&mut self, o: &Stats) {
+        self.texels += o.texels;
+        self.seeded += o.seeded;
+        self.restarts += o.restarts;
+        self.random_wins += o.random_wins;
+        self.candidates += o.candidates;
+        self.neighbours += o.neighbours;
+    }
+}
+
+/// Source position per texel (global texel order) and counters.
+#[derive(Clone, Debug)]
+pub struct Output {
+    pub source: Vec<[f32; 2]>,
+    pub stats: Stats,
+}
+
+/// splitmix64's finaliser: a good 64-bit mix, used as a counter-based generator.
+#[inline]
+fn mix(mut z: u64) -> u64 {
+    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// Two uniform numbers in [0, 1) for draw `k` of texel `t`.
+#[inline]
+pub fn random2(seed: u64, t: u64, k: u64) -> (f32, f32) {
+    let h = mix(mix(mix(seed) ^ t) ^ k.wrapping_mul(0xD1B5_4A32_D192_ED03));
+    let a = (h >> 40) as f32 / (1u64 << 24) as f32;
+    let b = ((h >> 8) & 0xFF_FFFF) as f32 / (1u64 << 24) as f32;
+    (a, b)
+}
+
+struct Ctx<'a, const K: usize> {
+    feat: &'a Features<K>,
+    inp: Inputs<'a>,
+    params: &'a CoherentParams,
+    n: usize,
+    inv_scale: f32,
+    /// Valid candidate centres: [lo, hi] per axis.
+    lo: f32,
+    hi_x: f32,
+    hi_y: f32,
+}
+
+struct DomainOut<const K: usize> {
+    src: Vec<[f32; 2]>,
+    feat: Vec<[f32; K]>,
+    stats: Stats,
+}
+
+/// Runs coherent synthesis over all texels. `progress(done_domains)` is called after every
+/// wave.
+pub fn run<const K: usize>(
+    features: &Features<K>,
+    inputs: Inputs<'_>,
+    params: &CoherentParams,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Output {
+    let n = inputs.geometry.resolution;
+    let nn = n * n;
+    let faces = inputs.geometry.faces;
+    let total = faces * nn;
+    assert_eq!(inputs.frames.len(), total);
+    assert_eq!(inputs.graph.len(), total);
+    let ctx = Ctx {
+        feat: features,
+        inp: inputs,
+        params,
+        n,
+        inv_scale: (1.0 / inputs.scale) as f32,
+        lo: 0.5,
+        hi_x: features.width as f32 - 0.5,
+        hi_y: features.height as f32 - 0.5,
+    };
+    let mut src = vec![[0.0f32; 2]; total];
+    let mut feat = vec![[0.0f32; K]; total];
+    let mut done = vec![false; faces];
+    let mut stats = Stats {
+        waves: inputs.schedule.waves.len() as u64,
+        ..Stats::default()
+    };
+    let mut finished = 0;
+    for wave in &inputs.schedule.waves {
+        let results: Vec<DomainOut<K>> = wave
+            .par_iter()
+            .map(|&d| synth_domain(&ctx, &src, &feat, &done, d as usize))
+            .collect();
+        for (&d, r) in wave.iter().zip(results) {
+            let d = d as usize;
+            src[d * nn..(d + 1) * nn].copy_from_slice(&r.src);
+            feat[d * nn..(d + 1) * nn].copy_from_slice(&r.feat);
+            done[d] = true;
+            stats.add(&r.stats);
+        }
+        finished += wave.len();
+        progress(finished);
+    }
+    Output { source: src, stats }
+}
+
+/// The scan order of a domain: local texel indices (y*N + x) in synthesis order.
+fn scan_order<const K: usize>(c: &Ctx<'_, K>, done_g: &[bool], d: usize) -> Vec<u32> {
+    let n = c.n;
+    let nn = n * n;
+    let base = d * nn;
+    // Score of each side: synthesized foreign neighbours of the texels on its outer line.
+    let mut score = [0u32; 4];
+    let mut buf = Vec::with_capacity(64);
+    let side_texel = |s: usize, i: usize| -> usize {
+        match s {
+            0 => i,               // row y = 0
+            1 => i * n + (n - 1), // column x = N-1
+            2 => (n - 1) * n + i, // row y = N-1
+            _ => i * n,           // column x = 0
+        }
+    };
+    for (s, sc) in score.iter_mut().enumerate() {
+        for i in 0..n {
+            buf.clear();
+            c.inp.graph.neighbours(base + side_texel(s, i), &mut buf);
+            *sc += buf
+                .iter()
+                .filter(|&&j| {
+                    let e = j as usize / nn;
+                    e != d && done_g[e]
+                })
+                .count() as u32;
+        }
+    }
+    let first = (0..4).fold(0, |b, s| if score[s] > score[b] { s } else { b });
+    // Along each line, start at the end whose perpendicular side has more texture.
+    let reverse = if first % 2 == 0 {
+        score[1] > score[3]
+    } else {
+        score[2] > score[0]
+    };
+    let mut order = Vec::with_capacity(nn);
+    for line in 0..n {
+        for pos in 0..n {
+            let p = if reverse { n - 1 - pos } else { pos };
+            let (x, y) = match first {
+                0 => (p, line),
+                2 => (p, n - 1 - line),
+                3 => (line, p),
+                _ => (n - 1 - line, p),
+            };
+            order.push((y * n + x) as u32);
+        }
+    }
+    order
+}
+
+/// Texels by 4-neighbour grid distance from the outermost texels that have synthesized
+/// foreign neighbours, scan-line order within one distance; `None` when nothing around the
+/// domain is synthesized yet.
+fn front_order<const K: usize>(c: &Ctx<'_, K>, done_g: &[bool], d: usize) -> Option<Vec<u32>> {
+    let n = c.n;
+    let nn = n * n;
+    let base = d * nn;
+    let mut dist = vec![u32::MAX; nn];
+    let mut queue = std::collections::VecDeque::new();
+    let mut buf = Vec::with_capacity(64);
+    for y in 0..n {
+        for x in 0..n {
+            if !(x == 0 || y == 0 || x + 1 == n || y + 1 == n) {
+                continue;
+            }
+            buf.clear();
+            c.inp.graph.neighbours(base + y * n + x, &mut buf);
+            let touches = buf.iter().any(|&j| {
+                let e = j as usize / nn;
+                e != d && done_g[e]
+            });
+            if touches {
+                dist[y * n + x] = 0;
+                queue.push_back(y * n + x);
+            }
+        }
+    }
+    if queue.is_empty() {
+        return None;
+    }
+    let mut max = 0;
+    while let Some(i) = queue.pop_front() {
+        let (x, y) = (i % n, i / n);
+        let dn = dist[i] + 1;
+        let mut visit = |j: usize| {
+            if dist[j] == u32::MAX {
+                dist[j] = dn;
+                max = max.max(dn);
+                queue.push_back(j);
+            }
+        };
+        if x > 0 {
+            visit(i - 1);
+        }
+        if x + 1 < n {
+            visit(i + 1);
+        }
+        if y > 0 {
+            visit(i - n);
+        }
+        if y + 1 < n {
+            visit(i + n);
+        }
+    }
+    // Counting sort by distance keeps scan-line order inside a front.
+    let mut start = vec![0u32; max as usize + 2];
+    for &k in &dist {
+        start[k as usize + 1] += 1;
+    }
+    for k in 1..start.len() {
+        start[k] += start[k - 1];
+    }
+    let mut order = vec![0u32; nn];
+    for (i, &k) in dist.iter().enumerate() {
+        order[start[k as usize] as usize] = i as u32;
+        start[k as usize] += 1;
+    }
+    Some(order)
+}
+
+#[inline(always)]
+fn dist2<const K: usize>(a: &[f32; K], b: &[f32; K]) -> f32 {
+    let mut s = 0.0;
+    for k in 0..K {
+        let d = a[k] - b[k];
+        s += d * d;
+    }
+    s
+}
+
+fn synth_domain<const K: usize>(
+    c: &Ctx<'_, K>,
+    src_g: &[[f32; 2]],
+    feat_g: &[[f32; K]],
+    done_g: &[bool],
+    d: usize,
+) -> DomainOut<K> {
+    let n = c.n;
+    let nn = n * n;
+    let base = d * nn;
+    let geom = c.inp.geometry;
+    let mut out = DomainOut {
+        src: vec![[0.0f32; 2]; nn],
+        feat: vec![[0.0f32; K]; nn],
+        stats: Stats::default(),
+    };
+    let mut done = vec![false; nn];
+    let order = match c.params.order {
+        Order::Scanline => scan_order(c, done_g, d),
+        Order::Front => front_order(c, done_g, d).unwrap_or_else(|| scan_order(c, done_g, d)),
+    };
+    let mut nb: Vec<u32> = Vec::with_capacity(64);
+    let mut es: Vec<[f32; 2]> = Vec::with_capacity(64);
+    let mut fs: Vec<[f32; K]> = Vec::with_capacity(64);
+    let mut cands: Vec<[f32; 2]> = Vec::with_capacity(64);
+    let r2 = c.params.merge_radius * c.params.merge_radius;
+    let (w1, h1) = (c.hi_x - c.lo, c.hi_y - c.lo);
+    let random_pos = |t: usize, k: u64| -> [f32; 2] {
+        let (a, b) = random2(c.inp.seed, t as u64, k);
+        [c.lo + a * w1, c.lo + b * h1]
+    };
+    for &li in &order {
+        let li = li as usize;
+        let t = base + li;
+        nb.clear();
+        c.inp.graph.neighbours(t, &mut nb);
+        es.clear();
+        fs.clear();
+        cands.clear();
+        let p = geom.pos[t];
+        let [v1, v2] = c.inp.frames[t];
+        for &j in &nb {
+            let j = j as usize;
+            let (s, f) = if (base..base + nn).contains(&j) {
+                let lj = j - base;
+                if !done[lj] {
+                    continue;
+                }
+                (out.src[lj], &out.feat[lj])
+            } else {
+                if !done_g[j / nn] {
+                    continue;
+                }
+                (src_g[j], &feat_g[j])
+            };
+            let dp = geom.pos[j] - p;
+            let e = [dp.dot(v1) * c.inv_scale, -dp.dot(v2) * c.inv_scale];
+            es.push(e);
+            fs.push(*f);
+            // Step 3: the continuation of x_i's patch.
+            let q = [s[0] - e[0], s[1] - e[1]];
+            if q[0] >= c.lo && q[0] <= c.hi_x && q[1] >= c.lo && q[1] <= c.hi_y {
+                let dup = cands.iter().any(|o| {
+                    let (a, b) = (o[0] - q[0], o[1] - q[1]);
+                    a * a + b * b < r2
+                });
+                if !dup {
+                    cands.push(q);
+                }
+            }
+        }
+        out.stats.texels += 1;
+        out.stats.neighbours += es.len() as u64;
+        let chosen = if es.is_empty() {
+            out.stats.seeded += 1;
+            random_pos(t, 0)
+        } else {
+            let coherent = cands.len();
+            let extra = if coherent == 0 {
+                out.stats.restarts += 1;
+                c.params.restart_candidates.max(1)
+            } else {
+                c.params.random_candidates
+            };
+            for k in 0..extra as u64 {
+                cands.push(random_pos(t, k + 1));
+            }
+            out.stats.candidates += cands.len() as u64;
+            // Step 4: compare neighbourhoods; stop summing once worse than the best.
+            let mut best = f32::INFINITY;
+            let mut bi = 0;
+            for (ci, q) in cands.iter().enumerate() {
+                let mut sum = 0.0f32;
+                for (e, f) in es.iter().zip(&fs) {
+                    sum += dist2(&c.feat.sample(q[0] + e[0], q[1] + e[1]), f);
+                    if sum >= best {
+                        break;
+                    }
+                }
+                if sum < best {
+                    best = sum;
+                    bi = ci;
+                }
+            }
+            if coherent > 0 && bi >= coherent {
+                out.stats.random_wins += 1;
+            }
+            cands[bi]
+        };
+        out.src[li] = chosen;
+        out.feat[li] = c.feat.sample(chosen[0], chosen[1]);
+        done[li] = true;
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn random2_is_uniform_and_counter_based() {
+        let mut sum = (0.0f64, 0.0f64);
+        for t in 0..10_000u64 {
+            let (a, b) = random2(7, t, 0);
+            assert!((0.0..1.0).contains(&a) && (0.0..1.0).contains(&b));
+            sum.0 += a as f64;
+            sum.1 += b as f64;
+        }
+        assert!((sum.0 / 1e4 - 0.5).abs() < 0.01 && (sum.1 / 1e4 - 0.5).abs() < 0.01);
+        assert_eq!(random2(7, 3, 1), random2(7, 3, 1));
+        assert_ne!(random2(7, 3, 1), random2(8, 3, 1));
+        assert_ne!(random2(7, 3, 1), random2(7, 3, 2));
+    }
+}

@@ -1,0 +1,110 @@
+//! The example as the matcher sees it: all matched channels interleaved per pixel and
+//! pre-multiplied by the square roots of their weights, so that a plain squared l2 distance
+//! between two feature vectors is the weighted distance of §5 step 4, and one bilinear
+//! lookup touches four contiguous small arrays. `K` (3 to 5: RGB, + alpha, + height) is a
+//! const parameter so the inner loops unroll.
+//!
+//! The output values are *not* taken from here: they are looked up in the unweighted
+//! [`crate::example::Example`] at the recorded source position, so every channel comes from
+//! the same place.
+
+use crate::example::Example;
+
+/// Weighted, interleaved example features (see the module docs).
+#[derive(Clone, Debug)]
+pub struct Features<const K: usize> {
+    pub width: usize,
+    pub height: usize,
+    data: Vec<[f32; K]>,
+    /// Largest valid coordinate minus 0.5 (as f32), per axis.
+    max_x: f32,
+    max_y: f32,
+}
+
+impl<const K: usize> Features<K> {
+    /// Builds the table from `example`; `weights` has one entry per channel of
+    /// [`Example::channel_names`] (K of them).
+    pub fn new(example: &Example, weights: &[f32]) -> Self {
+        assert_eq!(example.num_channels(), K);
+        assert_eq!(weights.len(), K);
+        let sw: Vec<f32> = weights.iter().map(|w| w.max(0.0).sqrt()).collect();
+        let mut data = vec![[0.0f32; K]; example.width * example.height];
+        let mut px = [0.0f32; 8];
+        for j in 0..example.height {
+            for i in 0..example.width {
+                example.pixel(i, j, &mut px[..K]);
+                let v = &mut data[j * example.width + i];
+                for k in 0..K {
+                    v[k] = px[k] * sw[k];
+                }
+            }
+        }
+        Self {
+            width: example.width,
+            height: example.height,
+            data,
+            max_x: (example.width - 1) as f32,
+            max_y: (example.height - 1) as f32,
+        }
+    }
+
+    /// Bilinear feature at continuous position (x, y) (pixel centres at +0.5), clamped to
+    /// the image: outside it the border pixels repeat (see [`Example::bilinear_taps`] for
+    /// why clamping, not wrapping).
+    #[inline(always)]
+    pub fn sample(&self, x: f32, y: f32) -> [f32; K] {
+        let fx = (x - 0.5).clamp(0.0, self.max_x);
+        let fy = (y - 0.5).clamp(0.0, self.max_y);
+        // `as usize` of a NaN is 0, so a NaN position reads pixel 0 instead of garbage.
+        let x0 = fx as usize;
+        let y0 = fy as usize;
+        let tx = fx - x0 as f32;
+        let ty = fy - y0 as f32;
+        let x1 = (x0 + 1).min(self.width - 1);
+        let y1 = (y0 + 1).min(self.height - 1);
+        let w = self.width;
+        let a = &self.data[y0 * w + x0];
+        let b = &self.data[y0 * w + x1];
+        let c = &self.data[y1 * w + x0];
+        let d = &self.data[y1 * w + x1];
+        let mut out = [0.0f32; K];
+        for k in 0..K {
+            let top = a[k] + tx * (b[k] - a[k]);
+            let bot = c[k] + tx * (d[k] - c[k]);
+            out[k] = top + ty * (bot - top);
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sample_is_bilinear_weighted_and_clamped() {
+        let mut rgb = vec![[0.0f32; 3]; 64];
+        for j in 0..8 {
+            for i in 0..8 {
+                rgb[j * 8 + i] = [i as f32 / 8.0, j as f32 / 8.0, 0.5];
+            }
+        }
+        let ex = Example::from_linear(8, 8, rgb);
+        let f = Features::<3>::new(&ex, &[1.0, 4.0, 0.0]);
+        // Pixel centre (2, 3) at (2.5, 3.5); halfway to the next column.
+        let v = f.sample(3.0, 3.5);
+        assert!((v[0] - 2.5 / 8.0).abs() < 1e-6);
+        assert!(
+            (v[1] - 2.0 * 3.0 / 8.0).abs() < 1e-6,
+            "weight 4 scales by 2"
+        );
+        assert_eq!(v[2], 0.0);
+        // Outside: border pixels repeat.
+        assert_eq!(f.sample(-3.0, 0.5)[0], 0.0);
+        assert!((f.sample(100.0, 0.5)[0] - 7.0 / 8.0).abs() < 1e-6);
+        // The unweighted example agrees at any position.
+        let mut o = [0.0f32; 3];
+        ex.bilinear(5.3, 2.7, &mut o);
+        assert!((f.sample(5.3, 2.7)[0] - o[0]).abs() < 1e-6);
+    }
+}

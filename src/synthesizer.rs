@@ -1,0 +1,568 @@
+//! The library's front door: a builder that loads the inputs, synthesizes, and writes the
+//! output directory of BRIEF ("Output directory of `synth`").
+//!
+//! ```no_run
+//! use surfsynth::synthesizer::{Method, Synthesizer};
+//!
+//! # fn main() -> surfsynth::Result<()> {
+//! let result = Synthesizer::new("spot_control_mesh.obj", "gravel.png")
+//!     .method(Method::Coherent)
+//!     .resolution(32)
+//!     .seed(7)
+//!     .run()?;
+//! println!("{} texels at scale {}", result.report.texels, result.report.scale);
+//! result.write("out/spot")?; // facemaps.exr, geometry.exr, report.json
+//! # Ok(())
+//! # }
+//! ```
+//!
+//! In-memory inputs work too (no files needed), which is what the doctest below runs:
+//!
+//! ```
+//! use surfsynth::example::Example;
+//! use surfsynth::synthesizer::Synthesizer;
+//! use subdiv::{ControlMesh, Surface};
+//! use glam::DVec3;
+//!
+//! # fn main() -> surfsynth::Result<()> {
+//! // A unit cube and a 16x16 checkerboard example.
+//! let p: Vec<DVec3> = (0..8)
+//!     .map(|i| DVec3::new((i & 1) as f64, ((i >> 1) & 1) as f64, (i >> 2) as f64))
+//!     .collect();
+//! let faces: [&[u32]; 6] =
+//!     [&[0, 2, 3, 1], &[4, 5, 7, 6], &[0, 1, 5, 4], &[2, 6, 7, 3], &[0, 4, 6, 2], &[1, 3, 7, 5]];
+//! let surface = Surface::new(ControlMesh::from_faces(p, &faces).unwrap());
+//! let rgb = (0..256).map(|i| if (i % 16 / 4 + i / 64) % 2 == 0 { [1.0; 3] } else { [0.0; 3] });
+//! let example = Example::from_linear(16, 16, rgb.collect());
+//!
+//! let r = Synthesizer::new(surface, example).resolution(8).seed(3).run()?;
+//! assert_eq!(r.report.faces, 6);
+//! assert_eq!(r.maps.channel("source.u").unwrap().len(), 6 * 8 * 8);
+//! # Ok(())
+//! # }
+//! ```
+//!
+//! Errors are [`crate::Error`]s with one-line messages that name the file and the problem
+//! (a missing or corrupt example, a height map of another size, resolution 0, ...). Nothing
+//! is written until [`SynthResult::write`], which writes every file atomically and removes
+//! what it wrote if a later file fails, so a failed run leaves no partial output.
+
+use crate::error::{Error, Result};
+use crate::example::Example;
+use crate::field::{Orientation, OrientationField};
+use crate::io::atomic::prepare_out_dir;
+use crate::io::exr::{write_face_maps, FaceMaps, MAX_RESOLUTION};
+use crate::report::{ExampleInfo, Inputs, Report, ScheduleInfo, Seconds};
+use crate::synth::coherent;
+use crate::synth::schedule::Schedule;
+use crate::texels::{domain_edge_adjacency, TexelGeometry, TexelGraph};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+use subdiv::Surface;
+
+pub use crate::synth::{CoherentParams, Method, Weights};
+
+/// Output file names.
+pub const FACEMAPS_FILE: &str = "facemaps.exr";
+pub const GEOMETRY_FILE: &str = "geometry.exr";
+
+/// Where the mesh comes from.
+#[derive(Clone, Debug)]
+pub enum MeshSource {
+    Path(PathBuf),
+    Surface(Box<Surface>),
+}
+
+impl From<&str> for MeshSource {
+    fn from(p: &str) -> Self {
+        MeshSource::Path(p.into())
+    }
+}
+impl From<&Path> for MeshSource {
+    fn from(p: &Path) -> Self {
+        MeshSource::Path(p.into())
+    }
+}
+impl From<PathBuf> for MeshSource {
+    fn from(p: PathBuf) -> Self {
+        MeshSource::Path(p)
+    }
+}
+impl From<&PathBuf> for MeshSource {
+    fn from(p: &PathBuf) -> Self {
+        MeshSource::Path(p.clone())
+    }
+}
+impl From<Surface> for MeshSource {
+    fn from(s: Surface) -> Self {
+        MeshSource::Surface(Box::new(s))
+    }
+}
+
+/// Where the example comes from.
+#[derive(Clone, Debug)]
+pub enum ExampleSource {
+    Path(PathBuf),
+    Example(Box<Example>),
+}
+
+impl From<&str> for ExampleSource {
+    fn from(p: &str) -> Self {
+        ExampleSource::Path(p.into())
+    }
+}
+impl From<&Path> for ExampleSource {
+    fn from(p: &Path) -> Self {
+        ExampleSource::Path(p.into())
+    }
+}
+impl From<PathBuf> for ExampleSource {
+    fn from(p: PathBuf) -> Self {
+        ExampleSource::Path(p)
+    }
+}
+impl From<&PathBuf> for ExampleSource {
+    fn from(p: &PathBuf) -> Self {
+        ExampleSource::Path(p.clone())
+    }
+}
+impl From<Example> for ExampleSource {
+    fn from(e: Example) -> Self {
+        ExampleSource::Example(Box::new(e))
+    }
+}
+
+/// Pipeline stages, for progress reporting.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Stage {
+    Load,
+    Geometry,
+    Field,
+    Graph,
+    /// Progress counts domains.
+    Synthesis,
+    Maps,
+    Write,
+}
+
+impl Stage {
+    /// Short label for progress bars.
+    pub fn label(self) -> &'static str {
+        match self {
+            Stage::Load => "load",
+            Stage::Geometry => "geometry",
+            Stage::Field => "field",
+            Stage::Graph => "graph",
+            Stage::Synthesis => "synthesis",
+            Stage::Maps => "maps",
+            Stage::Write => "write",
+        }
+    }
+}
+
+/// Progress callback: (stage, done, total). Called with done = 0 when a stage starts and
+/// done = total when it ends; the synthesis stage also reports every wave.
+pub type Progress = dyn Fn(Stage, usize, usize) + Send + Sync;
+
+/// Builder for one synthesis run (see the module docs).
+pub struct Synthesizer {
+    mesh: MeshSource,
+    example: ExampleSource,
+    height: Option<PathBuf>,
+    method: Method,
+    resolution: usize,
+    scale: Option<f64>,
+    orientation: Orientation,
+    seed: u64,
+    threads: Option<usize>,
+    weights: Weights,
+    params: CoherentParams,
+    progress: Option<Box<Progress>>,
+}
+
+impl std::fmt::Debug for Synthesizer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Synthesizer")
+            .field("mesh", &self.mesh_label())
+            .field("example", &self.example_label())
+            .field("method", &self.method)
+            .field("resolution", &self.resolution)
+            .field("scale", &self.scale)
+            .field("seed", &self.seed)
+            .finish_non_exhaustive()
+    }
+}
+
+/// Everything a run produced, in memory.
+#[derive(Debug)]
+pub struct SynthResult {
+    /// facemaps.exr content: R G B [A] [height] source.u source.v.
+    pub maps: FaceMaps,
+    /// Limit position and normal per texel (geometry.exr content).
+    pub geometry: TexelGeometry,
+    /// The surface (for exporters that need topology, e.g. the atlas).
+    pub surface: Surface,
+    /// The example as loaded (linear).
+    pub example: Example,
+    /// report.json content; `seconds.write`, `seconds.total` and the rates are completed
+    /// by [`SynthResult::write`].
+    pub report: Report,
+    /// Time the run started (for the total).
+    started: Instant,
+}
+
+impl Synthesizer {
+    /// A run on `mesh` (an OBJ path or a [`Surface`]) with `example` (a PNG/JPEG path or an
+    /// [`Example`]). Defaults: coherent, resolution 32, scale = median texel spacing,
+    /// orientation `auto`, seed 1, all threads of the current rayon pool.
+    pub fn new(mesh: impl Into<MeshSource>, example: impl Into<ExampleSource>) -> Self {
+        Self {
+            mesh: mesh.into(),
+            example: example.into(),
+            height: None,
+            method: Method::Coherent,
+            resolution: 32,
+            scale: None,
+            orientation: Orientation::Auto,
+            seed: 1,
+            threads: None,
+            weights: Weights::default(),
+            params: CoherentParams::default(),
+            progress: None,
+        }
+    }
+
+    /// A height example of the same size, synthesized jointly (`--height`).
+    pub fn height(mut self, path: impl Into<PathBuf>) -> Self {
+        self.height = Some(path.into());
+        self
+    }
+    /// Synthesis method (only [`Method::Coherent`] is available so far).
+    pub fn method(mut self, m: Method) -> Self {
+        self.method = m;
+        self
+    }
+    /// Texels per side of every face map (>= 1).
+    pub fn resolution(mut self, n: usize) -> Self {
+        self.resolution = n;
+        self
+    }
+    /// Surface length covered by one example pixel; `None` = median texel spacing.
+    pub fn scale(mut self, s: impl Into<Option<f64>>) -> Self {
+        self.scale = s.into();
+        self
+    }
+    /// Orientation field (`--orient`).
+    pub fn orientation(mut self, o: Orientation) -> Self {
+        self.orientation = o;
+        self
+    }
+    /// Random seed; the same seed gives bit-identical maps for any thread count.
+    pub fn seed(mut self, seed: u64) -> Self {
+        self.seed = seed;
+        self
+    }
+    /// Worker threads for this run (a private pool); `None` = the current rayon pool.
+    pub fn threads(mut self, t: impl Into<Option<usize>>) -> Self {
+        self.threads = t.into();
+        self
+    }
+    /// Matching weights of colour, alpha and height.
+    pub fn weights(mut self, w: Weights) -> Self {
+        self.weights = w;
+        self
+    }
+    /// Tuning of the coherent method.
+    pub fn coherent_params(mut self, p: CoherentParams) -> Self {
+        self.params = p;
+        self
+    }
+    /// Progress callback (see [`Progress`]).
+    pub fn on_progress(mut self, f: impl Fn(Stage, usize, usize) + Send + Sync + 'static) -> Self {
+        self.progress = Some(Box::new(f));
+        self
+    }
+
+    fn mesh_label(&self) -> String {
+        match &self.mesh {
+            MeshSource::Path(p) => p.display().to_string(),
+            MeshSource::Surface(s) => s
+                .control
+                .path
+                .as_ref()
+                .map(|p| p.display().to_string())
+                .unwrap_or_else(|| "<in memory>".into()),
+        }
+    }
+
+    fn example_label(&self) -> String {
+        match &self.example {
+            ExampleSource::Path(p) => p.display().to_string(),
+            ExampleSource::Example(e) if !e.path.as_os_str().is_empty() => {
+                e.path.display().to_string()
+            }
+            ExampleSource::Example(_) => "<in memory>".into(),
+        }
+    }
+
+    /// Checks parameters that need no file (cheap; `run` calls it first).
+    pub fn validate(&self) -> Result<()> {
+        if self.resolution == 0 || self.resolution > MAX_RESOLUTION {
+            return Err(Error::invalid(format!(
+                "resolution {} is out of range: use 1 to {MAX_RESOLUTION} texels per side",
+                self.resolution
+            )));
+        }
+        if let Some(s) = self.scale {
+            if !(s.is_finite() && s > 0.0) {
+                return Err(Error::invalid(format!(
+                    "scale {s} is not a positive surface length per example pixel"
+                )));
+            }
+        }
+        if self.threads == Some(0) {
+            return Err(Error::invalid("threads must be at least 1"));
+        }
+        if self.method == Method::Multiscale {
+            return Err(Error::invalid(
+                "method 'multiscale' is not available yet; use --method coherent",
+            ));
+        }
+        Ok(())
+    }
+
+    /// Loads, synthesizes and returns the result in memory.
+    pub fn run(self) -> Result<SynthResult> {
+        self.validate()?;
+        match self.threads {
+            None => self.run_here(),
+            Some(t) => {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(t)
+                    .build()
+                    .map_err(|e| Error::invalid(format!("cannot start {t} worker threads: {e}")))?;
+                pool.install(|| self.run_here())
+            }
+        }
+    }
+
+    fn run_here(self) -> Result<SynthResult> {
+        let started = Instant::now();
+        let progress = |s: Stage, d: usize, t: usize| {
+            if let Some(p) = &self.progress {
+                p(s, d, t)
+            }
+        };
+        let mesh_label = self.mesh_label();
+        let example_label = self.example_label();
+        let n = self.resolution;
+
+        // Load: example first (cheap, most likely to be wrong), then the mesh.
+        progress(Stage::Load, 0, 1);
+        let t0 = Instant::now();
+        let example = match self.example {
+            ExampleSource::Path(ref p) => Example::load_with_height(p, self.height.as_ref())?,
+            ExampleSource::Example(ref e) => {
+                if let Some(h) = &self.height {
+                    return Err(Error::file(
+                        h,
+                        "a height file cannot be combined with an in-memory example; set Example::height_map instead",
+                    ));
+                }
+                (**e).clone()
+            }
+        };
+        let surface = match self.mesh {
+            MeshSource::Path(ref p) => Surface::load_obj(p)?,
+            MeshSource::Surface(ref s) => (**s).clone(),
+        };
+        let faces = surface.num_domains();
+        check_size(faces, n)?;
+        let load = t0.elapsed().as_secs_f64();
+        progress(Stage::Load, 1, 1);
+
+        progress(Stage::Geometry, 0, faces);
+        let t0 = Instant::now();
+        let geometry = TexelGeometry::compute(&surface, n);
+        let geometry_s = t0.elapsed().as_secs_f64();
+        progress(Stage::Geometry, faces, faces);
+
+        progress(Stage::Field, 0, 1);
+        let t0 = Instant::now();
+        let field = OrientationField::compute(&surface, &self.orientation)
+            .map_err(|e| Error::invalid(format!("orientation field for {mesh_label}: {e:#}")))?;
+        let frames = crate::synth::texel_frames(&field, &surface, n);
+        let field_s = t0.elapsed().as_secs_f64();
+        progress(Stage::Field, 1, 1);
+
+        progress(Stage::Graph, 0, 1);
+        let t0 = Instant::now();
+        let graph = TexelGraph::build(&surface, &geometry);
+        let schedule = Schedule::plan(&domain_edge_adjacency(&surface), &graph.domain_conflicts());
+        let spacing = geometry.median_spacing(&surface);
+        let (scale, scale_source) = match self.scale {
+            Some(s) => (s, "given"),
+            None => (spacing, "median texel spacing"),
+        };
+        if !(scale.is_finite() && scale > 0.0) {
+            return Err(Error::invalid(format!(
+                "{mesh_label}: the surface is degenerate (median texel spacing {scale}); pass --scale"
+            )));
+        }
+        let graph_s = t0.elapsed().as_secs_f64();
+        progress(Stage::Graph, 1, 1);
+
+        progress(Stage::Synthesis, 0, faces);
+        let t0 = Instant::now();
+        let inputs = coherent::Inputs {
+            geometry: &geometry,
+            graph: &graph,
+            frames: &frames,
+            schedule: &schedule,
+            scale,
+            seed: self.seed,
+        };
+        let out =
+            crate::synth::run_coherent(&example, &self.weights, inputs, &self.params, &|done| {
+                progress(Stage::Synthesis, done, faces)
+            });
+        let synthesis_s = t0.elapsed().as_secs_f64();
+
+        progress(Stage::Maps, 0, 1);
+        let t0 = Instant::now();
+        let maps = crate::synth::face_maps(&example, &out.source, faces, n);
+        let maps_s = t0.elapsed().as_secs_f64();
+        progress(Stage::Maps, 1, 1);
+
+        let texels = (faces * n * n) as u64;
+        let mut report = Report {
+            tool: "surfsynth".into(),
+            version: env!("CARGO_PKG_VERSION").into(),
+            inputs: Inputs {
+                mesh: mesh_label,
+                example: example_label,
+                height: self.height.as_ref().map(|h| h.display().to_string()),
+            },
+            method: self.method,
+            seed: self.seed,
+            scale,
+            scale_source: scale_source.into(),
+            texel_spacing: spacing,
+            resolution: n,
+            orientation: orientation_label(&self.orientation),
+            faces,
+            control_faces: surface.control.mesh.num_faces(),
+            texels,
+            example: ExampleInfo {
+                width: example.width,
+                height: example.height,
+                channels: example
+                    .channel_names()
+                    .iter()
+                    .map(|s| s.to_string())
+                    .collect(),
+            },
+            channels: maps.names().iter().map(|s| s.to_string()).collect(),
+            weights: self.weights,
+            coherent: self.params.clone(),
+            threads: rayon::current_num_threads(),
+            schedule: ScheduleInfo {
+                layers: schedule.layers,
+                waves: schedule.waves.len(),
+            },
+            stats: out.stats,
+            seconds: Seconds {
+                load,
+                geometry: geometry_s,
+                field: field_s,
+                graph: graph_s,
+                synthesis: synthesis_s,
+                maps: maps_s,
+                write: 0.0,
+                total: started.elapsed().as_secs_f64(),
+            },
+            texels_per_second: 0.0,
+            synthesis_texels_per_second: 0.0,
+            peak_memory_bytes: None,
+        };
+        report.update_rates();
+        Ok(SynthResult {
+            maps,
+            geometry,
+            surface,
+            example,
+            report,
+            started,
+        })
+    }
+}
+
+fn orientation_label(o: &Orientation) -> String {
+    match o {
+        Orientation::Auto => "auto".into(),
+        Orientation::Axis(a) => format!("axis ({}, {}, {})", a.x, a.y, a.z),
+        Orientation::Constraints(p) => p.display().to_string(),
+    }
+}
+
+/// Refuses sizes whose maps would not fit an EXR image or u32 texel indices.
+fn check_size(faces: usize, n: usize) -> Result<()> {
+    let texels = faces as u128 * (n * n) as u128;
+    if texels >= u32::MAX as u128 {
+        return Err(Error::invalid(format!(
+            "{faces} face domains at resolution {n} are {texels} texels; at most {} are supported",
+            u32::MAX - 1
+        )));
+    }
+    Ok(())
+}
+
+impl SynthResult {
+    /// The geometry maps (geometry.exr content).
+    pub fn geometry_maps(&self) -> FaceMaps {
+        crate::synth::geometry_maps(&self.geometry)
+    }
+
+    /// Writes facemaps.exr, geometry.exr and report.json into `dir` (created if missing).
+    /// Every file is written atomically; if one fails, the files written by this call are
+    /// removed again, so the directory never holds a partial result of this run.
+    pub fn write(&self, dir: impl AsRef<Path>) -> Result<Report> {
+        self.write_with(dir, |_| Ok(()))
+    }
+
+    /// Like [`SynthResult::write`], with `extra(dir)` writing further outputs (e.g. the
+    /// atlas) before the report; its time counts as writing. Files `extra` creates are not
+    /// tracked: it must clean up after its own errors.
+    pub fn write_with(
+        &self,
+        dir: impl AsRef<Path>,
+        extra: impl FnOnce(&Path) -> Result<()>,
+    ) -> Result<Report> {
+        let dir = dir.as_ref();
+        prepare_out_dir(dir)?;
+        let t0 = Instant::now();
+        let mut written: Vec<PathBuf> = Vec::new();
+        let result = (|| {
+            let p = dir.join(FACEMAPS_FILE);
+            write_face_maps(&p, &self.maps)?;
+            written.push(p);
+            let p = dir.join(GEOMETRY_FILE);
+            write_face_maps(&p, &self.geometry_maps())?;
+            written.push(p);
+            extra(dir)?;
+            let mut report = self.report.clone();
+            report.seconds.write = t0.elapsed().as_secs_f64();
+            report.seconds.total = self.started.elapsed().as_secs_f64();
+            report.peak_memory_bytes = crate::report::peak_memory_bytes();
+            report.update_rates();
+            report.write(dir)?;
+            Ok(report)
+        })();
+        if result.is_err() {
+            for p in &written {
+                let _ = std::fs::remove_file(p);
+            }
+        }
+        result
+    }
+}
