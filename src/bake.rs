@@ -27,6 +27,31 @@ pub const GEOMETRY_FILE: &str = "geometry.exr";
 /// arithmetic, so that huge N does not need gigabytes of scratch.
 const WHOLE_DOMAIN_MAX_N: usize = 512;
 
+/// Patch-tree depth to store for maps of resolution `n` (`SurfaceOptions::max_depth`).
+///
+/// The surface stores its patch trees around extraordinary vertices down to a fixed depth
+/// and refines deeper on demand (exact either way). A texel centre is at least 1/(2N) of a
+/// domain away from a corner, i.e. 1/N of a base quad, so depth ceil(log2 N) + 1 already
+/// reaches a regular leaf for every texel; the default (8) stores levels that N <= 128
+/// never visits, which on triangle meshes (every base quad has an extraordinary corner) is
+/// most of the surface's memory. Capped at the default so large N behaves as before.
+pub fn patch_depth_for(n: usize) -> u32 {
+    let default = subdiv::surface::SurfaceOptions::default().max_depth;
+    let log2 = usize::BITS - n.max(1).saturating_sub(1).leading_zeros();
+    (log2 + 1).clamp(1, default)
+}
+
+/// Loads a control mesh and builds its surface with the patch depth `n` needs.
+pub fn load_surface_for(path: impl AsRef<Path>, n: usize) -> Result<Surface> {
+    let control = subdiv::ControlMesh::load_obj(path)?;
+    Ok(Surface::with_options(
+        control,
+        subdiv::surface::SurfaceOptions {
+            max_depth: patch_depth_for(n),
+        },
+    ))
+}
+
 /// Evaluates domain `d` at its N x N texel centres ((x+0.5)/N, (y+0.5)/N) into `out`:
 /// six channel-major arrays of N² f32 in [`GEOMETRY_CHANNELS`] order, row-major (y outer).
 /// `scratch` is reused between calls to avoid an allocation per domain.
@@ -210,6 +235,47 @@ mod tests {
                 eval_domain_impl(&s, d, n, &mut scratch, &mut a, usize::MAX);
                 eval_domain_impl(&s, d, n, &mut scratch, &mut b, 0);
                 assert!(a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()));
+            }
+        }
+    }
+
+    #[test]
+    fn shallow_patch_trees_give_bit_identical_texels() {
+        assert_eq!(
+            [1, 2, 3, 4, 8, 16, 17, 32, 128, 129, 8192].map(patch_depth_for),
+            [1, 2, 3, 3, 4, 5, 6, 6, 8, 8, 8]
+        );
+        // A triangle and a pentagon next to quads: every kind of extraordinary corner.
+        let p = [
+            [0., 0., 0.],
+            [1., 0., 0.],
+            [2., 0., 0.],
+            [0., 1., 0.],
+            [1., 1., 0.3],
+            [2., 1., 0.],
+            [0.5, 2., 0.],
+            [1.5, 2.2, 0.1],
+            [2.5, 1.8, 0.],
+        ]
+        .map(glam::DVec3::from_array)
+        .to_vec();
+        let f: [&[u32]; 4] = [&[0, 1, 4, 3], &[1, 2, 5, 4], &[3, 4, 6], &[4, 5, 8, 7, 6]];
+        let control = ControlMesh::from_faces(p, &f).unwrap();
+        let deep = Surface::new(control.clone());
+        for n in [1, 2, 3, 5, 8, 16, 33] {
+            let shallow = Surface::with_options(
+                control.clone(),
+                subdiv::surface::SurfaceOptions {
+                    max_depth: patch_depth_for(n),
+                },
+            );
+            let a = bake_geometry(&deep, n);
+            let b = bake_geometry(&shallow, n);
+            for ((_, x), (_, y)) in a.channels.iter().zip(&b.channels) {
+                assert!(
+                    x.iter().zip(y).all(|(u, v)| u.to_bits() == v.to_bits()),
+                    "N = {n}"
+                );
             }
         }
     }

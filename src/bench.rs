@@ -13,6 +13,7 @@ use serde::Serialize;
 use std::f64::consts::TAU;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
+use subdiv::surface::SurfaceOptions;
 use subdiv::{ControlMesh, Surface};
 
 /// A `/proc/self/status` field in bytes (Linux; `None` elsewhere).
@@ -95,6 +96,8 @@ pub struct BakeBenchReport {
     pub texels: u64,
     pub threads: usize,
     pub compression: String,
+    /// Stored patch-tree depth around extraordinary vertices (`SurfaceOptions::max_depth`).
+    pub patch_depth: u32,
     pub surface_build_seconds: f64,
     pub eval_seconds: f64,
     pub eval_texels_per_second: f64,
@@ -115,6 +118,7 @@ pub fn bake_bench(
     mesh: &BenchMesh,
     resolution: usize,
     compression: Compression,
+    max_depth: Option<u32>,
     out_dir: &Path,
 ) -> Result<BakeBenchReport> {
     let t = Instant::now();
@@ -128,7 +132,10 @@ pub fn bake_bench(
             )
         }
     };
-    let surface = Surface::new(control);
+    let opts = SurfaceOptions {
+        max_depth: max_depth.unwrap_or_else(|| crate::bake::patch_depth_for(resolution)),
+    };
+    let surface = Surface::with_options(control, opts);
     let surface_build_seconds = t.elapsed().as_secs_f64();
     let domains = surface.num_domains();
     let texels = (domains * resolution * resolution) as u64;
@@ -157,6 +164,7 @@ pub fn bake_bench(
         texels,
         threads: rayon::current_num_threads(),
         compression: compression.to_string(),
+        patch_depth: opts.max_depth,
         surface_build_seconds,
         eval_seconds,
         eval_texels_per_second: texels as f64 / eval_seconds.max(1e-9),
@@ -168,6 +176,115 @@ pub fn bake_bench(
         peak_bytes_per_texel: peak as f64 / texels as f64,
         bake_overhead_bytes_per_texel: peak.saturating_sub(rss_before) as f64 / texels as f64,
     })
+}
+
+/// One row of `bench exr`: writing and reading one kind of face maps with one compression.
+#[derive(Clone, Debug, Serialize)]
+pub struct ExrBenchRow {
+    /// "geometry" (P, N: 6 float channels) or "facemaps" (R G B source.u source.v).
+    pub data: String,
+    pub compression: String,
+    pub texels: u64,
+    pub raw_bytes: u64,
+    pub file_bytes: u64,
+    /// file / raw.
+    pub ratio: f64,
+    pub write_seconds: f64,
+    pub write_texels_per_second: f64,
+    pub write_raw_mb_per_second: f64,
+    pub read_seconds: f64,
+}
+
+/// Colour maps that look like coherent synthesis output: every domain is a patch copied
+/// from a procedural 8-bit "photo" (sRGB-decoded, so 256 levels per channel) at a
+/// pseudo-random offset, with the matching `source.u`/`source.v`.
+pub fn synthetic_facemaps(faces: usize, n: usize) -> crate::io::exr::FaceMaps {
+    use crate::example::srgb_to_linear;
+    let names = ["R", "G", "B", "source.u", "source.v"];
+    let mut m = crate::io::exr::FaceMaps::new(faces, n, &names);
+    let size = 128usize;
+    let photo: Vec<[f32; 3]> = (0..size * size)
+        .map(|i| {
+            let (x, y) = ((i % size) as f32, (i / size) as f32);
+            let a = (x * 0.21).sin() * (y * 0.13).cos() + 0.3 * ((x + 2.0 * y) * 0.05).sin();
+            let noise = ((i as u32).wrapping_mul(2_654_435_761) >> 24) as f32 / 255.0;
+            let v = |k: f32| {
+                let q = ((0.5 + 0.35 * (a + k) + 0.15 * noise).clamp(0.0, 1.0) * 255.0).round();
+                srgb_to_linear(q / 255.0)
+            };
+            [v(0.0), v(0.2), v(-0.3)]
+        })
+        .collect();
+    let nn = n * n;
+    let mut chans: Vec<Vec<f32>> = m
+        .channels
+        .iter_mut()
+        .map(|(_, d)| std::mem::take(d))
+        .collect();
+    for f in 0..faces {
+        let h = (f as u64 + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        let (ox, oy) = ((h >> 20) as usize % size, (h >> 40) as usize % size);
+        for y in 0..n {
+            for x in 0..n {
+                let (sx, sy) = ((ox + x) % size, (oy + y) % size);
+                let c = photo[sy * size + sx];
+                let i = f * nn + y * n + x;
+                chans[0][i] = c[0];
+                chans[1][i] = c[1];
+                chans[2][i] = c[2];
+                chans[3][i] = sx as f32 + 0.5;
+                chans[4][i] = sy as f32 + 0.5;
+            }
+        }
+    }
+    for ((_, d), c) in m.channels.iter_mut().zip(chans) {
+        *d = c;
+    }
+    m
+}
+
+/// Writes and reads geometry maps (baked from a generated torus) and synthetic colour maps
+/// with each lossless compression, in `out_dir`.
+pub fn exr_bench(
+    domains: usize,
+    resolution: usize,
+    compressions: &[Compression],
+    out_dir: &Path,
+) -> Result<Vec<ExrBenchRow>> {
+    let surface = Surface::new(torus_mesh(domains));
+    let geometry = crate::bake::bake_geometry(&surface, resolution);
+    let colour = synthetic_facemaps(surface.num_domains(), resolution);
+    let mut rows = Vec::new();
+    for (label, maps) in [("geometry", &geometry), ("facemaps", &colour)] {
+        let texels = (maps.faces * maps.texels_per_face()) as u64;
+        let raw = texels * maps.channels.len() as u64 * 4;
+        for &c in compressions {
+            let path = out_dir.join(format!("{label}.exr"));
+            let t = Instant::now();
+            crate::io::exr::write_face_maps_with(&path, maps, c)?;
+            let write_seconds = t.elapsed().as_secs_f64();
+            let file_bytes = std::fs::metadata(&path)
+                .map_err(|e| Error::io(&path, "cannot stat", e))?
+                .len();
+            let t = Instant::now();
+            let back = crate::io::exr::read_face_maps(&path)?;
+            let read_seconds = t.elapsed().as_secs_f64();
+            assert_eq!(back.faces, maps.faces);
+            rows.push(ExrBenchRow {
+                data: label.to_string(),
+                compression: format!("{c:?}"),
+                texels,
+                raw_bytes: raw,
+                file_bytes,
+                ratio: file_bytes as f64 / raw as f64,
+                write_seconds,
+                write_texels_per_second: texels as f64 / write_seconds.max(1e-9),
+                write_raw_mb_per_second: raw as f64 / 1e6 / write_seconds.max(1e-9),
+                read_seconds,
+            });
+        }
+    }
+    Ok(rows)
 }
 
 #[cfg(test)]
@@ -186,8 +303,11 @@ mod tests {
     #[test]
     fn bench_runs_small() {
         let d = tempfile::tempdir().unwrap();
-        let r = bake_bench(&BenchMesh::Torus(50), 4, Compression::ZIP16, d.path()).unwrap();
+        let r = bake_bench(&BenchMesh::Torus(50), 4, Compression::ZIP16, None, d.path()).unwrap();
         assert_eq!(r.texels, r.domains as u64 * 16);
         assert!(r.file_bytes > 0 && r.eval_texels_per_second > 0.0);
+        let rows = exr_bench(30, 4, &[Compression::ZIP16], d.path()).unwrap();
+        assert_eq!(rows.len(), 2);
+        assert!(rows.iter().all(|r| r.file_bytes > 0 && r.ratio < 1.5));
     }
 }

@@ -4,8 +4,7 @@ use super::{parse_resolution, ExrCompression};
 use clap::Args;
 use std::path::PathBuf;
 use std::time::Instant;
-use subdiv::Surface;
-use surfsynth::bake::{bake_to_file, GEOMETRY_FILE};
+use surfsynth::bake::{bake_to_file, load_surface_for, GEOMETRY_FILE};
 use surfsynth::io::atomic::prepare_out_dir;
 use surfsynth::progress;
 
@@ -21,14 +20,14 @@ pub struct BakeArgs {
     #[arg(long, value_name = "DIR")]
     pub out: PathBuf,
     /// EXR compression (lossless).
-    #[arg(long, value_enum, default_value_t = ExrCompression::Zip)]
+    #[arg(long, value_enum, default_value_t = ExrCompression::None)]
     pub compression: ExrCompression,
 }
 
 pub fn run(a: BakeArgs) -> anyhow::Result<()> {
     let t0 = Instant::now();
     let spin = progress::spinner("mesh");
-    let surface = Surface::load_obj(&a.mesh).map_err(surfsynth::Error::from)?;
+    let surface = load_surface_for(&a.mesh, a.resolution)?;
     spin.finish_and_clear();
     let load_s = t0.elapsed().as_secs_f64();
     // Inputs are valid: only now create the output directory.

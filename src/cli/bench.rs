@@ -4,7 +4,7 @@
 use super::{parse_resolution, ExrCompression};
 use clap::{Args, Subcommand};
 use std::path::PathBuf;
-use surfsynth::bench::{bake_bench, BenchMesh};
+use surfsynth::bench::{bake_bench, exr_bench, BenchMesh};
 use surfsynth::io::atomic::prepare_out_dir;
 
 #[derive(Args, Debug)]
@@ -17,6 +17,21 @@ pub struct BenchArgs {
 pub enum BenchCommand {
     /// Geometry baking: evaluation alone and with EXR writing, texels/s and peak memory.
     Bake(BenchBakeArgs),
+    /// EXR writing and reading speed and file size per compression.
+    Exr(BenchExrArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct BenchExrArgs {
+    /// Number of face domains (generated torus).
+    #[arg(long, value_name = "D", default_value_t = 20_000)]
+    pub domains: usize,
+    /// Texels per side of every face map.
+    #[arg(long, value_name = "N", default_value_t = 16, value_parser = parse_resolution)]
+    pub resolution: usize,
+    /// Compressions to measure (default: all lossless ones).
+    #[arg(long, value_enum, value_delimiter = ',')]
+    pub compression: Vec<ExrCompression>,
 }
 
 #[derive(Args, Debug)]
@@ -32,8 +47,11 @@ pub struct BenchBakeArgs {
     #[arg(long, value_name = "N", default_value_t = 16, value_parser = parse_resolution)]
     pub resolution: usize,
     /// EXR compression (lossless).
-    #[arg(long, value_enum, default_value_t = ExrCompression::Zip)]
+    #[arg(long, value_enum, default_value_t = ExrCompression::None)]
     pub compression: ExrCompression,
+    /// Patch-tree depth stored around extraordinary vertices (default: what N needs).
+    #[arg(long, value_name = "L", value_parser = clap::value_parser!(u32).range(1..=16))]
+    pub max_depth: Option<u32>,
     /// Keep geometry.exr in this directory (default: a temporary directory, removed).
     #[arg(long, value_name = "DIR")]
     pub out: Option<PathBuf>,
@@ -42,7 +60,32 @@ pub struct BenchBakeArgs {
 pub fn run(a: BenchArgs) -> anyhow::Result<()> {
     match a.what {
         BenchCommand::Bake(b) => bake(b),
+        BenchCommand::Exr(b) => exr(b),
     }
+}
+
+fn exr(a: BenchExrArgs) -> anyhow::Result<()> {
+    if a.domains == 0 || a.domains > 50_000_000 {
+        anyhow::bail!("--domains {} must be between 1 and 50000000", a.domains);
+    }
+    let list = if a.compression.is_empty() {
+        vec![
+            ExrCompression::None,
+            ExrCompression::Rle,
+            ExrCompression::Zip,
+            ExrCompression::Zips,
+            ExrCompression::Piz,
+        ]
+    } else {
+        a.compression
+    };
+    let exr: Vec<_> = list.iter().map(|c| c.to_exr()).collect();
+    let dir = std::env::temp_dir().join(format!("surfsynth-bench-exr-{}", std::process::id()));
+    prepare_out_dir(&dir)?;
+    let rows = exr_bench(a.domains, a.resolution, &exr, &dir);
+    let _ = std::fs::remove_dir_all(&dir);
+    println!("{}", serde_json::to_string_pretty(&rows?)?);
+    Ok(())
 }
 
 fn bake(a: BenchBakeArgs) -> anyhow::Result<()> {
@@ -61,7 +104,13 @@ fn bake(a: BenchBakeArgs) -> anyhow::Result<()> {
         ),
     };
     prepare_out_dir(&dir)?;
-    let report = bake_bench(&mesh, a.resolution, a.compression.to_exr(), &dir);
+    let report = bake_bench(
+        &mesh,
+        a.resolution,
+        a.compression.to_exr(),
+        a.max_depth,
+        &dir,
+    );
     if temporary {
         let _ = std::fs::remove_dir_all(&dir);
     }
