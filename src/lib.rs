@@ -17,3 +17,4 @@ pub mod probe;
 pub mod report;
 pub mod synth;
 pub mod synthesizer;
+pub mod eval;

@@ -1,7 +1,7 @@
-//! `surfsynth eval DIR`: quality measures as JSON (issue 4). Arguments are final; the
-//! handler is a placeholder until the evaluator lands.
+//! `surfsynth eval DIR`: quality measures as JSON (issue 4); the work is in
+//! `surfsynth::eval`.
 
-use super::{not_implemented, parse_positive};
+use super::parse_positive;
 use clap::Args;
 use std::path::PathBuf;
 
@@ -13,9 +13,11 @@ pub struct EvalArgs {
     /// Scale S used for scale fidelity (default: the one in DIR/report.json).
     #[arg(long, value_name = "S", value_parser = parse_positive)]
     pub scale: Option<f64>,
+    /// Example image: also report patch fidelity (flat meshes only; see docs/eval.md).
+    #[arg(long, value_name = "E.png")]
+    pub example: Option<PathBuf>,
 }
 
 pub fn run(a: EvalArgs) -> anyhow::Result<()> {
-    let _ = a;
-    not_implemented("eval")
+    surfsynth::eval::run_cli(&a.dir, a.scale, a.example)
 }

@@ -1,0 +1,659 @@
+//! `surfsynth eval`: the quality measures of BRIEF ("Quality measures"), computed from a
+//! result directory alone (docs/eval.md has the definitions, conventions and when patch
+//! fidelity applies).
+//!
+//! Everything is measured on the written files — `facemaps.exr` (colour, `source.u/v`) and
+//! `geometry.exr` (`P.X/Y/Z`, `N.X/Y/Z`) — never on in-memory state of the synthesizer, so
+//! the numbers judge exactly what a user gets, and any program writing the same layout can
+//! be judged the same way. [`evaluate_maps`] exposes the same computation on maps already in
+//! memory (for tests that synthesize without writing).
+//!
+//! Conventions the BRIEF leaves open, fixed here (and in docs/eval.md):
+//! - "adjacent texels of one face": horizontal or vertical neighbours (x±1 or y±1) in the
+//!   same domain; every unordered pair counted once.
+//! - percentiles (median, p10, p90, and the median h) interpolate linearly between order
+//!   statistics (numpy's default): p(q) = v[i] + (v[i+1] - v[i]) (q (n-1) - i).
+//! - seam pairs: unordered pairs of border texels (x or y in {0, N-1}) of different domains
+//!   with 0.5h <= |P_a - P_b| <= 1.25h, found with a k-d tree over border texel positions.
+//! - non-finite values are left out of every measure except coverage, which counts them.
+//! - sums are accumulated per domain and added in domain order, so the output does not
+//!   depend on the number of threads.
+
+use crate::error::{Error, Result};
+use crate::example::Example;
+use crate::io::exr::{read_face_maps, FaceMaps};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// Colour maps file in a result directory.
+pub const FACEMAPS_FILE: &str = "facemaps.exr";
+/// Geometry maps file in a result directory.
+pub const GEOMETRY_FILE: &str = "geometry.exr";
+/// Report file (source of the default scale).
+pub const REPORT_FILE: &str = "report.json";
+
+/// Adjacent texels whose source positions differ by at most this many example pixels
+/// continue one patch (BRIEF).
+pub const COHERENT_PIXELS: f64 = 4.0;
+/// Side of the patches compared by patch fidelity (BRIEF: 7x7).
+pub const PATCH: usize = 7;
+/// Output patches sampled for patch fidelity (each is compared against every example
+/// patch, so this bounds the cost; see docs/eval.md).
+pub const PATCH_SAMPLES: usize = 1024;
+/// Random example patch pairs averaged for patch fidelity's denominator.
+pub const PATCH_PAIRS: usize = 4096;
+/// Largest angle (degrees) between any normal and the mean normal for a mesh to count as
+/// flat for patch fidelity.
+pub const FLAT_DEGREES: f64 = 1.0;
+
+/// Median and 10th/90th percentiles of a sample, with its size.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Spread {
+    pub median: f64,
+    pub p10: f64,
+    pub p90: f64,
+    /// Number of values.
+    pub count: usize,
+}
+
+/// The quality measures of one result (serialised as the JSON `eval` prints).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Quality {
+    /// Face domains F.
+    pub faces: usize,
+    /// Texels per domain side N.
+    pub resolution: usize,
+    /// F·N².
+    pub texels: usize,
+    /// Fraction of texels whose colour (R, G, B) and position are all finite. Must be 1.
+    pub coverage: f64,
+    /// h: median distance between centres of adjacent texels of one face (`None` when
+    /// N = 1 or no positions are finite).
+    pub texel_spacing: Option<f64>,
+    /// Mean |C_a - C_b|² over seam pairs divided by the same over adjacent pairs inside
+    /// faces. `None` when undefined: no seam pairs, or no colour variation inside faces
+    /// while seams vary (then the ratio is infinite). 1 when both means are 0.
+    pub seam_ratio: Option<f64>,
+    /// Number of seam pairs (different domains, 0.5h..1.25h apart).
+    pub seam_pairs: usize,
+    /// Mean |C_a - C_b|² over seam pairs (`None` without seam pairs).
+    pub seam_mean_sq: Option<f64>,
+    /// Number of adjacent pairs inside faces with finite colours.
+    pub interior_pairs: usize,
+    /// Mean |C_a - C_b|² over adjacent pairs inside faces (`None` without pairs).
+    pub interior_mean_sq: Option<f64>,
+    /// The scale S used (surface length per example pixel), when known.
+    pub scale: Option<f64>,
+    /// r = |source_a - source_b|·S/|P_a - P_b| over adjacent pairs continuing a patch.
+    /// `None` without `source.u`/`source.v` channels or without continued pairs.
+    pub scale_fidelity: Option<Spread>,
+    /// Share of adjacent pairs (finite sources) whose sources are at most 4 px apart.
+    pub coherent_fraction: Option<f64>,
+    /// Mean distance of 7x7 output patches to their nearest example patch over the mean
+    /// distance between random example patches; only when an example is given (flat
+    /// meshes; see docs/eval.md).
+    pub patch_fidelity: Option<f64>,
+}
+
+/// What to evaluate beyond the files.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct EvalOptions {
+    /// Scale S; `None` reads `scale` from DIR/report.json (only needed when the maps carry
+    /// source positions).
+    pub scale: Option<f64>,
+    /// Example image for patch fidelity (flat meshes only).
+    pub example: Option<PathBuf>,
+}
+
+/// Evaluates the result in `dir` with the scale given or taken from its report.
+pub fn evaluate(dir: &Path, scale: Option<f64>) -> anyhow::Result<Quality> {
+    Ok(evaluate_with(
+        dir,
+        &EvalOptions {
+            scale,
+            example: None,
+        },
+    )?)
+}
+
+/// Evaluates the result in `dir` with all options.
+pub fn evaluate_with(dir: &Path, opts: &EvalOptions) -> Result<Quality> {
+    if let Some(s) = opts.scale {
+        check_scale(s)?;
+    }
+    match std::fs::metadata(dir) {
+        Ok(m) if m.is_dir() => {}
+        Ok(_) => {
+            return Err(Error::file(
+                dir,
+                "not a directory (expected a result directory)",
+            ))
+        }
+        Err(e) => return Err(Error::io(dir, "cannot open result directory", e)),
+    }
+    let colour_path = dir.join(FACEMAPS_FILE);
+    let geometry_path = dir.join(GEOMETRY_FILE);
+    let colour = read_face_maps(&colour_path)?;
+    let geometry = read_face_maps(&geometry_path)?;
+    if (colour.faces, colour.resolution) != (geometry.faces, geometry.resolution) {
+        return Err(Error::file(
+            &geometry_path,
+            format!(
+                "has {} faces at N = {}, but {} has {} faces at N = {}",
+                geometry.faces,
+                geometry.resolution,
+                colour_path.display(),
+                colour.faces,
+                colour.resolution
+            ),
+        ));
+    }
+    for name in ["R", "G", "B"] {
+        if colour.channel(name).is_none() {
+            return Err(Error::file(
+                &colour_path,
+                format!("has no '{name}' channel"),
+            ));
+        }
+    }
+    for name in ["P.X", "P.Y", "P.Z"] {
+        if geometry.channel(name).is_none() {
+            return Err(Error::file(
+                &geometry_path,
+                format!("has no '{name}' channel"),
+            ));
+        }
+    }
+    let has_source = colour.channel("source.u").is_some() && colour.channel("source.v").is_some();
+    let scale = match opts.scale {
+        Some(s) => Some(s),
+        None if has_source => Some(report_scale(&dir.join(REPORT_FILE))?),
+        None => None,
+    };
+    let example = match &opts.example {
+        Some(p) => Some(Example::load(p)?),
+        None => None,
+    };
+    if example.is_some() {
+        check_flat(&geometry, &geometry_path)?;
+    }
+    let mut q = evaluate_maps(&colour, &geometry, scale, example.as_ref())
+        .map_err(|e| Error::file(&colour_path, e))?;
+    q.scale = scale;
+    Ok(q)
+}
+
+fn check_scale(s: f64) -> Result<()> {
+    if !(s.is_finite() && s > 0.0) {
+        return Err(Error::invalid(format!(
+            "scale must be a positive number, got {s}"
+        )));
+    }
+    Ok(())
+}
+
+/// The `scale` of a report.json.
+fn report_scale(path: &Path) -> Result<f64> {
+    let text = std::fs::read_to_string(path).map_err(|e| {
+        Error::file(
+            path,
+            format!("cannot read ({e}); it gives the scale — or pass --scale S"),
+        )
+    })?;
+    let v: serde_json::Value = serde_json::from_str(&text)
+        .map_err(|e| Error::file(path, format!("not valid JSON: {e}")))?;
+    match v.get("scale").and_then(|s| s.as_f64()) {
+        Some(s) if s.is_finite() && s > 0.0 => Ok(s),
+        Some(s) => Err(Error::file(
+            path,
+            format!("'scale' is {s}, not a positive number"),
+        )),
+        None => Err(Error::file(path, "has no numeric 'scale' — pass --scale S")),
+    }
+}
+
+/// Refuses patch fidelity on curved meshes, where 7x7 texel windows are not comparable
+/// with flat example patches.
+fn check_flat(geometry: &FaceMaps, path: &Path) -> Result<()> {
+    let (Some(x), Some(y), Some(z)) = (
+        geometry.channel("N.X"),
+        geometry.channel("N.Y"),
+        geometry.channel("N.Z"),
+    ) else {
+        return Err(Error::file(
+            path,
+            "has no normals (N.X, N.Y, N.Z) to check flatness for patch fidelity",
+        ));
+    };
+    let mut mean = [0f64; 3];
+    for i in 0..x.len() {
+        let n = [x[i] as f64, y[i] as f64, z[i] as f64];
+        if n.iter().all(|c| c.is_finite()) {
+            for k in 0..3 {
+                mean[k] += n[k];
+            }
+        }
+    }
+    let len = (mean[0] * mean[0] + mean[1] * mean[1] + mean[2] * mean[2]).sqrt();
+    let mut worst: f64 = 0.0;
+    for i in 0..x.len() {
+        let n = [x[i] as f64, y[i] as f64, z[i] as f64];
+        let l = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+        if l > 0.0 && len > 0.0 {
+            let c = (n[0] * mean[0] + n[1] * mean[1] + n[2] * mean[2]) / (l * len);
+            worst = worst.max(c.clamp(-1.0, 1.0).acos().to_degrees());
+        }
+    }
+    if len.is_nan() || len <= 0.0 || worst > FLAT_DEGREES {
+        return Err(Error::file(
+            path,
+            format!(
+                "patch fidelity needs a flat mesh, but normals vary by {worst:.1} degrees (limit {FLAT_DEGREES})"
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// Linear-interpolation percentile of sorted values, q in [0, 1].
+pub fn percentile(sorted: &[f64], q: f64) -> f64 {
+    if sorted.is_empty() {
+        return f64::NAN;
+    }
+    let pos = q.clamp(0.0, 1.0) * (sorted.len() - 1) as f64;
+    let i = pos.floor() as usize;
+    let j = (i + 1).min(sorted.len() - 1);
+    sorted[i] + (sorted[j] - sorted[i]) * (pos - i as f64)
+}
+
+fn spread(mut v: Vec<f64>) -> Option<Spread> {
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(f64::total_cmp);
+    Some(Spread {
+        median: percentile(&v, 0.5),
+        p10: percentile(&v, 0.1),
+        p90: percentile(&v, 0.9),
+        count: v.len(),
+    })
+}
+
+/// Per-domain partial results of the pass over adjacent pairs.
+#[derive(Default)]
+struct FacePass {
+    finite: usize,
+    distances: Vec<f64>,
+    colour_sum: f64,
+    colour_pairs: usize,
+    ratios: Vec<f64>,
+    source_pairs: usize,
+    coherent_pairs: usize,
+}
+
+/// The measures on maps in memory: `colour` needs R, G, B (and `source.u`/`source.v` for
+/// scale fidelity and coherence), `geometry` needs P.X, P.Y, P.Z. `scale` is required for
+/// scale fidelity; `example` enables patch fidelity (the caller checks flatness).
+pub fn evaluate_maps(
+    colour: &FaceMaps,
+    geometry: &FaceMaps,
+    scale: Option<f64>,
+    example: Option<&Example>,
+) -> std::result::Result<Quality, String> {
+    let (f, n) = (colour.faces, colour.resolution);
+    if (geometry.faces, geometry.resolution) != (f, n) {
+        return Err("colour and geometry maps differ in faces or resolution".into());
+    }
+    let ch = |m: &FaceMaps, name: &str| -> std::result::Result<Vec<f32>, String> {
+        m.channel(name)
+            .map(|c| c.to_vec())
+            .ok_or_else(|| format!("no '{name}' channel"))
+    };
+    let (r, g, b) = (ch(colour, "R")?, ch(colour, "G")?, ch(colour, "B")?);
+    let (px, py, pz) = (
+        ch(geometry, "P.X")?,
+        ch(geometry, "P.Y")?,
+        ch(geometry, "P.Z")?,
+    );
+    let src = match (colour.channel("source.u"), colour.channel("source.v")) {
+        (Some(u), Some(v)) => Some((u, v)),
+        _ => None,
+    };
+    if let Some(s) = scale {
+        if !(s.is_finite() && s > 0.0) {
+            return Err(format!("scale must be a positive number, got {s}"));
+        }
+    }
+    let nn = n * n;
+    let texels = f * nn;
+    let col = |i: usize| [r[i] as f64, g[i] as f64, b[i] as f64];
+    let pos = |i: usize| [px[i] as f64, py[i] as f64, pz[i] as f64];
+    let finite = |a: &[f64; 3]| a.iter().all(|c| c.is_finite());
+    let dist2 = |a: &[f64; 3], b: &[f64; 3]| {
+        (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)
+    };
+
+    // One pass over every domain's adjacent pairs.
+    let passes: Vec<FacePass> = (0..f)
+        .into_par_iter()
+        .map(|d| {
+            let mut p = FacePass::default();
+            let base = d * nn;
+            for i in base..base + nn {
+                if finite(&col(i)) && finite(&pos(i)) {
+                    p.finite += 1;
+                }
+            }
+            for y in 0..n {
+                for x in 0..n {
+                    let a = base + y * n + x;
+                    let mut pair = |bi: usize| {
+                        let (pa, pb) = (pos(a), pos(bi));
+                        let dp = if finite(&pa) && finite(&pb) {
+                            let d = dist2(&pa, &pb).sqrt();
+                            p.distances.push(d);
+                            Some(d)
+                        } else {
+                            None
+                        };
+                        let (ca, cb) = (col(a), col(bi));
+                        if finite(&ca) && finite(&cb) {
+                            p.colour_sum += dist2(&ca, &cb);
+                            p.colour_pairs += 1;
+                        }
+                        if let Some((su, sv)) = src {
+                            let ds = ((su[a] - su[bi]) as f64).hypot((sv[a] - sv[bi]) as f64);
+                            if ds.is_finite() {
+                                p.source_pairs += 1;
+                                if ds <= COHERENT_PIXELS {
+                                    p.coherent_pairs += 1;
+                                    if let (Some(s), Some(dp)) = (scale, dp) {
+                                        if dp > 0.0 {
+                                            p.ratios.push(ds * s / dp);
+                                        }
+                                    }
+                                }
+                            }
+                        }
+                    };
+                    if x + 1 < n {
+                        pair(a + 1);
+                    }
+                    if y + 1 < n {
+                        pair(a + n);
+                    }
+                }
+            }
+            p
+        })
+        .collect();
+
+    let finite_texels: usize = passes.iter().map(|p| p.finite).sum();
+    let mut distances: Vec<f64> = Vec::with_capacity(2 * f * n * n.saturating_sub(1));
+    let (mut colour_sum, mut colour_pairs) = (0.0, 0usize);
+    let mut ratios = Vec::new();
+    let (mut source_pairs, mut coherent_pairs) = (0usize, 0usize);
+    for p in &passes {
+        distances.extend_from_slice(&p.distances);
+        colour_sum += p.colour_sum;
+        colour_pairs += p.colour_pairs;
+        ratios.extend_from_slice(&p.ratios);
+        source_pairs += p.source_pairs;
+        coherent_pairs += p.coherent_pairs;
+    }
+    drop(passes);
+    distances.sort_by(f64::total_cmp);
+    let h = percentile(&distances, 0.5);
+    drop(distances);
+
+    // Seam pairs: border texels of different domains 0.5h..1.25h apart.
+    let (seam_sum, seam_pairs) = if h.is_finite() && h > 0.0 {
+        seam_pairs_sum(f, n, h, &pos, &col)
+    } else {
+        (0.0, 0)
+    };
+    let interior_mean_sq = if colour_pairs > 0 {
+        colour_sum / colour_pairs as f64
+    } else {
+        f64::NAN
+    };
+    let seam_mean_sq = if seam_pairs > 0 {
+        seam_sum / seam_pairs as f64
+    } else {
+        f64::NAN
+    };
+    let seam_ratio = if seam_pairs == 0 || colour_pairs == 0 {
+        None
+    } else if interior_mean_sq > 0.0 {
+        Some(seam_mean_sq / interior_mean_sq)
+    } else if seam_mean_sq == 0.0 {
+        Some(1.0)
+    } else {
+        None
+    };
+
+    let patch_fidelity = example.map(|e| patch_fidelity(colour, e));
+    Ok(Quality {
+        faces: f,
+        resolution: n,
+        texels,
+        coverage: finite_texels as f64 / texels.max(1) as f64,
+        texel_spacing: h.is_finite().then_some(h),
+        seam_ratio,
+        seam_pairs,
+        seam_mean_sq: (seam_pairs > 0).then_some(seam_mean_sq),
+        interior_pairs: colour_pairs,
+        interior_mean_sq: (colour_pairs > 0).then_some(interior_mean_sq),
+        scale,
+        scale_fidelity: spread(ratios),
+        coherent_fraction: src
+            .filter(|_| source_pairs > 0)
+            .map(|_| coherent_pairs as f64 / source_pairs as f64),
+        patch_fidelity: patch_fidelity.flatten(),
+    })
+}
+
+/// Sum of |C_a - C_b|² over seam pairs, and their number.
+fn seam_pairs_sum(
+    f: usize,
+    n: usize,
+    h: f64,
+    pos: &(impl Fn(usize) -> [f64; 3] + Sync),
+    col: &(impl Fn(usize) -> [f64; 3] + Sync),
+) -> (f64, usize) {
+    use kiddo::{ImmutableKdTree, SquaredEuclidean};
+    // Border texels (each once) with finite positions.
+    let mut border: Vec<usize> = Vec::new();
+    for d in 0..f {
+        for y in 0..n {
+            for x in 0..n {
+                if x == 0 || y == 0 || x + 1 == n || y + 1 == n {
+                    let i = (d * n + y) * n + x;
+                    if pos(i).iter().all(|c| c.is_finite()) {
+                        border.push(i);
+                    }
+                }
+            }
+        }
+    }
+    if border.is_empty() {
+        return (0.0, 0);
+    }
+    let points: Vec<[f64; 3]> = border.iter().map(|&i| pos(i)).collect();
+    let tree: ImmutableKdTree<f64, 3> =
+        ImmutableKdTree::new_from_slice(&points).expect("finite border points build a tree");
+    let (lo2, hi2) = ((0.5 * h).powi(2), (1.25 * h).powi(2));
+    let nn = n * n;
+    // Per border texel: pairs with later border texels only (each pair once); results
+    // collected in order and summed sequentially for thread-count independence.
+    let per: Vec<(f64, usize)> = (0..border.len())
+        .into_par_iter()
+        .map(|k| {
+            let a = border[k];
+            let ca = col(a);
+            let mut sum = 0.0;
+            let mut count = 0;
+            let hits = tree
+                .query(&points[k])
+                .within::<SquaredEuclidean<f64>>(hi2)
+                .unsorted()
+                .execute();
+            let mut js: Vec<(u32, f64)> = hits.iter().map(|r| (r.item, r.distance)).collect();
+            js.sort_by_key(|j| j.0);
+            for (j, d2) in js {
+                let j = j as usize;
+                if j <= k || d2 < lo2 || d2 > hi2 {
+                    continue;
+                }
+                let b = border[j];
+                if a / nn == b / nn {
+                    continue;
+                }
+                let cb = col(b);
+                if ca.iter().chain(cb.iter()).all(|c| c.is_finite()) {
+                    sum +=
+                        (ca[0] - cb[0]).powi(2) + (ca[1] - cb[1]).powi(2) + (ca[2] - cb[2]).powi(2);
+                    count += 1;
+                }
+            }
+            (sum, count)
+        })
+        .collect();
+    per.iter()
+        .fold((0.0, 0), |(s, c), &(ps, pc)| (s + ps, c + pc))
+}
+
+/// SplitMix64: a tiny deterministic generator for sampling (no statistical demands).
+fn splitmix(state: &mut u64) -> u64 {
+    *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    let mut z = *state;
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// Patch fidelity (see [`Quality::patch_fidelity`]); `None` when the maps have no 7x7
+/// window (N < 7) or the example is smaller than 7x7.
+fn patch_fidelity(colour: &FaceMaps, ex: &Example) -> Option<f64> {
+    let (f, n) = (colour.faces, colour.resolution);
+    let (w, hgt) = (ex.width, ex.height);
+    if n < PATCH || w < PATCH || hgt < PATCH {
+        return None;
+    }
+    let dims = PATCH * PATCH * 3;
+    let r = colour.channel("R")?;
+    let g = colour.channel("G")?;
+    let b = colour.channel("B")?;
+    // Output windows: every 7x7 window fully inside a domain, on a stride-7 grid, thinned
+    // evenly to at most PATCH_SAMPLES.
+    let per_side = (n - PATCH) / PATCH + 1;
+    let all: Vec<(usize, usize, usize)> = (0..f)
+        .flat_map(|d| {
+            (0..per_side).flat_map(move |j| (0..per_side).map(move |i| (d, i * PATCH, j * PATCH)))
+        })
+        .collect();
+    let step = all.len().div_ceil(PATCH_SAMPLES).max(1);
+    let outputs: Vec<Vec<f32>> = all
+        .iter()
+        .step_by(step)
+        .map(|&(d, x0, y0)| {
+            let mut v = Vec::with_capacity(dims);
+            for y in y0..y0 + PATCH {
+                for x in x0..x0 + PATCH {
+                    let i = colour.index(d, x, y);
+                    v.extend_from_slice(&[r[i], g[i], b[i]]);
+                }
+            }
+            v
+        })
+        .filter(|v| v.iter().all(|c| c.is_finite()))
+        .collect();
+    if outputs.is_empty() {
+        return None;
+    }
+    let ex_patch = |x0: usize, y0: usize, out: &mut Vec<f32>| {
+        out.clear();
+        for y in y0..y0 + PATCH {
+            for x in x0..x0 + PATCH {
+                out.extend_from_slice(&ex.rgb[y * w + x]);
+            }
+        }
+    };
+    // All example patches, laid out contiguously for a cache-friendly scan.
+    let (ew, eh) = (w - PATCH + 1, hgt - PATCH + 1);
+    let mut bank = Vec::with_capacity(ew * eh * dims);
+    let mut tmp = Vec::with_capacity(dims);
+    for y in 0..eh {
+        for x in 0..ew {
+            ex_patch(x, y, &mut tmp);
+            bank.extend_from_slice(&tmp);
+        }
+    }
+    let nearest: Vec<f64> = outputs
+        .par_iter()
+        .map(|o| {
+            let mut best = f32::INFINITY;
+            for p in bank.chunks_exact(dims) {
+                // Early exit once the partial sum exceeds the best so far.
+                let mut s = 0f32;
+                for (chunk_o, chunk_p) in o.chunks(21).zip(p.chunks(21)) {
+                    for (a, b) in chunk_o.iter().zip(chunk_p) {
+                        s += (a - b) * (a - b);
+                    }
+                    if s >= best {
+                        break;
+                    }
+                }
+                best = best.min(s);
+            }
+            (best as f64).sqrt()
+        })
+        .collect();
+    let numerator = nearest.iter().sum::<f64>() / nearest.len() as f64;
+    let mut state = 0x5EED_0F7A_7C4E_5A11_u64;
+    let mut sum = 0.0;
+    for _ in 0..PATCH_PAIRS {
+        let a = (splitmix(&mut state) % (ew * eh) as u64) as usize;
+        let b = (splitmix(&mut state) % (ew * eh) as u64) as usize;
+        let (pa, pb) = (
+            &bank[a * dims..(a + 1) * dims],
+            &bank[b * dims..(b + 1) * dims],
+        );
+        sum += pa
+            .iter()
+            .zip(pb)
+            .map(|(x, y)| ((x - y) as f64).powi(2))
+            .sum::<f64>()
+            .sqrt();
+    }
+    let denominator = sum / PATCH_PAIRS as f64;
+    (denominator > 0.0).then(|| numerator / denominator)
+}
+
+/// `surfsynth eval`: evaluates `dir` and prints the measures as pretty JSON on stdout.
+pub fn run_cli(dir: &Path, scale: Option<f64>, example: Option<PathBuf>) -> anyhow::Result<()> {
+    let q = evaluate_with(dir, &EvalOptions { scale, example })?;
+    println!("{}", to_json(&q));
+    Ok(())
+}
+
+/// The JSON text `eval` prints (pretty, stable key order; undefined values are `null`).
+pub fn to_json(q: &Quality) -> String {
+    serde_json::to_string_pretty(q).expect("Quality serialises")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn percentiles_interpolate_like_numpy() {
+        let v = [1.0, 2.0, 3.0, 4.0];
+        assert_eq!(percentile(&v, 0.5), 2.5);
+        assert!((percentile(&v, 0.1) - 1.3).abs() < 1e-12);
+        assert!((percentile(&v, 0.9) - 3.7).abs() < 1e-12);
+        assert_eq!(percentile(&[5.0], 0.9), 5.0);
+        assert!(percentile(&[], 0.5).is_nan());
+    }
+}
