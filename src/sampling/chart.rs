@@ -26,6 +26,15 @@
 //! by central differences of A = Df·DΦ⁻¹ at Φ⁻¹(y ± h·e_k) (4 extra Φ⁻¹ per *pattern*,
 //! none per sample). Γ is bilinear, so the per-sample cost is unchanged.
 //!
+//! **Check.** Optionally (on by default in [`crate::sampling::Sampler`]) the finished
+//! pattern is checked in 3D — adjacent samples δ·(1 ± tol) apart, no flipped cell — and a
+//! chart that fails is treated like one the pattern does not fit: the next candidate is
+//! tried, then marching. This is where the linearisation the paper relies on ("the
+//! sampling neighbourhood is small enough that various maps can be replaced by their
+//! linearized versions") does not hold: at coarse pattern scales, and next to
+//! extraordinary vertices whose curvature is unbounded. It costs one limit evaluation
+//! per sample.
+//!
 //! The four corner samples are mapped first, so a pattern that does not fit is usually
 //! rejected after four Φ⁻¹ instead of K².
 
@@ -117,6 +126,7 @@ pub fn sample_pattern(
     delta: f64,
     k: usize,
     order: PatternOrder,
+    tolerance: Option<f64>,
     out: &mut [Option<DomainLocation>],
 ) -> Option<VertexId> {
     debug_assert!(k % 2 == 1 && out.len() >= k * k);
@@ -172,9 +182,67 @@ pub fn sample_pattern(
                 }
             }
         }
+        if let Some(tol) = tolerance {
+            if !pattern_is_square(surface, &out[..k * k], k, delta, tol) {
+                continue 'charts;
+            }
+        }
         return Some(v);
     }
     None
+}
+
+/// Whether every pair of adjacent samples is δ·(1 ± tol) apart in 3D and no cell is
+/// flipped (against the normal at its corner). One limit evaluation per sample, two rows
+/// of positions on the stack (K ≤ 128).
+fn pattern_is_square(
+    surface: &Surface,
+    out: &[Option<DomainLocation>],
+    k: usize,
+    delta: f64,
+    tol: f64,
+) -> bool {
+    const MAX_K: usize = 128;
+    if k > MAX_K {
+        return true;
+    }
+    let (lo, hi) = ((delta * (1.0 - tol)).powi(2), (delta * (1.0 + tol)).powi(2));
+    let ok = |a: DVec3, b: DVec3| (lo..=hi).contains(&(b - a).length_squared());
+    let mut prev = [(DVec3::NAN, DVec3::NAN); MAX_K];
+    let mut cur = [(DVec3::NAN, DVec3::NAN); MAX_K];
+    for m in 0..k {
+        for l in 0..k {
+            cur[l] = match out[m * k + l] {
+                Some(x) => {
+                    let e = surface.eval(x.domain, x.u, x.v);
+                    (e.p, e.n)
+                }
+                None => (DVec3::NAN, DVec3::NAN),
+            };
+            let (p, n) = cur[l];
+            if p.is_nan() {
+                continue;
+            }
+            if l > 0 && !cur[l - 1].0.is_nan() && !ok(cur[l - 1].0, p) {
+                return false;
+            }
+            if m > 0 && !prev[l].0.is_nan() && !ok(prev[l].0, p) {
+                return false;
+            }
+            // Cell with corner (l-1, m-1): flipped?
+            if l > 0 && m > 0 {
+                let (a, na) = prev[l - 1];
+                let (b, c) = (prev[l].0, cur[l - 1].0);
+                if !a.is_nan() && !b.is_nan() && !c.is_nan() && (b - a).cross(c - a).dot(na) <= 0.0
+                {
+                    return false;
+                }
+            }
+            let _ = n;
+        }
+        std::mem::swap(&mut prev, &mut cur);
+    }
+    true
 }
 
 /// How far the chart pattern follows the geodesics from the centre (module doc).
