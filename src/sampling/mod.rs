@@ -18,6 +18,7 @@
 //! `Sampler` is shared by all threads (results never depend on the thread count — each
 //! pattern is computed independently of the others).
 
+pub mod bench;
 pub mod chart;
 pub mod march;
 
