@@ -18,3 +18,4 @@ pub mod report;
 pub mod synth;
 pub mod synthesizer;
 pub mod eval;
+pub mod demo;

@@ -177,7 +177,7 @@ pub struct Synthesizer {
     threads: Option<usize>,
     weights: Weights,
     params: CoherentParams,
-    progress: Option<Box<Progress>>,
+    progress: Option<std::sync::Arc<Progress>>,
 }
 
 impl std::fmt::Debug for Synthesizer {
@@ -279,7 +279,7 @@ impl Synthesizer {
     }
     /// Progress callback (see [`Progress`]).
     pub fn on_progress(mut self, f: impl Fn(Stage, usize, usize) + Send + Sync + 'static) -> Self {
-        self.progress = Some(Box::new(f));
+        self.progress = Some(std::sync::Arc::new(f));
         self
     }
 
@@ -333,20 +333,42 @@ impl Synthesizer {
 
     /// Loads, synthesizes and returns the result in memory.
     pub fn run(self) -> Result<SynthResult> {
+        self.run_in_pool(None)
+    }
+
+    /// Loads the inputs, makes sure `dir` is a writable directory (creating it) — only
+    /// once the inputs are known to be good, so bad inputs leave nothing behind, and before
+    /// the expensive part, so a bad `--out` fails in a moment — then synthesizes and writes
+    /// everything ([`SynthResult::write`]). Returns the result and the final report.
+    pub fn run_to(self, dir: impl AsRef<Path>) -> Result<(SynthResult, Report)> {
+        let dir = dir.as_ref();
+        let progress = self.progress.clone();
+        let result = self.run_in_pool(Some(dir))?;
+        if let Some(p) = &progress {
+            p(Stage::Write, 0, 1);
+        }
+        let report = result.write(dir)?;
+        if let Some(p) = &progress {
+            p(Stage::Write, 1, 1);
+        }
+        Ok((result, report))
+    }
+
+    fn run_in_pool(self, out: Option<&Path>) -> Result<SynthResult> {
         self.validate()?;
         match self.threads {
-            None => self.run_here(),
+            None => self.run_here(out),
             Some(t) => {
                 let pool = rayon::ThreadPoolBuilder::new()
                     .num_threads(t)
                     .build()
                     .map_err(|e| Error::invalid(format!("cannot start {t} worker threads: {e}")))?;
-                pool.install(|| self.run_here())
+                pool.install(|| self.run_here(out))
             }
         }
     }
 
-    fn run_here(self) -> Result<SynthResult> {
+    fn run_here(self, out_dir: Option<&Path>) -> Result<SynthResult> {
         let started = Instant::now();
         let progress = |s: Stage, d: usize, t: usize| {
             if let Some(p) = &self.progress {
@@ -373,11 +395,14 @@ impl Synthesizer {
             }
         };
         let surface = match self.mesh {
-            MeshSource::Path(ref p) => Surface::load_obj(p)?,
+            MeshSource::Path(ref p) => crate::bake::load_surface_for(p, n)?,
             MeshSource::Surface(ref s) => (**s).clone(),
         };
         let faces = surface.num_domains();
         check_size(faces, n)?;
+        if let Some(dir) = out_dir {
+            prepare_out_dir(dir)?;
+        }
         let load = t0.elapsed().as_secs_f64();
         progress(Stage::Load, 1, 1);
 
@@ -391,7 +416,7 @@ impl Synthesizer {
         let t0 = Instant::now();
         let field = OrientationField::compute(&surface, &self.orientation)
             .map_err(|e| Error::invalid(format!("orientation field for {mesh_label}: {e:#}")))?;
-        let frames = crate::synth::texel_frames(&field, &surface, n);
+        let frames = crate::synth::frames_f32(&field.texel_frames(&surface, n));
         let field_s = t0.elapsed().as_secs_f64();
         progress(Stage::Field, 1, 1);
 
@@ -523,20 +548,30 @@ impl SynthResult {
         crate::synth::geometry_maps(&self.geometry)
     }
 
-    /// Writes facemaps.exr, geometry.exr and report.json into `dir` (created if missing).
-    /// Every file is written atomically; if one fails, the files written by this call are
-    /// removed again, so the directory never holds a partial result of this run.
+    /// Writes BRIEF's output directory into `dir` (created if missing): facemaps.exr,
+    /// geometry.exr, surface.obj + surface.mtl + atlas.png ([`crate::io::atlas`]) and
+    /// report.json, last. Every file is written atomically; if one fails, the files written
+    /// by this call are removed again, so the directory never holds a partial result of
+    /// this run.
     pub fn write(&self, dir: impl AsRef<Path>) -> Result<Report> {
-        self.write_with(dir, |_| Ok(()))
+        self.write_with(dir, |d| {
+            crate::io::atlas::export(d, &self.surface, &self.maps, &Default::default())?;
+            Ok(vec![
+                d.join(crate::io::atlas::OBJ_NAME),
+                d.join(crate::io::atlas::MTL_NAME),
+                d.join(crate::io::atlas::ATLAS_NAME),
+            ])
+        })
     }
 
-    /// Like [`SynthResult::write`], with `extra(dir)` writing further outputs (e.g. the
-    /// atlas) before the report; its time counts as writing. Files `extra` creates are not
-    /// tracked: it must clean up after its own errors.
+    /// Like [`SynthResult::write`] with other extra outputs: `extra(dir)` writes them
+    /// (after the EXR files, before the report; its time counts as writing) and returns
+    /// their paths, which are removed again if a later step fails. It must clean up after
+    /// its own errors.
     pub fn write_with(
         &self,
         dir: impl AsRef<Path>,
-        extra: impl FnOnce(&Path) -> Result<()>,
+        extra: impl FnOnce(&Path) -> Result<Vec<PathBuf>>,
     ) -> Result<Report> {
         let dir = dir.as_ref();
         prepare_out_dir(dir)?;
@@ -549,13 +584,14 @@ impl SynthResult {
             let p = dir.join(GEOMETRY_FILE);
             write_face_maps(&p, &self.geometry_maps())?;
             written.push(p);
-            extra(dir)?;
+            written.extend(extra(dir)?);
             let mut report = self.report.clone();
             report.seconds.write = t0.elapsed().as_secs_f64();
             report.seconds.total = self.started.elapsed().as_secs_f64();
             report.peak_memory_bytes = crate::report::peak_memory_bytes();
             report.update_rates();
             report.write(dir)?;
+            written.push(dir.join(crate::report::REPORT_FILE));
             Ok(report)
         })();
         if result.is_err() {
@@ -564,5 +600,88 @@ impl SynthResult {
             }
         }
         result
+    }
+}
+
+/// The `synth` command in plain types (the CLI's argument struct maps onto it).
+#[derive(Clone, Debug)]
+pub struct SynthCommand {
+    pub mesh: PathBuf,
+    pub example: PathBuf,
+    pub height: Option<PathBuf>,
+    pub method: Method,
+    pub resolution: usize,
+    pub scale: Option<f64>,
+    pub orientation: Orientation,
+    pub seed: u64,
+    pub out: PathBuf,
+}
+
+impl SynthCommand {
+    /// The builder for this command (threads: the current rayon pool, which the CLI sizes
+    /// with `--threads`).
+    pub fn synthesizer(&self) -> Synthesizer {
+        let mut s = Synthesizer::new(&self.mesh, &self.example)
+            .method(self.method)
+            .resolution(self.resolution)
+            .scale(self.scale)
+            .orientation(self.orientation.clone())
+            .seed(self.seed);
+        if let Some(h) = &self.height {
+            s = s.height(h);
+        }
+        s
+    }
+}
+
+/// Runs a [`SynthCommand`] with a progress bar per stage on stderr (when it is a
+/// terminal) and prints the end summary on stdout.
+pub fn run_command(c: &SynthCommand) -> Result<Report> {
+    let bars = StageBars::default();
+    let (_, report) = c
+        .synthesizer()
+        .on_progress(move |s, d, t| bars.update(s, d, t))
+        .run_to(&c.out)?;
+    println!("{}", summary_line(&report, &c.out));
+    Ok(report)
+}
+
+/// One line: domains, texels, seconds, texels/s (whole run and synthesis alone).
+pub fn summary_line(r: &Report, out: &Path) -> String {
+    use crate::progress::si;
+    format!(
+        "synth: {} domains, {} texels ({n}x{n} each) in {:.2} s ({} texels/s; synthesis {:.2} s, {} texels/s) -> {}",
+        r.faces,
+        r.texels,
+        r.seconds.total,
+        si(r.texels_per_second),
+        r.seconds.synthesis,
+        si(r.synthesis_texels_per_second),
+        out.display(),
+        n = r.resolution
+    )
+}
+
+/// indicatif bars, one per stage, driven by [`Progress`] callbacks.
+#[derive(Default)]
+struct StageBars {
+    current: std::sync::Mutex<Option<(Stage, indicatif::ProgressBar)>>,
+}
+
+impl StageBars {
+    fn update(&self, stage: Stage, done: usize, total: usize) {
+        let mut cur = self.current.lock().unwrap_or_else(|e| e.into_inner());
+        if cur.as_ref().map(|(s, _)| *s) != Some(stage) {
+            if let Some((_, b)) = cur.take() {
+                b.finish_and_clear();
+            }
+            *cur = Some((stage, crate::progress::bar(total as u64, stage.label())));
+        }
+        if let Some((_, b)) = cur.as_ref() {
+            b.set_position(done as u64);
+            if done >= total {
+                b.finish_and_clear();
+            }
+        }
     }
 }

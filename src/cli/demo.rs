@@ -1,7 +1,5 @@
-//! `surfsynth demo`: the full pipeline on bundled fixtures (issue 4). The handler is a
-//! placeholder until synthesis lands.
+//! `surfsynth demo`: the full pipeline on bundled fixtures (issue 4).
 
-use super::not_implemented;
 use clap::Args;
 use std::path::PathBuf;
 
@@ -13,6 +11,7 @@ pub struct DemoArgs {
 }
 
 pub fn run(a: DemoArgs) -> anyhow::Result<()> {
-    let _ = a;
-    not_implemented("demo")
+    // The handler lives in the library (surfsynth::demo).
+    surfsynth::demo::run(&a.out)?;
+    Ok(())
 }

@@ -60,6 +60,24 @@ pub struct SynthArgs {
 }
 
 pub fn run(a: SynthArgs) -> anyhow::Result<()> {
-    let _ = a;
-    not_implemented("synth")
+    // The handler lives in the library (surfsynth::synthesizer::run_command).
+    if a.displace.is_some() {
+        return not_implemented("synth --displace");
+    }
+    let method = match a.method {
+        Method::Coherent => surfsynth::synthesizer::Method::Coherent,
+        Method::Multiscale => surfsynth::synthesizer::Method::Multiscale,
+    };
+    surfsynth::synthesizer::run_command(&surfsynth::synthesizer::SynthCommand {
+        mesh: a.mesh,
+        example: a.example,
+        height: a.height,
+        method,
+        resolution: a.resolution,
+        scale: a.scale,
+        orientation: a.orient,
+        seed: a.seed,
+        out: a.out,
+    })?;
+    Ok(())
 }

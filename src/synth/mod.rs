@@ -14,14 +14,13 @@ pub mod schedule;
 pub use coherent::{CoherentParams, Stats};
 
 use crate::example::Example;
-use crate::field::{Frame, OrientationField};
+use crate::field::Frame;
 use crate::io::exr::FaceMaps;
 use crate::texels::TexelGeometry;
 use features::Features;
 use glam::Vec3;
 use rayon::prelude::*;
 use serde::Serialize;
-use subdiv::{DomainId, Surface};
 
 /// Synthesis method (`--method`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
@@ -88,21 +87,6 @@ pub fn frames_f32(frames: &[Frame]) -> Vec<[Vec3; 2]> {
         .par_iter()
         .map(|f| [f.v1.as_vec3(), f.v2.as_vec3()])
         .collect()
-}
-
-/// (v1, v2) of `field` at every texel centre (global texel order), in parallel per domain.
-pub fn texel_frames(field: &OrientationField, surface: &Surface, n: usize) -> Vec<[Vec3; 2]> {
-    let nn = n * n;
-    let mut out = vec![[Vec3::ZERO; 2]; surface.num_domains() * nn];
-    let inv = 1.0 / n as f64;
-    out.par_chunks_mut(nn).enumerate().for_each(|(d, chunk)| {
-        for (i, o) in chunk.iter_mut().enumerate() {
-            let (u, v) = (((i % n) as f64 + 0.5) * inv, ((i / n) as f64 + 0.5) * inv);
-            let f = field.frame(surface, DomainId::from_idx(d), u, v);
-            *o = [f.v1.as_vec3(), f.v2.as_vec3()];
-        }
-    });
-    out
 }
 
 /// Runs coherent synthesis for `example` (any of its channel layouts).
