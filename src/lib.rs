@@ -19,3 +19,6 @@ pub mod synth;
 pub mod synthesizer;
 pub mod eval;
 pub mod demo;
+pub mod pyramid;
+pub mod search;
+pub mod synth2d;

@@ -1,0 +1,733 @@
+//! Neighbourhood vectors and nearest-neighbour search over an example level.
+//!
+//! Multiscale synthesis (paper 000 §4, after Wei & Levoy) copies, for every target sample,
+//! the centre of the example neighbourhood that best matches the target's neighbourhood
+//! under a Gaussian-weighted l2 distance. This module owns what is shared by the 2D
+//! reference synthesizer ([`crate::synth2d`]) and the surface one:
+//!
+//! * [`Shape`]: which samples a neighbourhood holds — a square `fine x fine` block from the
+//!   level being synthesized and/or a `coarse x coarse` block from the next coarser level
+//!   (offsets in that level's pixels, centred on the same point) — and their Gaussian
+//!   weights.
+//! * [`Features`]: the weighted vector of every example pixel whose whole neighbourhood lies
+//!   inside the example (the *valid* pixels; clamped or wrapped windows would invent
+//!   neighbourhoods that do not occur in the example).
+//! * [`Query`]/[`Prepared`]: a target neighbourhood with possibly missing samples (not yet
+//!   generated, or off an open surface). Missing samples are left out of the distance, as
+//!   the paper prescribes ("undefined values are discarded").
+//! * Three searches returning the [`BEST_N`] best matches: exact brute force
+//!   ([`Features::brute_force`], used at the coarsest level as in the paper), PCA + kd-tree
+//!   ([`ann`]) and k-coherence ([`kcoherence`], paper 003 §5.2), and the paper's
+//!   randomised choice among them ([`pick`]).
+//!
+//! **Weights.** "Samples are weighted with a Gaussian kernel in image space" (000 §4). Each
+//! block uses `exp(-(dx² + dy²) / (2σ²))` with `σ = K / 4` in its own pixels (K the block
+//! side: a 9x9 block gets σ = 2.25, so its corners weigh 0.04 and its edge midpoints 0.21
+//! of the centre), normalised so that each block's weights sum to 1. Per-block
+//! normalisation keeps the 25 coarse samples from being drowned by the 81 fine ones: the
+//! coarse block carries the layout, the fine block the detail, and both matter. Vectors are
+//! stored premultiplied by the square roots of the weights, so the weighted distance is a
+//! plain squared Euclidean distance — which is what lets PCA and a kd-tree work on them.
+//!
+//! **Sample order** (the vector layout every caller must follow): the fine block first, then
+//! the coarse block; each row-major with `dy` from `-r` to `r` (image rows, down) outer and
+//! `dx` from `-r` to `r` (image columns, right) inner; all channels of a sample together.
+
+pub mod ann;
+pub mod kcoherence;
+pub mod model;
+pub mod pca;
+
+use crate::error::{Error, Result};
+use crate::pyramid::Pyramid;
+
+/// How many best matches a search returns, from which [`pick`] chooses (000 §4: "we locate
+/// the eight nearest matches").
+pub const BEST_N: usize = 8;
+
+/// Matches whose distance exceeds the best one's by more than this factor are discarded
+/// before the random choice (000 §4: "worse than the best match by a factor of 0.1").
+/// Applied to the distance (the square root of the weighted squared distance).
+pub const TOLERANCE: f32 = 0.1;
+
+/// The samples of a neighbourhood: `fine x fine` from the current level and
+/// `coarse x coarse` from the next coarser one (either may be 0; sides are odd).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Shape {
+    pub fine: usize,
+    pub coarse: usize,
+    pub channels: usize,
+}
+
+/// One sample of a [`Shape`]: offset in its level's pixels and which level.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Offset {
+    pub dx: i32,
+    pub dy: i32,
+    /// True for the coarser level's block.
+    pub coarse: bool,
+}
+
+impl Shape {
+    /// A shape; panics on even or all-zero sides (a programming error, not an input).
+    pub fn new(fine: usize, coarse: usize, channels: usize) -> Self {
+        assert!(fine % 2 == 1 || fine == 0, "fine side must be odd");
+        assert!(coarse % 2 == 1 || coarse == 0, "coarse side must be odd");
+        assert!(fine + coarse > 0 && channels > 0);
+        Self {
+            fine,
+            coarse,
+            channels,
+        }
+    }
+
+    /// Number of samples.
+    pub fn samples(&self) -> usize {
+        self.fine * self.fine + self.coarse * self.coarse
+    }
+
+    /// Vector length: samples times channels.
+    pub fn dim(&self) -> usize {
+        self.samples() * self.channels
+    }
+
+    /// The sample offsets in vector order (see the module documentation).
+    pub fn offsets(&self) -> Vec<Offset> {
+        let mut v = Vec::with_capacity(self.samples());
+        for (side, coarse) in [(self.fine, false), (self.coarse, true)] {
+            let r = (side / 2) as i32;
+            if side == 0 {
+                continue;
+            }
+            for dy in -r..=r {
+                for dx in -r..=r {
+                    v.push(Offset { dx, dy, coarse });
+                }
+            }
+        }
+        v
+    }
+
+    /// Square roots of the Gaussian sample weights, in vector order (see the module
+    /// documentation for σ and the per-block normalisation).
+    pub fn sample_scales(&self) -> Vec<f32> {
+        let mut v = Vec::with_capacity(self.samples());
+        for side in [self.fine, self.coarse] {
+            if side == 0 {
+                continue;
+            }
+            let r = (side / 2) as i32;
+            let sigma = side as f64 / 4.0;
+            let w: Vec<f64> = (-r..=r)
+                .flat_map(|dy| (-r..=r).map(move |dx| (dx, dy)))
+                .map(|(dx, dy)| (-((dx * dx + dy * dy) as f64) / (2.0 * sigma * sigma)).exp())
+                .collect();
+            let sum: f64 = w.iter().sum();
+            v.extend(w.iter().map(|x| (x / sum).sqrt() as f32));
+        }
+        v
+    }
+
+    /// How far (in current-level pixels) the neighbourhood reaches from its centre: `r` for
+    /// the fine block, `2r` for the coarse one (its pixels are twice as large).
+    pub fn reach(&self) -> usize {
+        (self.fine / 2).max(2 * (self.coarse / 2))
+    }
+}
+
+/// A best match: index into [`Features`] and weighted squared distance.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Match {
+    pub index: u32,
+    pub dist2: f32,
+}
+
+impl Match {
+    #[inline]
+    fn before(&self, o: &Match) -> bool {
+        // Ties broken by index so that results never depend on visiting order.
+        self.dist2 < o.dist2 || (self.dist2 == o.dist2 && self.index < o.index)
+    }
+}
+
+/// The [`BEST_N`] best matches seen so far, sorted ascending.
+#[derive(Clone, Debug)]
+pub struct TopN {
+    items: [Match; BEST_N],
+    len: usize,
+}
+
+impl Default for TopN {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl TopN {
+    pub fn new() -> Self {
+        Self {
+            items: [Match {
+                index: u32::MAX,
+                dist2: f32::INFINITY,
+            }; BEST_N],
+            len: 0,
+        }
+    }
+
+    pub fn clear(&mut self) {
+        self.len = 0;
+    }
+
+    /// The distance a candidate must beat to enter (infinite until full).
+    #[inline]
+    pub fn bound(&self) -> f32 {
+        if self.len < BEST_N {
+            f32::INFINITY
+        } else {
+            self.items[BEST_N - 1].dist2
+        }
+    }
+
+    /// Offers a candidate (the caller guarantees no duplicates).
+    #[inline]
+    pub fn push(&mut self, m: Match) {
+        if self.len == BEST_N && !m.before(&self.items[BEST_N - 1]) {
+            return;
+        }
+        let mut i = self.len.min(BEST_N - 1);
+        while i > 0 && m.before(&self.items[i - 1]) {
+            self.items[i] = self.items[i - 1];
+            i -= 1;
+        }
+        self.items[i] = m;
+        self.len = (self.len + 1).min(BEST_N);
+    }
+
+    /// The matches, best first.
+    pub fn as_slice(&self) -> &[Match] {
+        &self.items[..self.len]
+    }
+}
+
+/// The paper's randomised choice (000 §4, after De Bonet and Wei & Levoy): among the best
+/// matches (sorted, best first) drop those whose distance exceeds the best's by more than
+/// [`TOLERANCE`], then pick one uniformly with the counter-based hash `key` — so the choice
+/// depends only on (seed, level, pass, sample), never on threads or visiting order.
+pub fn pick(best: &[Match], key: u64) -> Match {
+    assert!(!best.is_empty(), "pick needs at least one match");
+    let limit = best[0].dist2 * (1.0 + TOLERANCE) * (1.0 + TOLERANCE);
+    let n = best.iter().take_while(|m| m.dist2 <= limit).count().max(1);
+    best[(key % n as u64) as usize]
+}
+
+/// A counter-based hash (SplitMix64 finaliser chained over the parts): the random stream of
+/// synthesis, a pure function of its inputs so that parallel schedules cannot change it.
+pub fn hash(seed: u64, parts: &[u64]) -> u64 {
+    fn mix(mut z: u64) -> u64 {
+        z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+    let mut h = mix(seed);
+    for &p in parts {
+        h = mix(h ^ p);
+    }
+    h
+}
+
+/// A target neighbourhood in [`Shape`] order, raw (unweighted) values, with a presence flag
+/// per sample.
+#[derive(Clone, Debug)]
+pub struct Query {
+    pub shape: Shape,
+    pub values: Vec<f32>,
+    pub present: Vec<bool>,
+}
+
+impl Query {
+    /// All samples missing.
+    pub fn new(shape: Shape) -> Self {
+        Self {
+            shape,
+            values: vec![0.0; shape.dim()],
+            present: vec![false; shape.samples()],
+        }
+    }
+
+    /// Sets sample `s` to `vals` (all channels) and marks it present.
+    #[inline]
+    pub fn set(&mut self, s: usize, vals: &[f32]) {
+        let c = self.shape.channels;
+        self.values[s * c..(s + 1) * c].copy_from_slice(&vals[..c]);
+        self.present[s] = true;
+    }
+
+    /// Marks sample `s` missing.
+    #[inline]
+    pub fn clear(&mut self, s: usize) {
+        self.present[s] = false;
+    }
+
+    /// Marks all samples missing.
+    pub fn clear_all(&mut self) {
+        self.present.iter_mut().for_each(|p| *p = false);
+    }
+
+    /// Number of present samples.
+    pub fn present_count(&self) -> usize {
+        self.present.iter().filter(|&&p| p).count()
+    }
+}
+
+/// A query ready for distances: weighted values (0 where missing), a per-dimension 0/1 mask
+/// and whether all samples are present (the fast, unmasked path).
+#[derive(Clone, Debug, Default)]
+pub struct Prepared {
+    pub v: Vec<f32>,
+    pub mask: Vec<f32>,
+    pub complete: bool,
+    pub present: usize,
+}
+
+/// The weighted neighbourhood vectors of the valid pixels of one example level.
+///
+/// Valid pixels are those at least [`Shape::reach`] pixels from every border (the
+/// *margin*), so their whole neighbourhood is real example content. Feature `i` is valid
+/// pixel `(margin + i % cols, margin + i / cols)`.
+///
+/// Stored vectors (and [`Prepared`] queries) hold the samples by *decreasing weight*
+/// (`order`), not in [`Shape`] order: distances are summed in blocks with an early exit
+/// once the partial sum exceeds the k-th best so far, and with the heavy centre samples
+/// first most hopeless candidates are rejected after the first block instead of after the
+/// light corners. Measured on a 64x64 example: exact k-NN lists 2.6x faster. The order is
+/// internal; callers fill [`Query`] in [`Shape`] order.
+#[derive(Clone, Debug)]
+pub struct Features {
+    pub shape: Shape,
+    /// Pyramid level these features were taken from.
+    pub level: usize,
+    /// Size of that level.
+    pub width: usize,
+    pub height: usize,
+    pub margin: usize,
+    /// Size of the valid region.
+    pub cols: usize,
+    pub rows: usize,
+    /// Per-sample square-root weights ([`Shape::sample_scales`]), in [`Shape`] order.
+    pub scales: Vec<f32>,
+    /// Storage order: `order[t]` is the [`Shape`] sample stored at position `t`.
+    pub order: Vec<usize>,
+    /// `len() x shape.dim()` premultiplied vectors.
+    pub data: Vec<f32>,
+}
+
+impl Features {
+    /// The features of pyramid level `level` for `shape`; the coarse block (if any) comes
+    /// from level `level + 1`, sampled bilinearly at the exact position of each sample
+    /// centre (the fine pixel's centre `(x + 0.5) / 2` plus the offset, in coarse pixels) —
+    /// the same rule the targets use, so neither side is favoured by a half-pixel shift.
+    ///
+    /// `margin` overrides [`Shape::reach`] when larger, so that the features of several
+    /// shapes on one level (the two passes) index the same pixels.
+    pub fn build(pyr: &Pyramid, level: usize, shape: Shape, margin: usize) -> Result<Self> {
+        let img = pyr.level(level);
+        if shape.channels != img.channels {
+            return Err(Error::invalid(format!(
+                "neighbourhood has {} channels but the example level has {}",
+                shape.channels, img.channels
+            )));
+        }
+        if shape.coarse > 0 && level + 1 >= pyr.len() {
+            return Err(Error::invalid(format!(
+                "level {level} needs a coarser level but the pyramid has {} levels",
+                pyr.len()
+            )));
+        }
+        let margin = margin.max(shape.reach());
+        let (w, h) = (img.width, img.height);
+        if w < 2 * margin + 1 || h < 2 * margin + 1 {
+            return Err(Error::invalid(format!(
+                "example level {level} is {w}x{h} pixels, too small for a {}x{} neighbourhood (needs at least {}x{})",
+                shape.fine.max(shape.coarse),
+                shape.fine.max(shape.coarse),
+                2 * margin + 1,
+                2 * margin + 1
+            )));
+        }
+        let (cols, rows) = (w - 2 * margin, h - 2 * margin);
+        let scales = shape.sample_scales();
+        let order = weight_order(&scales);
+        let offsets: Vec<Offset> = {
+            let o = shape.offsets();
+            order.iter().map(|&s| o[s]).collect()
+        };
+        let c = shape.channels;
+        let dim = shape.dim();
+        let coarse_img = (shape.coarse > 0).then(|| pyr.level(level + 1));
+        let mut data = vec![0.0f32; cols * rows * dim];
+        let fill = |row: usize, out: &mut [f32]| {
+            let y = margin + row;
+            let mut buf = vec![0.0f32; c];
+            for col in 0..cols {
+                let x = margin + col;
+                let v = &mut out[col * dim..(col + 1) * dim];
+                for (s, o) in offsets.iter().enumerate() {
+                    let dst = &mut v[s * c..(s + 1) * c];
+                    if o.coarse {
+                        let ci = coarse_img.expect("coarse level present");
+                        let cx = (x as f32 + 0.5) / 2.0 + o.dx as f32;
+                        let cy = (y as f32 + 0.5) / 2.0 + o.dy as f32;
+                        ci.bilinear(cx, cy, &mut buf);
+                        dst.copy_from_slice(&buf);
+                    } else {
+                        let px = (x as i32 + o.dx) as usize;
+                        let py = (y as i32 + o.dy) as usize;
+                        dst.copy_from_slice(img.pixel(px, py));
+                    }
+                    for d in dst.iter_mut() {
+                        *d *= scales[order[s]];
+                    }
+                }
+            }
+        };
+        {
+            use rayon::prelude::*;
+            data.par_chunks_mut(cols * dim)
+                .enumerate()
+                .for_each(|(row, out)| fill(row, out));
+        }
+        Ok(Self {
+            shape,
+            level,
+            width: w,
+            height: h,
+            margin,
+            cols,
+            rows,
+            scales,
+            order,
+            data,
+        })
+    }
+
+    /// Number of feature vectors (valid pixels).
+    pub fn len(&self) -> usize {
+        self.cols * self.rows
+    }
+
+    /// True when there are no valid pixels (never, for a built instance).
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Vector length.
+    pub fn dim(&self) -> usize {
+        self.shape.dim()
+    }
+
+    /// Weighted vector of feature `i`.
+    #[inline]
+    pub fn vector(&self, i: usize) -> &[f32] {
+        let d = self.dim();
+        &self.data[i * d..(i + 1) * d]
+    }
+
+    /// Pixel (column, row) of feature `i` in its level.
+    #[inline]
+    pub fn pixel(&self, i: u32) -> (usize, usize) {
+        let i = i as usize;
+        (self.margin + i % self.cols, self.margin + i / self.cols)
+    }
+
+    /// The feature of the valid pixel nearest to continuous position (x, y) (level pixels,
+    /// centres at +0.5), clamping into the valid region: where forward-shifted source
+    /// positions (k-coherence) land.
+    #[inline]
+    pub fn nearest_index(&self, x: f32, y: f32) -> u32 {
+        let clampf = |v: f32, lo: usize, n: usize| -> usize {
+            let p = if v.is_nan() { 0.0 } else { v.floor() };
+            (p.max(lo as f32) as usize).min(lo + n - 1)
+        };
+        let px = clampf(x, self.margin, self.cols) - self.margin;
+        let py = clampf(y, self.margin, self.rows) - self.margin;
+        (py * self.cols + px) as u32
+    }
+
+    /// Applies the weights and mask of `q` into `out`.
+    pub fn prepare(&self, q: &Query, out: &mut Prepared) {
+        assert_eq!(
+            q.shape, self.shape,
+            "query shape differs from the features'"
+        );
+        let c = self.shape.channels;
+        let dim = self.dim();
+        out.v.resize(dim, 0.0);
+        out.mask.resize(dim, 0.0);
+        let mut present = 0;
+        for (t, &s) in self.order.iter().enumerate() {
+            let p = q.present[s];
+            let sc = self.scales[s];
+            for k in 0..c {
+                if p {
+                    out.v[t * c + k] = q.values[s * c + k] * sc;
+                    out.mask[t * c + k] = 1.0;
+                } else {
+                    out.v[t * c + k] = 0.0;
+                    out.mask[t * c + k] = 0.0;
+                }
+            }
+            present += p as usize;
+        }
+        out.present = present;
+        out.complete = present == q.present.len();
+    }
+
+    /// Weighted squared distance from `q` to feature `i`, over present samples, giving up
+    /// (returning a value `> bound`) once the partial sum exceeds `bound`.
+    #[inline]
+    pub fn distance(&self, q: &Prepared, i: usize, bound: f32) -> f32 {
+        let x = self.vector(i);
+        if q.complete {
+            dist_bounded(&q.v, x, bound)
+        } else {
+            dist_masked_bounded(&q.v, &q.mask, x, bound)
+        }
+    }
+
+    /// Exact search over every valid pixel (the paper's coarsest-level search).
+    pub fn brute_force(&self, q: &Prepared, top: &mut TopN) {
+        top.clear();
+        for i in 0..self.len() {
+            let d = self.distance(q, i, top.bound());
+            if d <= top.bound() {
+                top.push(Match {
+                    index: i as u32,
+                    dist2: d,
+                });
+            }
+        }
+    }
+
+    /// Exact re-ranking of a candidate list (no duplicates) into `top`, which is not cleared.
+    pub fn rerank(&self, q: &Prepared, candidates: &[u32], top: &mut TopN) {
+        for &i in candidates {
+            let d = self.distance(q, i as usize, top.bound());
+            if d <= top.bound() {
+                top.push(Match { index: i, dist2: d });
+            }
+        }
+    }
+}
+
+/// Sample indices sorted by decreasing weight (ties by index): the storage order of
+/// [`Features`].
+fn weight_order(scales: &[f32]) -> Vec<usize> {
+    let mut order: Vec<usize> = (0..scales.len()).collect();
+    order.sort_by(|&a, &b| scales[b].total_cmp(&scales[a]).then(a.cmp(&b)));
+    order
+}
+
+/// Dimensions summed between early-exit checks: long enough to vectorise, short enough to
+/// save most of the work on hopeless candidates.
+const BLOCK: usize = 32;
+
+/// Lanes of the partial sums. Both the portable and the AVX2 kernels accumulate the same 16
+/// lanes in the same order (no fused multiply-add), so they return bit-identical results:
+/// the output never depends on which CPU features were detected.
+const LANES: usize = 16;
+
+#[inline(always)]
+fn dist_kernel(a: &[f32], b: &[f32], m: Option<&[f32]>, bound: f32) -> f32 {
+    let n = a.len().min(b.len());
+    let (a, b) = (&a[..n], &b[..n]);
+    let mut total = 0.0f32;
+    let mut start = 0;
+    while start < n {
+        let end = (start + BLOCK).min(n);
+        let (ca, cb) = (&a[start..end], &b[start..end]);
+        let mut acc = [0.0f32; LANES];
+        let mut ia = ca.chunks_exact(LANES);
+        let mut ib = cb.chunks_exact(LANES);
+        match m {
+            None => {
+                for (x, y) in (&mut ia).zip(&mut ib) {
+                    for k in 0..LANES {
+                        let d = x[k] - y[k];
+                        acc[k] += d * d;
+                    }
+                }
+                for (k, (x, y)) in ia.remainder().iter().zip(ib.remainder()).enumerate() {
+                    let d = x - y;
+                    acc[k] += d * d;
+                }
+            }
+            Some(m) => {
+                let cm = &m[start..end];
+                let mut im = cm.chunks_exact(LANES);
+                for ((x, y), w) in (&mut ia).zip(&mut ib).zip(&mut im) {
+                    for k in 0..LANES {
+                        let d = x[k] - y[k];
+                        acc[k] += w[k] * (d * d);
+                    }
+                }
+                for (k, ((x, y), w)) in ia
+                    .remainder()
+                    .iter()
+                    .zip(ib.remainder())
+                    .zip(im.remainder())
+                    .enumerate()
+                {
+                    let d = x - y;
+                    acc[k] += w * (d * d);
+                }
+            }
+        }
+        let mut s = 0.0f32;
+        for v in acc {
+            s += v;
+        }
+        total += s;
+        if total > bound {
+            return total;
+        }
+        start = end;
+    }
+    total
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn dist_avx2(a: &[f32], b: &[f32], m: Option<&[f32]>, bound: f32) -> f32 {
+    dist_kernel(a, b, m, bound)
+}
+
+#[inline]
+fn dist_dispatch(a: &[f32], b: &[f32], m: Option<&[f32]>, bound: f32) -> f32 {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2 (checked just above).
+            return unsafe { dist_avx2(a, b, m, bound) };
+        }
+    }
+    dist_kernel(a, b, m, bound)
+}
+
+/// Squared Euclidean distance with early exit: once a block's partial sum exceeds `bound`
+/// the (larger) partial sum is returned.
+#[inline]
+pub fn dist_bounded(a: &[f32], b: &[f32], bound: f32) -> f32 {
+    dist_dispatch(a, b, None, bound)
+}
+
+/// Masked squared Euclidean distance (`m` is 0/1 per dimension) with early exit.
+#[inline]
+pub fn dist_masked_bounded(a: &[f32], m: &[f32], b: &[f32], bound: f32) -> f32 {
+    dist_dispatch(a, b, Some(m), bound)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::pyramid::Image;
+
+    #[test]
+    fn weights_are_gaussian_and_normalised_per_block() {
+        let s = Shape::new(9, 5, 3);
+        assert_eq!(s.samples(), 106);
+        assert_eq!(s.dim(), 318);
+        assert_eq!(s.reach(), 4);
+        let w: Vec<f64> = s
+            .sample_scales()
+            .iter()
+            .map(|&x| (x as f64).powi(2))
+            .collect();
+        assert!((w[..81].iter().sum::<f64>() - 1.0).abs() < 1e-5);
+        assert!((w[81..].iter().sum::<f64>() - 1.0).abs() < 1e-5);
+        // Corner of the 9x9 block relative to its centre: exp(-32 / (2 * 2.25^2)).
+        let ratio = w[0] / w[40];
+        assert!((ratio - (-32.0f64 / 10.125).exp()).abs() < 1e-5, "{ratio}");
+        let o = s.offsets();
+        assert_eq!((o[0].dx, o[0].dy, o[0].coarse), (-4, -4, false));
+        assert_eq!((o[1].dx, o[1].dy), (-3, -4));
+        assert_eq!((o[81].dx, o[81].dy, o[81].coarse), (-2, -2, true));
+    }
+
+    #[test]
+    fn pick_discards_matches_beyond_ten_percent() {
+        let m = |i, d: f32| Match {
+            index: i,
+            dist2: d * d,
+        };
+        let best = [m(5, 1.0), m(6, 1.05), m(7, 1.1), m(8, 1.2), m(9, 3.0)];
+        let mut seen = std::collections::BTreeSet::new();
+        for k in 0..200u64 {
+            seen.insert(pick(&best, hash(1, &[k])).index);
+        }
+        assert_eq!(seen.into_iter().collect::<Vec<_>>(), vec![5, 6, 7]);
+        // Exact zero best distance keeps only exact ties.
+        assert_eq!(pick(&[m(3, 0.0), m(4, 0.01)], 7).index, 3);
+    }
+
+    #[test]
+    fn topn_keeps_the_eight_best_with_index_tie_break() {
+        let mut t = TopN::new();
+        for i in (0..20u32).rev() {
+            t.push(Match {
+                index: i,
+                dist2: (i / 2) as f32,
+            });
+        }
+        let idx: Vec<u32> = t.as_slice().iter().map(|m| m.index).collect();
+        assert_eq!(idx, vec![0, 1, 2, 3, 4, 5, 6, 7]);
+    }
+
+    #[test]
+    fn features_hold_weighted_neighbourhoods_and_brute_force_finds_itself() {
+        let (w, h) = (20, 18);
+        let mut img = Image::new(w, h, 1);
+        for y in 0..h {
+            for x in 0..w {
+                img.pixel_mut(x, y)[0] = (hash(3, &[x as u64, y as u64]) % 1000) as f32 / 1e3;
+            }
+        }
+        let pyr = Pyramid::build(img.clone(), 2);
+        let shape = Shape::new(5, 3, 1);
+        let f = Features::build(&pyr, 0, shape, 0).unwrap();
+        assert_eq!(f.margin, 2);
+        assert_eq!((f.cols, f.rows), (16, 14));
+        // Query = the neighbourhood of pixel (9, 7), raw values.
+        let mut q = Query::new(shape);
+        let mut buf = [0.0];
+        for (s, o) in shape.offsets().iter().enumerate() {
+            if o.coarse {
+                pyr.level(1).bilinear(
+                    (9.5) / 2.0 + o.dx as f32,
+                    (7.5) / 2.0 + o.dy as f32,
+                    &mut buf,
+                );
+                q.set(s, &buf);
+            } else {
+                q.set(s, img.pixel((9 + o.dx) as usize, (7 + o.dy) as usize));
+            }
+        }
+        let mut p = Prepared::default();
+        f.prepare(&q, &mut p);
+        let mut top = TopN::new();
+        f.brute_force(&p, &mut top);
+        assert_eq!(f.pixel(top.as_slice()[0].index), (9, 7));
+        assert_eq!(top.as_slice()[0].dist2, 0.0);
+        assert!(top.as_slice()[1].dist2 > 0.0);
+        // Dropping half the samples still finds it, with the masked path.
+        for s in 0..shape.samples() / 2 {
+            q.clear(s);
+        }
+        f.prepare(&q, &mut p);
+        assert!(!p.complete);
+        f.brute_force(&p, &mut top);
+        assert_eq!(f.pixel(top.as_slice()[0].index), (9, 7));
+        assert_eq!(f.nearest_index(9.9, 7.2), top.as_slice()[0].index);
+        assert_eq!(f.pixel(f.nearest_index(-5.0, 100.0)), (2, 15));
+    }
+}
