@@ -223,3 +223,286 @@ fn open_boundary_mesh_meets_the_quality_bar() {
         5,
     );
 }
+
+// ---- Determinism ----
+
+fn bits(m: &FaceMaps) -> Vec<(String, Vec<u32>)> {
+    m.channels
+        .iter()
+        .map(|(n, d)| (n.clone(), d.iter().map(|v| v.to_bits()).collect()))
+        .collect()
+}
+
+#[test]
+fn library_result_is_bit_identical_for_one_and_two_threads() {
+    // Bricks on Spot: T-junctions, extraordinary corners, many waves with several domains.
+    let run = |t: usize| {
+        Synthesizer::new(
+            shared("meshes/spot_control_mesh.obj"),
+            shared("textures/skimage_brick.png"),
+        )
+        .resolution(12)
+        .seed(11)
+        .threads(t)
+        .run()
+        .unwrap()
+    };
+    let (a, b) = (run(1), run(2));
+    assert_eq!(a.report.threads, 1);
+    assert_eq!(b.report.threads, 2);
+    assert_eq!(bits(&a.maps), bits(&b.maps));
+    // And the seed matters.
+    let c = Synthesizer::new(
+        shared("meshes/spot_control_mesh.obj"),
+        shared("textures/skimage_brick.png"),
+    )
+    .resolution(12)
+    .seed(12)
+    .threads(2)
+    .run()
+    .unwrap();
+    assert_ne!(bits(&a.maps), bits(&c.maps));
+}
+
+// ---- Command line ----
+
+fn surfsynth(args: &[&std::ffi::OsStr]) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_surfsynth"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn synth_args<'a>(
+    mesh: &'a Path,
+    example: &'a Path,
+    out: &'a Path,
+    extra: &'a [&'a str],
+) -> Vec<&'a std::ffi::OsStr> {
+    let mut v: Vec<&std::ffi::OsStr> = vec![
+        "synth".as_ref(),
+        "--mesh".as_ref(),
+        mesh.as_os_str(),
+        "--example".as_ref(),
+        example.as_os_str(),
+        "--out".as_ref(),
+        out.as_os_str(),
+    ];
+    v.extend(extra.iter().map(|s| std::ffi::OsStr::new(*s)));
+    v
+}
+
+#[test]
+fn cli_threads_1_and_2_write_bit_identical_facemaps() {
+    let dir = tempfile::tempdir().unwrap();
+    let mesh = fixture("spot_control_mesh.obj");
+    let ex = fixture("gravel.png");
+    let mut files = Vec::new();
+    for t in ["1", "2"] {
+        let out = dir.path().join(format!("t{t}"));
+        let mut args = vec![std::ffi::OsStr::new("--threads"), t.as_ref()];
+        args.extend(synth_args(
+            &mesh,
+            &ex,
+            &out,
+            &["--resolution", "8", "--seed", "5"],
+        ));
+        let o = surfsynth(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let stdout = String::from_utf8_lossy(&o.stdout);
+        assert!(
+            stdout.contains("252 domains") && stdout.contains("16128 texels"),
+            "{stdout}"
+        );
+        for name in [
+            "facemaps.exr",
+            "geometry.exr",
+            "report.json",
+            "surface.obj",
+            "surface.mtl",
+            "atlas.png",
+        ] {
+            assert!(out.join(name).is_file(), "{name}");
+        }
+        let report = surfsynth::report::read(&out).unwrap();
+        for key in [
+            "method",
+            "seed",
+            "scale",
+            "resolution",
+            "faces",
+            "texels",
+            "seconds",
+            "texels_per_second",
+        ] {
+            assert!(report.get(key).is_some(), "report.json lacks {key}");
+        }
+        assert_eq!(report["seed"], 5);
+        assert_eq!(report["texels"], 252 * 64);
+        assert_eq!(report["threads"], t.parse::<u64>().unwrap());
+        files.push(std::fs::read(out.join("facemaps.exr")).unwrap());
+    }
+    assert!(
+        files[0] == files[1],
+        "facemaps.exr differs between 1 and 2 threads"
+    );
+}
+
+/// Every file below `dir` (recursively), or nothing when it does not exist.
+fn files_below(dir: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    if let Ok(rd) = std::fs::read_dir(dir) {
+        for e in rd.flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                out.extend(files_below(&p));
+            } else {
+                out.push(p);
+            }
+        }
+    }
+    out
+}
+
+/// Runs `synth` expecting a clean failure: non-zero exit, exactly one line on stderr that
+/// contains every string of `expect`, and no file left in `out`.
+fn assert_fails(example: &Path, extra: &[&str], out: &Path, expect: &[&str]) {
+    let mesh = fixture("spot_control_mesh.obj");
+    let o = surfsynth(&synth_args(&mesh, example, out, extra));
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "should fail: {stderr}");
+    assert_ne!(o.status.code(), Some(101), "no panic: {stderr}");
+    let line = stderr.trim_end();
+    assert!(
+        !line.is_empty() && !line.contains('\n'),
+        "one line: {stderr:?}"
+    );
+    for e in expect {
+        assert!(line.contains(e), "{line:?} should mention {e:?}");
+    }
+    assert!(
+        files_below(out).is_empty(),
+        "left files: {:?}",
+        files_below(out)
+    );
+}
+
+#[test]
+fn missing_example_fails_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    let ex = dir.path().join("nowhere.png");
+    let out = dir.path().join("out");
+    assert_fails(&ex, &[], &out, &["nowhere.png"]);
+    assert!(!out.exists(), "nothing created for bad input");
+}
+
+#[test]
+fn corrupt_example_fails_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    let ex = dir.path().join("text.png");
+    std::fs::write(&ex, "this is not an image\n").unwrap();
+    assert_fails(
+        &ex,
+        &[],
+        &dir.path().join("out"),
+        &["text.png", "not a PNG"],
+    );
+    // A real PNG signature with a truncated body.
+    let bad = dir.path().join("truncated.png");
+    let bytes = std::fs::read(fixture("gravel.png")).unwrap();
+    std::fs::write(&bad, &bytes[..bytes.len() / 3]).unwrap();
+    assert_fails(&bad, &[], &dir.path().join("out2"), &["truncated.png"]);
+}
+
+#[test]
+fn tiny_example_fails_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    let ex = dir.path().join("tiny.png");
+    image::RgbImage::from_pixel(7, 12, image::Rgb([9, 99, 199]))
+        .save(&ex)
+        .unwrap();
+    assert_fails(
+        &ex,
+        &[],
+        &dir.path().join("out"),
+        &["tiny.png", "7x12", "8x8"],
+    );
+}
+
+#[test]
+fn height_of_another_size_fails_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    let h = shared("textures/gimp_recessed_height.png"); // 80x80 vs 128x128
+    let hs = h.to_str().unwrap();
+    assert_fails(
+        &fixture("gravel.png"),
+        &["--height", hs],
+        &dir.path().join("out"),
+        &["gimp_recessed_height.png", "80x80", "128x128"],
+    );
+}
+
+#[test]
+fn resolution_zero_fails_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    assert_fails(
+        &fixture("gravel.png"),
+        &["--resolution", "0"],
+        &dir.path().join("out"),
+        &["resolution"],
+    );
+    // The library refuses it too, with the same kind of message.
+    let e = Synthesizer::new(fixture("spot_control_mesh.obj"), fixture("gravel.png"))
+        .resolution(0)
+        .run()
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("resolution 0") && !e.contains('\n'), "{e}");
+}
+
+#[test]
+fn unwritable_out_fails_cleanly_before_synthesis() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("plain-file");
+    std::fs::write(&file, "x").unwrap();
+    let out = file.join("out");
+    assert_fails(&fixture("gravel.png"), &[], &out, &["plain-file"]);
+    assert_eq!(std::fs::read(&file).unwrap(), b"x");
+}
+
+#[test]
+fn height_and_alpha_channels_are_synthesized_from_the_same_source() {
+    // Bricks with alpha (RGBA) plus a height map of the same size: every channel of a texel
+    // must equal the example's bilinear value at the recorded source.
+    let ex_path = shared("textures/embark_bricks_alpha.png");
+    let dir = tempfile::tempdir().unwrap();
+    let hpath = dir.path().join("h.png");
+    let ex = surfsynth::example::Example::load(&ex_path).unwrap();
+    let (w, h) = (ex.width as u32, ex.height as u32);
+    image::GrayImage::from_fn(w, h, |x, y| image::Luma([((x * 7 + y * 3) % 256) as u8]))
+        .save(&hpath)
+        .unwrap();
+    let r = Synthesizer::new(shared("meshes/cube_no_bottom.obj"), &ex_path)
+        .height(&hpath)
+        .resolution(8)
+        .run()
+        .unwrap();
+    assert_eq!(
+        r.maps.names(),
+        ["R", "G", "B", "A", "height", "source.u", "source.v"]
+    );
+    let full = surfsynth::example::Example::load_with_height(&ex_path, Some(&hpath)).unwrap();
+    let (su, sv) = (
+        r.maps.channel("source.u").unwrap(),
+        r.maps.channel("source.v").unwrap(),
+    );
+    let mut v = [0.0f32; 5];
+    for i in 0..su.len() {
+        assert!(su[i] >= 0.5 && su[i] <= w as f32 - 0.5 && sv[i] >= 0.5 && sv[i] <= h as f32 - 0.5);
+        full.bilinear(su[i], sv[i], &mut v);
+        for (k, name) in ["R", "G", "B", "A", "height"].iter().enumerate() {
+            assert_eq!(r.maps.channel(name).unwrap()[i], v[k], "{name} at {i}");
+        }
+    }
+    assert_eq!(r.report.example.channels, ["R", "G", "B", "A", "height"]);
+}
