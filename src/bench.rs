@@ -24,6 +24,19 @@ fn proc_status_bytes(field: &str) -> Option<u64> {
     Some(kb * 1024)
 }
 
+/// CPU time (user + system, all threads) of this process so far, in seconds (Linux; the
+/// kernel reports it in USER_HZ = 100 ticks per second on every architecture we target).
+/// On a shared machine CPU time is steadier than wall time: texels per CPU-second times
+/// the number of idle cores bounds what a quiet machine would do.
+pub fn cpu_seconds() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/self/stat").ok()?;
+    let after = &s[s.rfind(')')? + 1..];
+    let f: Vec<&str> = after.split_whitespace().collect();
+    let utime: f64 = f.get(11)?.parse().ok()?;
+    let stime: f64 = f.get(12)?.parse().ok()?;
+    Some((utime + stime) / 100.0)
+}
+
 /// Peak resident set size of this process so far (VmHWM).
 pub fn peak_rss_bytes() -> Option<u64> {
     proc_status_bytes("VmHWM:")
@@ -101,8 +114,10 @@ pub struct BakeBenchReport {
     pub surface_build_seconds: f64,
     pub eval_seconds: f64,
     pub eval_texels_per_second: f64,
+    pub eval_cpu_seconds: f64,
     pub bake_seconds: f64,
     pub bake_texels_per_second: f64,
+    pub bake_cpu_seconds: f64,
     pub file_bytes: u64,
     /// Resident memory after building the surface, before baking.
     pub rss_before_bake_bytes: u64,
@@ -141,11 +156,13 @@ pub fn bake_bench(
     let texels = (domains * resolution * resolution) as u64;
     let rss_before = current_rss_bytes().unwrap_or(0);
 
-    let t = Instant::now();
+    let (t, c) = (Instant::now(), cpu_seconds().unwrap_or(0.0));
     std::hint::black_box(eval_only(&surface, resolution));
     let eval_seconds = t.elapsed().as_secs_f64();
+    let eval_cpu_seconds = cpu_seconds().unwrap_or(0.0) - c;
 
     let path = out_dir.join(GEOMETRY_FILE);
+    let c = cpu_seconds().unwrap_or(0.0);
     let stats = bake_to_file(
         &surface,
         resolution,
@@ -153,6 +170,7 @@ pub fn bake_bench(
         compression,
         &ProgressBar::hidden(),
     )?;
+    let bake_cpu_seconds = cpu_seconds().unwrap_or(0.0) - c;
     let file_bytes = std::fs::metadata(&path)
         .map_err(|e| Error::io(&path, "cannot stat", e))?
         .len();
@@ -168,8 +186,10 @@ pub fn bake_bench(
         surface_build_seconds,
         eval_seconds,
         eval_texels_per_second: texels as f64 / eval_seconds.max(1e-9),
+        eval_cpu_seconds,
         bake_seconds: stats.seconds,
         bake_texels_per_second: stats.texels_per_second(),
+        bake_cpu_seconds,
         file_bytes,
         rss_before_bake_bytes: rss_before,
         peak_rss_bytes: peak,
@@ -298,6 +318,7 @@ mod tests {
         let r = refine_to(torus_mesh(20), 300);
         assert!(r.num_domains() >= 300);
         assert!(peak_rss_bytes().unwrap_or(1) > 0);
+        assert!(cpu_seconds().is_some_and(|c| c >= 0.0));
     }
 
     #[test]

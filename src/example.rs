@@ -479,6 +479,53 @@ mod tests {
         );
     }
 
+    /// Every texture shipped in ../shared loads, with alpha exactly for the RGBA ones and
+    /// linear values in 0..1.
+    #[test]
+    fn shared_textures_load() {
+        let dir = std::env::var_os("SURFSYNTH_SHARED")
+            .map(PathBuf::from)
+            .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared"))
+            .join("data/textures");
+        let mut count = 0;
+        for entry in std::fs::read_dir(&dir).unwrap() {
+            let p = entry.unwrap().path();
+            if p.extension().and_then(|e| e.to_str()) != Some("png") {
+                continue;
+            }
+            let e = Example::load(&p).unwrap();
+            let name = p.file_name().unwrap().to_string_lossy().into_owned();
+            assert!(e.width >= MIN_SIZE && e.height >= MIN_SIZE, "{name}");
+            assert_eq!(e.rgb.len(), e.width * e.height);
+            assert!(
+                e.rgb.iter().flatten().all(|v| (0.0..=1.0).contains(v)),
+                "{name}"
+            );
+            if name.contains("alpha") {
+                let a = e
+                    .alpha
+                    .as_ref()
+                    .unwrap_or_else(|| panic!("{name} has alpha"));
+                assert!(a.iter().any(|&v| v < 1.0), "{name}: some transparency");
+            }
+            count += 1;
+        }
+        assert!(count >= 10, "found {count} textures in {}", dir.display());
+        // The 16-bit height map keeps more than 256 levels.
+        let h = dir.join("mpl_jacksboro_dem_height16.png");
+        if h.exists() {
+            let ex = Example::load(&h).unwrap();
+            let mut levels: Vec<u32> = ex.rgb.iter().map(|p| p[0].to_bits()).collect();
+            levels.sort_unstable();
+            levels.dedup();
+            assert!(
+                levels.len() > 256,
+                "16-bit precision kept: {} levels",
+                levels.len()
+            );
+        }
+    }
+
     #[test]
     fn bilinear_hits_pixel_centres_and_clamps() {
         let rgb: Vec<[f32; 3]> = (0..64).map(|i| [i as f32, 0.0, 1.0]).collect();

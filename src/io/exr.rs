@@ -283,8 +283,8 @@ pub fn write_face_maps_with(
 /// `tile` (zeroed, length `names.len()*N²`, channel-major in the order of `names`, each
 /// channel row-major). `progress(done)` gets the number of domains written so far.
 ///
-/// Memory stays bounded by a batch of tiles (about 64 MiB, at least one tile per thread),
-/// and output bytes do not depend on the number of threads: tiles are filled
+/// Memory stays bounded by two batches of tiles (about 32 MiB each, at least one tile per
+/// thread), and output bytes do not depend on the number of threads: tiles are filled
 /// independently and written in file order.
 pub fn write_tiles<F>(
     path: impl AsRef<Path>,
@@ -350,17 +350,18 @@ where
 
     let tile_bytes = names.len() * nn * 4;
     let threads = rayon::current_num_threads().max(1);
-    let batch = ((64usize << 20) / tile_bytes.max(1))
+    // Two batches are in flight (one being written, one being computed): ~32 MiB each.
+    let batch = ((32usize << 20) / tile_bytes.max(1))
         .clamp(threads, 4096)
         .max(1);
     let total = layout.tile_count();
 
     write_atomic(path, |w| {
         exr::block::write(w, headers, true, |meta, writer| {
-            let mut start = 0;
-            while start < total {
+            // Fill and compress one batch of tiles on all threads.
+            let compute = |start: usize| -> (usize, Vec<exr::error::Result<Chunk>>) {
                 let end = (start + batch).min(total);
-                let chunks: Vec<exr::error::Result<Chunk>> = (start..end)
+                let chunks = (start..end)
                     .into_par_iter()
                     .map_init(
                         || vec![0f32; names.len() * nn],
@@ -377,11 +378,27 @@ where
                         },
                     )
                     .collect();
-                for (t, chunk) in (start..end).zip(chunks) {
-                    writer.write_chunk(t, chunk?)?;
-                }
-                progress(end.min(layout.faces));
-                start = end;
+                (start, chunks)
+            };
+            // Pipeline: one thread writes batch k (in file order) while the others
+            // compute batch k+1, so the writer is never the only thing running.
+            let mut pending = Some(compute(0));
+            let mut next = batch;
+            while let Some((start, chunks)) = pending.take() {
+                let count = chunks.len();
+                let (written, following) = rayon::join(
+                    || -> exr::error::UnitResult {
+                        for (i, chunk) in chunks.into_iter().enumerate() {
+                            writer.write_chunk(start + i, chunk?)?;
+                        }
+                        Ok(())
+                    },
+                    || (next < total).then(|| compute(next)),
+                );
+                written?;
+                progress((start + count).min(layout.faces));
+                pending = following;
+                next += batch;
             }
             Ok(())
         })
