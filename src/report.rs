@@ -122,10 +122,7 @@ impl Report {
 
 /// Peak resident set size of this process (Linux `VmHWM`), `None` elsewhere.
 pub fn peak_memory_bytes() -> Option<u64> {
-    let s = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
-    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb * 1024)
+    crate::bench::peak_rss_bytes()
 }
 
 /// Reads back a report's top-level JSON (for tools and tests).

@@ -19,6 +19,15 @@ pub enum BenchCommand {
     Bake(BenchBakeArgs),
     /// EXR writing and reading speed and file size per compression.
     Exr(BenchExrArgs),
+    /// Coherent synthesis on Spot: synthesis stage and whole run, texels/s and peak memory.
+    Synth(BenchSynthArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct BenchSynthArgs {
+    /// Runs per case (the median is reported).
+    #[arg(long, value_name = "R", default_value_t = 3)]
+    pub repeats: usize,
 }
 
 #[derive(Args, Debug)]
@@ -61,7 +70,17 @@ pub fn run(a: BenchArgs) -> anyhow::Result<()> {
     match a.what {
         BenchCommand::Bake(b) => bake(b),
         BenchCommand::Exr(b) => exr(b),
+        BenchCommand::Synth(b) => synth(b),
     }
+}
+
+fn synth(a: BenchSynthArgs) -> anyhow::Result<()> {
+    // The benchmark lives in the library (surfsynth::synth::bench).
+    let dir = std::env::temp_dir().join(format!("surfsynth-bench-synth-{}", std::process::id()));
+    let rows = surfsynth::synth::bench::synth_bench(&dir, a.repeats, &|l| eprintln!("{l}"));
+    let _ = std::fs::remove_dir_all(&dir);
+    println!("{}", serde_json::to_string_pretty(&rows?)?);
+    Ok(())
 }
 
 fn exr(a: BenchExrArgs) -> anyhow::Result<()> {

@@ -7,6 +7,7 @@
 //! The builder in [`crate::synthesizer`] strings these together with loading, the
 //! orientation field and writing; this module is the pure computation (no files).
 
+pub mod bench;
 pub mod coherent;
 pub mod features;
 pub mod schedule;
@@ -151,7 +152,7 @@ pub fn face_maps(example: &Example, source: &[[f32; 2]], faces: usize, n: usize)
 
 /// The `geometry.exr` content (P.X P.Y P.Z N.X N.Y N.Z), from already evaluated texels.
 pub fn geometry_maps(geom: &TexelGeometry) -> FaceMaps {
-    let names = ["P.X", "P.Y", "P.Z", "N.X", "N.Y", "N.Z"];
+    let names = crate::bake::GEOMETRY_CHANNELS;
     let mut maps = FaceMaps::new(geom.faces, geom.resolution, &names);
     for (c, (_, data)) in maps.channels.iter_mut().enumerate() {
         let src = if c < 3 { &geom.pos } else { &geom.normal };
