@@ -22,3 +22,4 @@ pub mod demo;
 pub mod pyramid;
 pub mod search;
 pub mod synth2d;
+pub mod render;

@@ -1,7 +1,7 @@
-//! `surfsynth render DIR`: preview picture of a result (issue 6). Arguments are final; the
-//! handler is a placeholder until the renderer lands.
+//! `surfsynth render DIR`: preview picture of a result (issue 6); the work is in
+//! `surfsynth::render`.
 
-use super::{not_implemented, parse_finite, parse_pixels};
+use super::{parse_finite, parse_pixels};
 use clap::Args;
 use std::path::PathBuf;
 
@@ -28,9 +28,19 @@ pub struct RenderArgs {
     /// Displace along the normal by AMOUNT x (height - 0.5).
     #[arg(long, value_name = "AMOUNT", value_parser = parse_finite, allow_negative_numbers = true)]
     pub displace: Option<f64>,
+    /// Control mesh of the result (default: the one named in DIR/report.json).
+    #[arg(long, value_name = "M.obj")]
+    pub mesh: Option<PathBuf>,
 }
 
 pub fn run(a: RenderArgs) -> anyhow::Result<()> {
-    let _ = a;
-    not_implemented("render")
+    let opts = surfsynth::render::RenderOptions {
+        width: a.width,
+        height: a.height,
+        yaw: a.yaw,
+        pitch: a.pitch,
+        displace: a.displace,
+        mesh: a.mesh,
+    };
+    surfsynth::render::run_cli(&a.dir, a.out.as_deref(), &opts)
 }

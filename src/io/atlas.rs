@@ -32,7 +32,7 @@ use crate::io::exr::FaceMaps;
 use rayon::prelude::*;
 use std::io::Write;
 use std::path::Path;
-use subdiv::{BaseQuadId, DomainId, DomainLocation, FaceId, Surface, VertexId};
+use subdiv::{BaseQuadId, DomainId, DomainLocation, FaceId, LimitMesh, Surface, VertexId};
 
 /// Default gutter width in pixels. Bilinear filtering needs one; two keep the first
 /// mip level (where a renderer averages 2×2 pixels) free of bleeding from other tiles.
@@ -479,6 +479,26 @@ pub fn level_for_resolution(n: usize) -> u32 {
     level.clamp(2, 5)
 }
 
+/// The domain of every face of a limit mesh and the domain (u, v) of its four corners (in
+/// the face's vertex order). A limit-mesh face lies inside one base quad and so inside one
+/// domain; its corners are dyadic, so the (u, v) are exact.
+pub fn face_domain_corners(surface: &Surface, lm: &LimitMesh) -> Vec<(u32, [(f64, f64); 4])> {
+    (0..lm.mesh.num_faces())
+        .map(|f| {
+            let fid = FaceId::from_idx(f);
+            let mut uv = [(0.0, 0.0); 4];
+            let mut domain = 0;
+            for (c, &(s, t)) in CORNERS.iter().enumerate() {
+                let b = lm.to_base(fid, s, t);
+                let loc = surface.base_to_domain(b.quad, b.s, b.t);
+                uv[c] = (loc.u, loc.v);
+                domain = loc.domain.0;
+            }
+            (domain, uv)
+        })
+        .collect()
+}
+
 /// Tessellates the limit surface at `level` (>= 1; see [`level_for_resolution`]) with UVs
 /// into `layout`.
 pub fn tessellate(surface: &Surface, layout: &AtlasLayout, level: u32) -> SurfaceMesh {
@@ -502,27 +522,21 @@ pub fn tessellate(surface: &Surface, layout: &AtlasLayout, level: u32) -> Surfac
             }
         }
     }
-    let nf = lm.mesh.num_faces();
-    let mut quads = Vec::with_capacity(nf);
-    let mut quad_domain = Vec::with_capacity(nf);
-    for f in 0..nf {
-        let fid = FaceId::from_idx(f);
-        let verts = lm.mesh.face_vertices(fid);
+    let corners = face_domain_corners(surface, &lm);
+    let mut quads = Vec::with_capacity(corners.len());
+    let mut quad_domain = Vec::with_capacity(corners.len());
+    for (f, &(d, uv)) in corners.iter().enumerate() {
+        let verts = lm.mesh.face_vertices(FaceId::from_idx(f));
+        let m = segments(d as usize);
         let mut q = [(0u32, 0u32); 4];
-        let mut domain = 0;
-        for (c, &(s, t)) in CORNERS.iter().enumerate() {
-            let b = lm.to_base(fid, s, t);
-            let loc = surface.base_to_domain(b.quad, b.s, b.t);
-            let d = loc.domain.idx();
-            let m = segments(d);
+        for c in 0..4 {
             // Corners of level faces are dyadic, so these are exact integers.
-            let i = (loc.u * m as f64).round() as u32;
-            let j = (loc.v * m as f64).round() as u32;
-            q[c] = (verts[c], uv_start[d] + j * (m as u32 + 1) + i);
-            domain = d as u32;
+            let i = (uv[c].0 * m as f64).round() as u32;
+            let j = (uv[c].1 * m as f64).round() as u32;
+            q[c] = (verts[c], uv_start[d as usize] + j * (m as u32 + 1) + i);
         }
         quads.push(q);
-        quad_domain.push(domain);
+        quad_domain.push(d);
     }
     SurfaceMesh {
         positions: lm.position.iter().map(|p| p.to_array()).collect(),
