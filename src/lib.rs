@@ -1,25 +1,30 @@
 //! surfsynth: texture synthesis directly on Catmull-Clark subdivision surfaces
 //! (Ying, Hertzmann, Biermann, Zorin 2001).
+//!
+//! Data flows one way: `subdiv` (mesh → base quads → exact limit surface → charts) →
+//! [`field`] (orientation) and [`maps`]/[`example`] → [`sampling`] → [`synth`] (coherent),
+//! multiscale ([`pyramid`], [`search`]) → [`io`] writers, [`eval`], [`render`]. See
+//! docs/architecture.md.
 
 pub mod bake;
 pub mod bench;
+pub mod demo;
 pub mod error;
+pub mod eval;
 pub mod example;
 pub mod field;
 pub mod io;
+pub mod maps;
+pub mod probe;
 pub mod progress;
+pub mod pyramid;
+pub mod render;
+pub mod report;
+pub mod sampling;
+pub mod search;
+pub mod synth;
+pub mod synth2d;
+pub mod synthesizer;
 pub mod texels;
 
 pub use error::{Error, Result};
-pub mod sampling;
-pub mod maps;
-pub mod probe;
-pub mod report;
-pub mod synth;
-pub mod synthesizer;
-pub mod eval;
-pub mod demo;
-pub mod pyramid;
-pub mod search;
-pub mod synth2d;
-pub mod render;
