@@ -274,10 +274,12 @@ fn out_below_a_regular_file() {
 }
 
 #[test]
-fn unimplemented_subcommands_fail_cleanly() {
+fn eval_and_render_of_a_directory_without_results_fail_cleanly() {
     let dir = tempfile::tempdir().unwrap();
-    let o = run(&["eval".as_ref(), dir.path().as_os_str()]);
-    assert_clean_failure(&o, dir.path(), None, &["not implemented"]);
+    for cmd in ["eval", "render"] {
+        let o = run(&[cmd.as_ref(), dir.path().as_os_str()]);
+        assert_clean_failure(&o, dir.path(), Some(dir.path()), &[]);
+    }
 }
 
 #[test]
