@@ -237,12 +237,17 @@ impl Example {
     #[inline]
     pub fn bilinear_rgb(&self, x: f32, y: f32) -> [f32; 3] {
         let (k, w) = self.bilinear_taps(x, y);
+        self.rgb_at_taps(&k, &w)
+    }
+
+    #[inline]
+    fn rgb_at_taps(&self, k: &[usize; 4], w: &[f32; 4]) -> [f32; 3] {
         let mut c = [0.0f32; 3];
-        for t in 0..4 {
-            let p = self.rgb[k[t]];
-            for i in 0..3 {
-                c[i] += w[t] * p[i];
-            }
+        for (&i, &wt) in k.iter().zip(w) {
+            let p = self.rgb[i];
+            c[0] += wt * p[0];
+            c[1] += wt * p[1];
+            c[2] += wt * p[2];
         }
         c
     }
@@ -252,8 +257,7 @@ impl Example {
     pub fn bilinear(&self, x: f32, y: f32, out: &mut [f32]) {
         let (k, w) = self.bilinear_taps(x, y);
         let lerp = |d: &[f32]| w[0] * d[k[0]] + w[1] * d[k[1]] + w[2] * d[k[2]] + w[3] * d[k[3]];
-        let rgb = self.bilinear_rgb(x, y);
-        out[..3].copy_from_slice(&rgb);
+        out[..3].copy_from_slice(&self.rgb_at_taps(&k, &w));
         let mut c = 3;
         if let Some(a) = &self.alpha {
             out[c] = lerp(a);
