@@ -41,13 +41,15 @@ pub struct LimitSample {
 #[derive(Clone, Copy, Debug)]
 pub struct SurfaceOptions {
     /// Levels of the patch tree stored around extraordinary vertices (deeper points are
-    /// refined on demand). 8 covers texel centres of maps up to 256 texels per side.
+    /// refined on demand). 6 covers texel centres of maps up to 32 texels per side on
+    /// n-gon sub-faces and 64 on quads without on-demand refinement; `bake` raises it to
+    /// what its resolution needs.
     pub max_depth: u32,
 }
 
 impl Default for SurfaceOptions {
     fn default() -> Self {
-        Self { max_depth: 8 }
+        Self { max_depth: 6 }
     }
 }
 
@@ -77,6 +79,7 @@ pub struct Surface {
     patches: Vec<BSplinePatch>,
     limits: Vec<(DVec3, DVec3)>,
     deep: Vec<PolyMesh>,
+    max_depth: u32,
     pub(crate) domain_start: Vec<u32>,
     pub(crate) domain_face: Vec<u32>,
 }
@@ -94,14 +97,30 @@ impl Surface {
             patches: Vec::with_capacity(base.num_faces()),
             limits: Vec::new(),
             deep: Vec::new(),
+            max_depth: opts.max_depth,
             domain_start: Vec::new(),
             domain_face: Vec::new(),
             control,
             base: PolyMesh::new(vec![], vec![0], vec![], Check::Trusted).unwrap(),
         };
-        for q in 0..base.num_faces() {
-            let root = s.build(&base, FaceId::from_idx(q), 0, opts.max_depth);
-            s.roots.push(root);
+        // Trees are independent per base quad: build them in parallel chunks, then merge
+        // the chunks in order, so the result is the same for any number of threads.
+        use rayon::prelude::*;
+        const CHUNK: usize = 128;
+        let nq = base.num_faces();
+        let arenas: Vec<Arena> = (0..nq.div_ceil(CHUNK))
+            .into_par_iter()
+            .map(|c| {
+                let mut a = Arena::default();
+                for q in c * CHUNK..((c + 1) * CHUNK).min(nq) {
+                    let root = a.build(&base, FaceId::from_idx(q), 0, opts.max_depth);
+                    a.roots.push(root);
+                }
+                a
+            })
+            .collect();
+        for a in arenas {
+            s.append(a);
         }
         s.base = base;
         s.init_domains();
@@ -113,45 +132,29 @@ impl Surface {
         Ok(Self::new(ControlMesh::load_obj(path)?))
     }
 
-    fn build(&mut self, m: &PolyMesh, q: FaceId, depth: u32, max_depth: u32) -> u32 {
-        let corners: Vec<VertexId> = m.face_vertices(q).iter().map(|&v| VertexId(v)).collect();
-        if corners.iter().all(|&v| m.is_regular_vertex(v)) {
-            if let Some(p) = BSplinePatch::gather(m, q) {
-                self.patches.push(p);
-                return self.push(Node::Regular(self.patches.len() as u32 - 1));
-            }
-        }
-        let sub = extract_submesh(m, q);
-        if depth >= max_depth {
-            self.deep.push(sub);
-            return self.push(Node::Deep(self.deep.len() as u32 - 1));
-        }
-        let mut corner_limit = [NO_LIMIT; 4];
-        for (i, &v) in corners.iter().enumerate() {
-            if !m.is_regular_vertex(v) {
-                let l = vertex_limit(m, v);
-                self.limits.push((l.position, l.normal));
-                corner_limit[i] = self.limits.len() as u32 - 1;
-            }
-        }
-        let r = refine(&sub);
-        let id = self.push(Node::Split {
-            children: [0; 4],
-            corner_limit,
-        });
-        let mut children = [0u32; 4];
-        for (c, slot) in children.iter_mut().enumerate() {
-            *slot = self.build(&r, FaceId::from_idx(c), depth + 1, max_depth);
-        }
-        if let Node::Split { children: ch, .. } = &mut self.nodes[id as usize] {
-            *ch = children;
-        }
-        id
-    }
-
-    fn push(&mut self, n: Node) -> u32 {
-        self.nodes.push(n);
-        self.nodes.len() as u32 - 1
+    /// Appends a chunk's trees, shifting its indices past what is already stored.
+    fn append(&mut self, a: Arena) {
+        let (n0, p0, l0, d0) = (
+            self.nodes.len() as u32,
+            self.patches.len() as u32,
+            self.limits.len() as u32,
+            self.deep.len() as u32,
+        );
+        self.roots.extend(a.roots.iter().map(|r| r + n0));
+        self.nodes.extend(a.nodes.into_iter().map(|n| match n {
+            Node::Regular(i) => Node::Regular(i + p0),
+            Node::Split {
+                children,
+                corner_limit,
+            } => Node::Split {
+                children: children.map(|c| c + n0),
+                corner_limit: corner_limit.map(|l| if l == NO_LIMIT { l } else { l + l0 }),
+            },
+            Node::Deep(i) => Node::Deep(i + d0),
+        }));
+        self.patches.extend(a.patches);
+        self.limits.extend(a.limits);
+        self.deep.extend(a.deep);
     }
 
     pub fn num_base_quads(&self) -> usize {
@@ -194,11 +197,14 @@ impl Surface {
     }
 
     /// At an extraordinary vertex (a corner (s0, t0) of the base quad): position and normal
-    /// from limit masks; unit tangents from the surface a hair inside the base quad, since
-    /// the parametric derivatives themselves are singular there.
+    /// from limit masks; unit tangents from the surface just inside the base quad, since
+    /// the parametric derivatives themselves are singular there. The probe sits at
+    /// 2^-max_depth along the diagonal, which the stored tree reaches without on-demand
+    /// refinement (at 1e-9 every call refined ~30 levels).
     fn at_extraordinary(&self, b: BaseQuadId, s0: f64, t0: f64, li: usize) -> LimitSample {
         let (p, n) = self.limits[li];
-        let inward = |x: f64| if x < 0.5 { 1e-9 } else { 1.0 - 1e-9 };
+        let eps = 0.5f64.powi(self.max_depth.max(1) as i32);
+        let inward = |x: f64| if x < 0.5 { eps } else { 1.0 - eps };
         let q = self.eval_base(b, inward(s0), inward(t0));
         let du = (q.du - n * n.dot(q.du)).normalize_or_zero();
         let dv = (q.dv - n * n.dot(q.dv)).normalize_or_zero();
@@ -258,6 +264,59 @@ impl Surface {
     /// Axis-aligned bounds of the control points (the limit surface lies inside).
     pub fn bounds(&self) -> (DVec3, DVec3) {
         self.control.bounds()
+    }
+}
+
+/// Patch trees of some base quads, with indices local to this arena.
+#[derive(Default)]
+struct Arena {
+    roots: Vec<u32>,
+    nodes: Vec<Node>,
+    patches: Vec<BSplinePatch>,
+    limits: Vec<(DVec3, DVec3)>,
+    deep: Vec<PolyMesh>,
+}
+
+impl Arena {
+    fn build(&mut self, m: &PolyMesh, q: FaceId, depth: u32, max_depth: u32) -> u32 {
+        let corners: Vec<VertexId> = m.face_vertices(q).iter().map(|&v| VertexId(v)).collect();
+        if corners.iter().all(|&v| m.is_regular_vertex(v)) {
+            if let Some(p) = BSplinePatch::gather(m, q) {
+                self.patches.push(p);
+                return self.push(Node::Regular(self.patches.len() as u32 - 1));
+            }
+        }
+        let sub = extract_submesh(m, q);
+        if depth >= max_depth {
+            self.deep.push(sub);
+            return self.push(Node::Deep(self.deep.len() as u32 - 1));
+        }
+        let mut corner_limit = [NO_LIMIT; 4];
+        for (i, &v) in corners.iter().enumerate() {
+            if !m.is_regular_vertex(v) {
+                let l = vertex_limit(m, v);
+                self.limits.push((l.position, l.normal));
+                corner_limit[i] = self.limits.len() as u32 - 1;
+            }
+        }
+        let r = refine(&sub);
+        let id = self.push(Node::Split {
+            children: [0; 4],
+            corner_limit,
+        });
+        let mut children = [0u32; 4];
+        for (c, slot) in children.iter_mut().enumerate() {
+            *slot = self.build(&r, FaceId::from_idx(c), depth + 1, max_depth);
+        }
+        if let Node::Split { children: ch, .. } = &mut self.nodes[id as usize] {
+            *ch = children;
+        }
+        id
+    }
+
+    fn push(&mut self, n: Node) -> u32 {
+        self.nodes.push(n);
+        self.nodes.len() as u32 - 1
     }
 }
 

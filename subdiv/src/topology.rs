@@ -9,7 +9,6 @@
 use crate::error::{MeshError, MeshProblem};
 use crate::ids::{FaceId, VertexId};
 use glam::DVec3;
-use std::collections::HashMap;
 
 /// Marks an absent half-edge (boundary twin, unused vertex).
 pub const NONE: u32 = u32::MAX;
@@ -119,52 +118,80 @@ impl PolyMesh {
     }
 
     fn link_twins(&mut self, check: Check) -> Result<(), MeshError> {
+        // Pair half-edges by sorting (min vertex, max vertex, half-edge): cheaper than a hash
+        // map for the many tiny submeshes of the patch trees, and within one edge the
+        // half-edges stay in input order, so errors name the same faces either way.
         let nh = self.he_vert.len();
-        // Key: (min vertex, max vertex) -> first half-edge seen on that edge.
-        let mut map: HashMap<(u32, u32), u32> = HashMap::with_capacity(nh);
-        for h in 0..nh as u32 {
-            let a = self.he_vert[h as usize];
-            let b = self.dest_raw(h);
-            let key = (a.min(b), a.max(b));
-            match map.get(&key) {
-                None => {
-                    map.insert(key, h);
-                    self.he_edge[h as usize] = self.edge_he.len() as u32;
-                    self.edge_he.push(h);
+        let mut keys: Vec<(u32, u32, u32)> = (0..nh as u32)
+            .map(|h| {
+                let a = self.he_vert[h as usize];
+                let b = self.dest_raw(h);
+                (a.min(b), a.max(b), h)
+            })
+            .collect();
+        keys.sort_unstable();
+        // Edges are numbered in order of their first half-edge, as a scan would meet them.
+        let mut first_of_edge: Vec<u32> = Vec::with_capacity(nh / 2 + 8);
+        let strict = check == Check::Strict;
+        let mut i = 0;
+        while i < keys.len() {
+            let mut j = i + 1;
+            while j < keys.len() && keys[j].0 == keys[i].0 && keys[j].1 == keys[i].1 {
+                j += 1;
+            }
+            let group = &keys[i..j];
+            let g = group[0].2;
+            first_of_edge.push(g);
+            if group.len() >= 2 {
+                let h = group[1].2;
+                if group.len() > 2 && strict {
+                    return Err(MeshProblem::NonManifoldEdge {
+                        a: group[0].0 as usize,
+                        b: group[0].1 as usize,
+                        face: self.he_face[group[2].2 as usize] as usize,
+                    }
+                    .into());
                 }
-                Some(&g) => {
-                    let strict = check == Check::Strict;
-                    if self.he_twin[g as usize] != NONE {
-                        if strict {
-                            return Err(MeshProblem::NonManifoldEdge {
-                                a: key.0 as usize,
-                                b: key.1 as usize,
-                                face: self.he_face[h as usize] as usize,
-                            }
-                            .into());
+                if self.he_vert[g as usize] == self.he_vert[h as usize] {
+                    if strict {
+                        return Err(MeshProblem::InconsistentOrientation {
+                            a: self.he_vert[g as usize] as usize,
+                            b: self.dest_raw(g) as usize,
+                            face_a: self.he_face[g as usize] as usize,
+                            face_b: self.he_face[h as usize] as usize,
                         }
-                        // Trusted meshes never get here; keep the edge as a boundary.
-                        self.he_edge[h as usize] = self.edge_he.len() as u32;
-                        self.edge_he.push(h);
-                        continue;
+                        .into());
                     }
-                    if self.he_vert[g as usize] == a {
-                        if strict {
-                            return Err(MeshProblem::InconsistentOrientation {
-                                a: a as usize,
-                                b: b as usize,
-                                face_a: self.he_face[g as usize] as usize,
-                                face_b: self.he_face[h as usize] as usize,
-                            }
-                            .into());
-                        }
-                        self.he_edge[h as usize] = self.edge_he.len() as u32;
-                        self.edge_he.push(h);
-                        continue;
-                    }
+                } else {
                     self.he_twin[g as usize] = h;
                     self.he_twin[h as usize] = g;
-                    self.he_edge[h as usize] = self.he_edge[g as usize];
+                }
+            }
+            i = j;
+        }
+        first_of_edge.sort_unstable();
+        self.edge_he = first_of_edge;
+        for (e, &g) in self.edge_he.iter().enumerate() {
+            self.he_edge[g as usize] = e as u32;
+        }
+        for h in 0..nh {
+            if self.he_edge[h] == NONE {
+                let t = self.he_twin[h];
+                // Unpaired extra half-edges (only in trusted, never-evaluated regions) keep
+                // the edge of their group's first half-edge.
+                self.he_edge[h] = if t != NONE {
+                    self.he_edge[t as usize]
+                } else {
+                    NONE
+                };
+            }
+        }
+        if self.he_edge.contains(&NONE) {
+            // Extra half-edges of a non-manifold group in a trusted mesh: give them edges.
+            for h in 0..nh {
+                if self.he_edge[h] == NONE {
+                    self.he_edge[h] = self.edge_he.len() as u32;
+                    self.edge_he.push(h as u32);
                 }
             }
         }
