@@ -96,8 +96,38 @@ fn flat_picture(maps: &FaceMaps, k: usize) -> image::RgbImage {
 }
 
 #[test]
-#[ignore = "exploration: prints measures for tuning"]
+#[ignore = "exploration: prints measures for tuning (docs/synthesis.md)"]
 fn explore() {
+    let variants: Vec<(&str, CoherentParams)> = vec![
+        (
+            "scanline",
+            CoherentParams {
+                order: Order::Scanline,
+                ..Default::default()
+            },
+        ),
+        (
+            "front, no random",
+            CoherentParams {
+                random_candidates: 0,
+                ..Default::default()
+            },
+        ),
+        (
+            "front+1 random",
+            CoherentParams {
+                random_candidates: 1,
+                ..Default::default()
+            },
+        ),
+        (
+            "front+4 random",
+            CoherentParams {
+                random_candidates: 4,
+                ..Default::default()
+            },
+        ),
+    ];
     for (mesh, ex) in [
         (
             "meshes/spot_control_mesh.obj",
@@ -108,27 +138,28 @@ fn explore() {
             "meshes/double_torus_genus2.obj",
             "textures/skimage_gravel.png",
         ),
-        ("meshes/cube_no_bottom.obj", "textures/skimage_brick.png"),
-        ("meshes/hand_lowres.obj", "textures/gimp_burlap_weave.png"),
+        (
+            "meshes/cube_no_bottom.obj",
+            "textures/gimp_burlap_weave.png",
+        ),
     ] {
-        for (n, order) in [
-            (16, Order::Scanline),
-            (16, Order::Front),
-            (32, Order::Front),
-        ] {
+        for (name, p) in &variants {
             let r = Synthesizer::new(shared(mesh), shared(ex))
-                .resolution(n)
-                .coherent_params(CoherentParams {
-                    order,
-                    ..Default::default()
-                })
+                .resolution(16)
+                .coherent_params(p.clone())
                 .seed(7)
                 .run()
                 .unwrap();
             let m = measure_result(&r);
             println!(
-                "{mesh} {ex} N={n} {order:?}: {m:?} secs {:?} stats {:?}",
-                r.report.seconds, r.report.stats
+                "| {} | {} | {name} | {:.3} | {:.3} | {:.3}–{:.3} | {:.3} |",
+                mesh.trim_start_matches("meshes/"),
+                ex.trim_start_matches("textures/"),
+                m.seam_ratio,
+                m.scale_median,
+                m.scale_p10,
+                m.scale_p90,
+                m.coherent_fraction
             );
         }
     }
@@ -137,32 +168,35 @@ fn explore() {
 #[test]
 #[ignore = "exploration: writes /tmp/flat_*.png"]
 fn explore_flat() {
-    {
-        let s = flat_grid(8);
-        let f = surfsynth::field::OrientationField::compute(&s, &Orientation::Axis(glam::DVec3::X))
-            .unwrap();
-        let fr = f.frame(&s, subdiv::DomainId(27), 0.3, 0.6);
-        let e = s.eval(subdiv::DomainId(27), 0.3, 0.6);
-        println!("frame {fr:?} n {:?} du {:?}", e.n, e.du);
-    }
+    let k = 8;
     for (name, ex) in [
-        ("brick", PathBuf::from("/tmp/brick128.png")),
+        ("brick", shared("textures/skimage_brick.png")),
         ("gravel", fixture("gravel.png")),
         ("weave", shared("textures/gimp_burlap_weave.png")),
-        ("scales", shared("textures/krita_reptile_scales.png")),
     ] {
-        let k = 8;
-        let r = Synthesizer::new(flat_grid(k), ex)
-            .resolution(32)
-            .seed(3)
-            .orientation(Orientation::Axis(glam::DVec3::X))
-            .run()
-            .unwrap();
-        let m = measure_result(&r);
-        println!("flat {name}: {m:?} {:?}", r.report.stats);
-        flat_picture(&r.maps, k)
-            .save(format!("/tmp/flat_{name}.png"))
-            .unwrap();
+        for rc in [0, 1, 4] {
+            let r = Synthesizer::new(flat_grid(k), ex.clone())
+                .resolution(32)
+                .seed(3)
+                .orientation(Orientation::Axis(glam::DVec3::X))
+                .coherent_params(CoherentParams {
+                    random_candidates: rc,
+                    ..Default::default()
+                })
+                .run()
+                .unwrap();
+            let m = measure_result(&r);
+            println!("flat {name} random {rc}: {m:?}");
+            let pic = flat_picture(&r.maps, k);
+            pic.save(format!("/tmp/flat_{name}_r{rc}.png")).unwrap();
+            let z = image::imageops::resize(
+                &image::imageops::crop_imm(&pic, 0, 0, 128, 128).to_image(),
+                512,
+                512,
+                image::imageops::FilterType::Nearest,
+            );
+            z.save(format!("/tmp/flat_{name}_r{rc}_zoom.png")).unwrap();
+        }
     }
 }
 
@@ -180,7 +214,7 @@ fn assert_quality(mesh: PathBuf, example: PathBuf, n: usize, seed: u64) -> Measu
     assert!((m.scale_median - 1.0).abs() <= 0.05, "{what}");
     assert!(m.scale_p10 >= 0.85 && m.scale_p90 <= 1.15, "{what}");
     // Coherent synthesis copies patches: most adjacent pairs continue one.
-    assert!(m.coherent_fraction >= 0.9, "{what}");
+    assert!(m.coherent_fraction >= 0.85, "{what}");
     m
 }
 
@@ -212,6 +246,20 @@ fn genus2_double_torus_meets_the_quality_bar() {
         16,
         3,
     );
+}
+
+#[test]
+fn curved_meshes_with_reptile_scales_meet_the_quality_bar() {
+    // The hardest pair measured (docs/synthesis.md): large smooth structures, so every
+    // forced join between patches shows; without random candidates Blub reached 1.96.
+    let scales = shared("textures/krita_reptile_scales.png");
+    assert_quality(
+        shared("meshes/blub_control_mesh.obj"),
+        scales.clone(),
+        16,
+        1,
+    );
+    assert_quality(shared("meshes/double_torus_genus2.obj"), scales, 16, 1);
 }
 
 #[test]
@@ -505,4 +553,43 @@ fn height_and_alpha_channels_are_synthesized_from_the_same_source() {
         }
     }
     assert_eq!(r.report.example.channels, ["R", "G", "B", "A", "height"]);
+}
+
+#[test]
+#[ignore = "exploration: structured examples on curved meshes"]
+fn explore_scales() {
+    let variants: Vec<(&str, CoherentParams)> = vec![
+        (
+            "front, no random",
+            CoherentParams {
+                random_candidates: 0,
+                ..Default::default()
+            },
+        ),
+        ("front+1 random (default)", CoherentParams::default()),
+    ];
+    for mesh in [
+        "meshes/blub_control_mesh.obj",
+        "meshes/double_torus_genus2.obj",
+    ] {
+        for (name, p) in &variants {
+            for orient in [Orientation::Auto, Orientation::Axis(glam::DVec3::Z)] {
+                let r = Synthesizer::new(shared(mesh), shared("textures/krita_reptile_scales.png"))
+                    .resolution(32)
+                    .orientation(orient.clone())
+                    .coherent_params(p.clone())
+                    .seed(1)
+                    .run()
+                    .unwrap();
+                let q = surfsynth::eval::evaluate_maps(
+                    &r.maps,
+                    &r.geometry_maps(),
+                    Some(r.report.scale),
+                    None,
+                )
+                .unwrap();
+                println!("{mesh} {name} {orient:?}: seam {:.3} (seam {:.5} inner {:.5}) coh {:.3} stats {:?}", q.seam_ratio.unwrap(), q.seam_mean_sq.unwrap(), q.interior_mean_sq.unwrap(), q.coherent_fraction.unwrap(), r.report.stats);
+            }
+        }
+    }
 }
