@@ -7,7 +7,7 @@
 //! and `report.json` points at files that exist. Licences: fixtures/LICENSES.txt (Spot is
 //! public domain, the gravel example CC0).
 
-use crate::error::{Error, Result};
+use crate::error::Error;
 use crate::field::Orientation;
 use crate::io::atomic::{prepare_out_dir, write_bytes_atomic};
 use crate::report::Report;
@@ -44,15 +44,34 @@ pub fn command(out: &Path) -> SynthCommand {
     }
 }
 
-/// Writes the fixtures to `out/inputs/` and runs [`command`] (progress bars, summary line).
-pub fn run(out: &Path) -> Result<Report> {
+/// Writes the fixtures to `out/inputs/`, runs [`command`] (progress bars, summary line),
+/// renders `preview.png` and prints the quality measures of BRIEF.md on one line.
+pub fn run(out: &Path) -> anyhow::Result<Report> {
     prepare_out_dir(out)?;
     let inputs = out.join("inputs");
     std::fs::create_dir_all(&inputs)
         .map_err(|e| Error::io(&inputs, "cannot create directory", e))?;
     write_bytes_atomic(inputs.join(MESH_NAME), MESH_OBJ)?;
     write_bytes_atomic(inputs.join(EXAMPLE_NAME), EXAMPLE_PNG)?;
-    run_command(&command(out))
+    let report = run_command(&command(out))?;
+    crate::render::run_cli(out, None, &crate::render::RenderOptions::default())?;
+    let q = crate::eval::evaluate(out, None)?;
+    println!("{}", eval_summary(&q));
+    Ok(report)
+}
+
+/// One line of the headline quality measures (the full set: `surfsynth eval DIR`).
+pub fn eval_summary(q: &crate::eval::Quality) -> String {
+    let opt = |x: Option<f64>| x.map_or("n/a".to_string(), |v| format!("{v:.3}"));
+    let scale = q.scale_fidelity.as_ref().map_or("n/a".to_string(), |s| {
+        format!("{:.3} (p10 {:.3}, p90 {:.3})", s.median, s.p10, s.p90)
+    });
+    format!(
+        "eval: coverage {:.3}, seam ratio {}, scale fidelity {scale}, coherent fraction {}",
+        q.coverage,
+        opt(q.seam_ratio),
+        opt(q.coherent_fraction)
+    )
 }
 
 #[cfg(test)]
