@@ -150,14 +150,14 @@ fn face_with_repeated_vertex() {
 
 #[test]
 fn face_with_two_vertices() {
-    bad_obj(&format!("{SQUARE_VERTS}f 1 2\n"), &["face 0", "at least 3"]);
+    bad_obj(&format!("{SQUARE_VERTS}f 1 2\n"), &["face 1 ", "at least 3"]);
 }
 
 #[test]
 fn out_of_range_index() {
     bad_obj(
         &format!("{SQUARE_VERTS}f 1 2 3 9\n"),
-        &["face 0", "only 4 vertices"],
+        &["face 1 refers to vertex 9", "only 4 vertices"],
     );
 }
 

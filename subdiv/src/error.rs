@@ -3,7 +3,8 @@
 
 use std::path::PathBuf;
 
-/// What is wrong with a control mesh.
+/// What is wrong with a control mesh. Fields are 0-based indices; messages count faces and
+/// vertices from 1, as OBJ files do (`f 1 2 3` names vertices 1, 2, 3).
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum MeshProblem {
     #[error("cannot read file: {0}")]
@@ -12,22 +13,23 @@ pub enum MeshProblem {
     Parse(String),
     #[error("mesh has zero faces")]
     NoFaces,
-    #[error("face {face} has {count} vertices; at least 3 are required")]
+    #[error("face {} has {count} vertices; at least 3 are required", face + 1)]
     TooFewVertices { face: usize, count: usize },
-    #[error("face {face} refers to vertex {vertex}, but the mesh has only {count} vertices")]
+    #[error("face {} refers to vertex {}, but the mesh has only {count} vertices", face + 1, vertex + 1)]
     IndexOutOfRange {
         face: usize,
         vertex: usize,
         count: usize,
     },
-    #[error("face {face} repeats vertex {vertex}")]
+    #[error("face {} repeats vertex {}", face + 1, vertex + 1)]
     RepeatedVertex { face: usize, vertex: usize },
-    #[error("vertex {vertex} has a non-finite coordinate")]
+    #[error("vertex {} has a non-finite coordinate", vertex + 1)]
     NonFiniteCoordinate { vertex: usize },
-    #[error("non-manifold edge ({a}, {b}): shared by 3 or more faces (face {face} is the third)")]
+    #[error("non-manifold edge ({}, {}): shared by 3 or more faces (face {} is the third)", a + 1, b + 1, face + 1)]
     NonManifoldEdge { a: usize, b: usize, face: usize },
     #[error(
-        "inconsistent face orientation: faces {face_a} and {face_b} both traverse edge ({a}, {b}) in the same direction"
+        "inconsistent face orientation: faces {} and {} both traverse edge ({}, {}) in the same direction",
+        face_a + 1, face_b + 1, a + 1, b + 1
     )]
     InconsistentOrientation {
         a: usize,
@@ -35,9 +37,9 @@ pub enum MeshProblem {
         face_a: usize,
         face_b: usize,
     },
-    #[error("non-manifold vertex {vertex}: its faces form {fans} separate fans")]
+    #[error("non-manifold vertex {}: its faces form {fans} separate fans", vertex + 1)]
     NonManifoldVertex { vertex: usize, fans: usize },
-    #[error("vertex {vertex} has valence {valence}; at most {max} is supported")]
+    #[error("vertex {} has valence {valence}; at most {max} is supported", vertex + 1)]
     ValenceTooHigh {
         vertex: usize,
         valence: usize,

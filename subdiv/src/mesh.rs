@@ -70,12 +70,13 @@ impl ControlMesh {
                             ));
                         };
                         if zero_based < 0 || zero_based >= u32::MAX as i64 {
-                            return Err(MeshProblem::IndexOutOfRange {
-                                face,
-                                vertex: i.unsigned_abs() as usize,
-                                count: positions.len(),
-                            }
-                            .into());
+                            return Err(parse_err(
+                                lineno,
+                                format!(
+                                    "face {} refers to vertex {i}, which does not exist",
+                                    face + 1
+                                ),
+                            ));
                         }
                         face_verts.push(zero_based as u32);
                     }

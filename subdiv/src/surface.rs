@@ -62,8 +62,9 @@ enum Node {
         children: [u32; 4],
         corner_limit: [u32; 4],
     },
-    /// A local submesh whose face 0 is this node's quad, refined on demand.
-    Deep(u32),
+    /// Below the stored depth: refined on demand from the base mesh along the descent path
+    /// (nothing is stored, which keeps memory per extraordinary corner small).
+    Deep,
 }
 
 const NO_LIMIT: u32 = u32::MAX;
@@ -78,7 +79,6 @@ pub struct Surface {
     nodes: Vec<Node>,
     patches: Vec<BSplinePatch>,
     limits: Vec<(DVec3, DVec3)>,
-    deep: Vec<PolyMesh>,
     max_depth: u32,
     pub(crate) domain_start: Vec<u32>,
     pub(crate) domain_face: Vec<u32>,
@@ -90,13 +90,16 @@ impl Surface {
     }
 
     pub fn with_options(control: ControlMesh, opts: SurfaceOptions) -> Self {
+        // The descent path of a Deep evaluation is kept in a fixed array of 64.
+        let opts = SurfaceOptions {
+            max_depth: opts.max_depth.min(60),
+        };
         let base = refine(&control.mesh);
         let mut s = Surface {
             roots: Vec::with_capacity(base.num_faces()),
             nodes: Vec::new(),
             patches: Vec::with_capacity(base.num_faces()),
             limits: Vec::new(),
-            deep: Vec::new(),
             max_depth: opts.max_depth,
             domain_start: Vec::new(),
             domain_face: Vec::new(),
@@ -134,11 +137,10 @@ impl Surface {
 
     /// Appends a chunk's trees, shifting its indices past what is already stored.
     fn append(&mut self, a: Arena) {
-        let (n0, p0, l0, d0) = (
+        let (n0, p0, l0) = (
             self.nodes.len() as u32,
             self.patches.len() as u32,
             self.limits.len() as u32,
-            self.deep.len() as u32,
         );
         self.roots.extend(a.roots.iter().map(|r| r + n0));
         self.nodes.extend(a.nodes.into_iter().map(|n| match n {
@@ -150,11 +152,10 @@ impl Surface {
                 children: children.map(|c| c + n0),
                 corner_limit: corner_limit.map(|l| if l == NO_LIMIT { l } else { l + l0 }),
             },
-            Node::Deep(i) => Node::Deep(i + d0),
+            Node::Deep => Node::Deep,
         }));
         self.patches.extend(a.patches);
         self.limits.extend(a.limits);
-        self.deep.extend(a.deep);
     }
 
     pub fn num_base_quads(&self) -> usize {
@@ -168,6 +169,9 @@ impl Surface {
         let (mut s, mut t) = (s0, t0);
         // jac maps base (s,t) differentials to local ones: d(local) = jac * d(base).
         let mut jac = [[1.0f64, 0.0], [0.0, 1.0]];
+        // Child corners taken so far (to rebuild a Deep node's submesh).
+        let mut path = [0u8; 64];
+        let mut depth = 0;
         loop {
             match &self.nodes[node as usize] {
                 Node::Regular(i) => {
@@ -188,9 +192,15 @@ impl Surface {
                     (s, t) = to_child(c, s, t);
                     jac = mul_child(c, &jac);
                     node = children[c];
+                    path[depth] = c as u8;
+                    depth += 1;
                 }
-                Node::Deep(i) => {
-                    return self.eval_deep(&self.deep[*i as usize], s, t, jac);
+                Node::Deep => {
+                    let mut m = extract_submesh(&self.base, FaceId(b.0));
+                    for &c in &path[..depth] {
+                        m = extract_submesh(&refine(&m), FaceId::from_idx(c as usize));
+                    }
+                    return self.eval_deep(&m, s, t, jac);
                 }
             }
         }
@@ -203,7 +213,7 @@ impl Surface {
     /// refinement (at 1e-9 every call refined ~30 levels).
     fn at_extraordinary(&self, b: BaseQuadId, s0: f64, t0: f64, li: usize) -> LimitSample {
         let (p, n) = self.limits[li];
-        let eps = 0.5f64.powi(self.max_depth.max(1) as i32);
+        let eps = 0.5f64.powi(self.max_depth.max(6) as i32);
         let inward = |x: f64| if x < 0.5 { eps } else { 1.0 - eps };
         let q = self.eval_base(b, inward(s0), inward(t0));
         let du = (q.du - n * n.dot(q.du)).normalize_or_zero();
@@ -274,7 +284,6 @@ struct Arena {
     nodes: Vec<Node>,
     patches: Vec<BSplinePatch>,
     limits: Vec<(DVec3, DVec3)>,
-    deep: Vec<PolyMesh>,
 }
 
 impl Arena {
@@ -286,11 +295,10 @@ impl Arena {
                 return self.push(Node::Regular(self.patches.len() as u32 - 1));
             }
         }
-        let sub = extract_submesh(m, q);
         if depth >= max_depth {
-            self.deep.push(sub);
-            return self.push(Node::Deep(self.deep.len() as u32 - 1));
+            return self.push(Node::Deep);
         }
+        let sub = extract_submesh(m, q);
         let mut corner_limit = [NO_LIMIT; 4];
         for (i, &v) in corners.iter().enumerate() {
             if !m.is_regular_vertex(v) {
@@ -440,6 +448,34 @@ pub(crate) fn extract_submesh(m: &PolyMesh, q: FaceId) -> PolyMesh {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Points below the stored depth are refined on demand from the base mesh: a tree
+    /// stored to depth 1 must give exactly what a tree stored to depth 10 gives.
+    #[test]
+    fn on_demand_levels_match_stored_levels() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../shared/data/opensubdiv-reference");
+        for shape in ["catmark_nonquads", "catmark_edgecorner", "catmark_pole8"] {
+            let cm = crate::ControlMesh::load_obj(dir.join(format!("{shape}.obj"))).unwrap();
+            let shallow = Surface::with_options(cm.clone(), SurfaceOptions { max_depth: 1 });
+            let deep = Surface::with_options(cm, SurfaceOptions { max_depth: 10 });
+            for b in 0..deep.num_base_quads() {
+                for &(s, t) in &[
+                    (0.3, 0.01),
+                    (1e-3, 2e-3),
+                    (0.999, 0.9995),
+                    (0.0, 0.0),
+                    (1.0, 1.0),
+                    (0.02, 0.97),
+                ] {
+                    let a = shallow.eval_base(BaseQuadId(b as u32), s, t);
+                    let d = deep.eval_base(BaseQuadId(b as u32), s, t);
+                    assert_eq!(a.p, d.p, "{shape} base {b} ({s},{t})");
+                    assert_eq!(a.n, d.n, "{shape} base {b} ({s},{t})");
+                }
+            }
+        }
+    }
 
     #[test]
     fn child_maps_invert() {
