@@ -121,15 +121,39 @@ impl PolyMesh {
         // Pair half-edges by sorting (min vertex, max vertex, half-edge): cheaper than a hash
         // map for the many tiny submeshes of the patch trees, and within one edge the
         // half-edges stay in input order, so errors name the same faces either way.
+        // (Indices are validated before this in strict mode.)
         let nh = self.he_vert.len();
-        let mut keys: Vec<(u32, u32, u32)> = (0..nh as u32)
-            .map(|h| {
-                let a = self.he_vert[h as usize];
-                let b = self.dest_raw(h);
-                (a.min(b), a.max(b), h)
-            })
-            .collect();
-        keys.sort_unstable();
+        let nv = self.positions.len();
+        // Counting sort by the smaller vertex (buckets are valence-sized), then a small
+        // insertion sort by (larger vertex, half-edge) inside each bucket: linear overall.
+        let mut start = vec![0u32; nv + 1];
+        for h in 0..nh as u32 {
+            let a = self.he_vert[h as usize];
+            let b = self.dest_raw(h);
+            start[a.min(b) as usize + 1] += 1;
+        }
+        for i in 0..nv {
+            start[i + 1] += start[i];
+        }
+        let mut fill = start.clone();
+        let mut keys: Vec<(u32, u32, u32)> = vec![(0, 0, 0); nh];
+        for h in 0..nh as u32 {
+            let a = self.he_vert[h as usize];
+            let b = self.dest_raw(h);
+            let lo = a.min(b) as usize;
+            keys[fill[lo] as usize] = (lo as u32, a.max(b), h);
+            fill[lo] += 1;
+        }
+        for v in 0..nv {
+            let bucket = &mut keys[start[v] as usize..start[v + 1] as usize];
+            for i in 1..bucket.len() {
+                let mut j = i;
+                while j > 0 && (bucket[j - 1].1, bucket[j - 1].2) > (bucket[j].1, bucket[j].2) {
+                    bucket.swap(j - 1, j);
+                    j -= 1;
+                }
+            }
+        }
         // Edges are numbered in order of their first half-edge, as a scan would meet them.
         let mut first_of_edge: Vec<u32> = Vec::with_capacity(nh / 2 + 8);
         let strict = check == Check::Strict;
@@ -169,10 +193,17 @@ impl PolyMesh {
             }
             i = j;
         }
-        first_of_edge.sort_unstable();
-        self.edge_he = first_of_edge;
-        for (e, &g) in self.edge_he.iter().enumerate() {
-            self.he_edge[g as usize] = e as u32;
+        // Number edges by their first half-edge in input order (a scan, not a sort).
+        let mut is_first = vec![false; nh];
+        for &g in &first_of_edge {
+            is_first[g as usize] = true;
+        }
+        self.edge_he = Vec::with_capacity(first_of_edge.len());
+        for (h, &first) in is_first.iter().enumerate() {
+            if first {
+                self.he_edge[h] = self.edge_he.len() as u32;
+                self.edge_he.push(h as u32);
+            }
         }
         for h in 0..nh {
             if self.he_edge[h] == NONE {
