@@ -32,14 +32,17 @@ const WHOLE_DOMAIN_MAX_N: usize = 512;
 /// The surface stores its patch trees around extraordinary vertices down to a fixed depth
 /// and refines deeper on demand (exact either way). A texel centre is at least 1/(2N) of a
 /// domain away from a corner, i.e. 1/N of a base quad, so depth ceil(log2 N) + 1 already
-/// reaches a regular leaf for every texel; the default (8) stores levels that N <= 128
-/// never visits, which on triangle meshes (every base quad has an extraordinary corner) is
-/// most of the surface's memory. Capped at the default so large N behaves as before.
+/// reaches a regular leaf for every texel, and no level that no texel visits is stored
+/// (on triangle meshes, where every base quad has an extraordinary corner, those levels
+/// would be most of the surface's memory). Capped at [`MAX_PATCH_DEPTH`]: beyond N = 512
+/// the few texels nearest extraordinary vertices are refined on demand (still exact).
 pub fn patch_depth_for(n: usize) -> u32 {
-    let default = subdiv::surface::SurfaceOptions::default().max_depth;
     let log2 = usize::BITS - n.max(1).saturating_sub(1).leading_zeros();
-    (log2 + 1).clamp(1, default)
+    (log2 + 1).clamp(1, MAX_PATCH_DEPTH)
 }
+
+/// Deepest patch tree `bake` stores (enough for every texel centre up to N = 512).
+pub const MAX_PATCH_DEPTH: u32 = 10;
 
 /// Loads a control mesh and builds its surface with the patch depth `n` needs.
 pub fn load_surface_for(path: impl AsRef<Path>, n: usize) -> Result<Surface> {
@@ -243,7 +246,7 @@ mod tests {
     fn shallow_patch_trees_give_bit_identical_texels() {
         assert_eq!(
             [1, 2, 3, 4, 8, 16, 17, 32, 128, 129, 8192].map(patch_depth_for),
-            [1, 2, 3, 3, 4, 5, 6, 6, 8, 8, 8]
+            [1, 2, 3, 3, 4, 5, 6, 6, 8, 9, 10]
         );
         // A triangle and a pentagon next to quads: every kind of extraordinary corner.
         let p = [
