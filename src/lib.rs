@@ -15,6 +15,7 @@ pub mod example;
 pub mod field;
 pub mod io;
 pub mod maps;
+pub mod memory;
 pub mod probe;
 pub mod progress;
 pub mod pyramid;

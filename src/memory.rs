@@ -1,0 +1,481 @@
+//! Memory guard: estimate the peak memory of a `synth` or `bake` run before the large
+//! allocations, and refuse (one line, with the estimate and the limit) when it is above the
+//! limit, instead of being killed by the kernel half-way through or swapping the machine
+//! to a halt.
+//!
+//! The limit is `--max-memory` (e.g. `512M`, `4G`; see [`parse_size`]) or, by default, 75%
+//! of the physical memory (`MemTotal` in /proc/meminfo, or the cgroup's memory limit when
+//! that is lower). It is process-wide ([`set_limit`]): the command line sets it once, and
+//! library users may set it too (`set_limit(Some(u64::MAX))` turns the guard off).
+//!
+//! The estimate is a sum of parts, each a count times a per-item cost measured on the
+//! release build (docs/robustness.md has the table of estimates against measured VmHWM):
+//!
+//! - the subdivision surface, from the control mesh alone (base quads, and those touching
+//!   an extraordinary vertex, whose patch trees grow with the stored depth);
+//! - `synth`: the orientation field's limit mesh (at most 400,000 faces), per texel
+//!   `domains x N²` x (fixed overhead + 4 bytes x channels) — positions, normals, frames,
+//!   the neighbourhood graph, source positions, both map sets, the atlas — plus the border
+//!   texels' neighbour lists, plus the example;
+//! - `bake`: only the tiles in flight (two batches, see [`crate::io::exr::write_tiles`]) and
+//!   the per-thread scratch: the maps are streamed, never held whole.
+//!
+//! The check runs after the control mesh is parsed and before the surface is built, so
+//! nothing large has been allocated yet when it refuses.
+
+use crate::error::{Error, Result};
+use std::path::Path;
+use std::sync::atomic::{AtomicU64, Ordering};
+use subdiv::{ControlMesh, FaceId, Surface, VertexId};
+
+/// Share of physical memory used as the default limit.
+pub const DEFAULT_FRACTION: f64 = 0.75;
+
+/// Process baseline: binary, thread stacks, allocator arenas (measured: 5–7 MB for a
+/// one-quad bake).
+const BASELINE: u64 = 8 << 20;
+/// Surface cost of a base quad whose four corners are regular (one bicubic patch, its
+/// node, the control mesh's share).
+const REGULAR_QUAD: u64 = 700;
+/// Surface cost of a base quad at an extraordinary vertex, per stored patch-tree level,
+/// and its cap (measured on a triangle mesh: 2 KB at depth 1, 10–13 KB at depth 3–4,
+/// 16.5 KB at depth 6–7, including the transient copy of the parallel build).
+const IRREGULAR_QUAD_PER_LEVEL: u64 = 4 << 10;
+const IRREGULAR_QUAD_MAX: u64 = 18 << 10;
+/// Orientation field: per face of its limit mesh (positions, normals, locations, the
+/// solver's arrays), measured 340–440 B.
+const FIELD_FACE: u64 = 440;
+/// `synth`, per texel, besides 4 bytes per map channel: position + normal (24), frames,
+/// graph starts, source positions, geometry maps (24), atlas and tessellation shares,
+/// and the transient copies of the stages (measured slope: 118–136 B/texel at 5 channels).
+const SYNTH_TEXEL: u64 = 112;
+/// `synth`, per border texel (4N per domain): its neighbour list across the face edges.
+const SYNTH_BORDER_TEXEL: u64 = 128;
+/// `synth`, per example pixel: decoded image, linear copy, alpha/height.
+const EXAMPLE_PIXEL: u64 = 64;
+/// `bake`: geometry channels and the per-texel scratch of a whole-domain evaluation
+/// (`subdiv::LimitSample`, four f64 vectors), used up to N = 512.
+const BAKE_CHANNELS: u64 = 6;
+const LIMIT_SAMPLE: u64 = 96;
+const BAKE_WHOLE_DOMAIN_MAX_N: u64 = 512;
+
+static LIMIT: AtomicU64 = AtomicU64::new(0);
+
+/// Sets the process-wide limit in bytes (`None`: back to the default).
+pub fn set_limit(bytes: Option<u64>) {
+    LIMIT.store(bytes.map_or(0, |b| b.max(1)), Ordering::SeqCst);
+}
+
+/// The limit in force and where it comes from (for messages).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Limit {
+    pub bytes: u64,
+    /// "--max-memory 512 MiB", "75% of physical memory (31.3 GiB)" or "none".
+    pub source: String,
+}
+
+/// The limit in force: [`set_limit`]'s value, or 75% of [`physical_memory`].
+pub fn limit() -> Limit {
+    match LIMIT.load(Ordering::SeqCst) {
+        0 => match physical_memory() {
+            Some(p) => Limit {
+                bytes: (p as f64 * DEFAULT_FRACTION) as u64,
+                source: format!(
+                    "75% of physical memory ({}; set --max-memory to change)",
+                    format_bytes(p)
+                ),
+            },
+            None => Limit {
+                bytes: u64::MAX,
+                source: "none (physical memory unknown)".into(),
+            },
+        },
+        u64::MAX => Limit {
+            bytes: u64::MAX,
+            source: "none".into(),
+        },
+        b => Limit {
+            bytes: b,
+            source: format!("--max-memory {}", format_bytes(b)),
+        },
+    }
+}
+
+/// Physical memory in bytes: `MemTotal` from /proc/meminfo, lowered to the cgroup's
+/// memory limit (v2 `memory.max`, v1 `memory.limit_in_bytes`) when there is one. `None`
+/// when neither can be read (not Linux).
+pub fn physical_memory() -> Option<u64> {
+    let total = std::fs::read_to_string("/proc/meminfo")
+        .ok()
+        .and_then(|s| meminfo_total(&s));
+    let cgroup = [
+        "/sys/fs/cgroup/memory.max",
+        "/sys/fs/cgroup/memory/memory.limit_in_bytes",
+    ]
+    .iter()
+    .filter_map(|p| std::fs::read_to_string(p).ok())
+    .filter_map(|s| s.trim().parse::<u64>().ok())
+    .find(|&b| b > 0);
+    match (total, cgroup) {
+        (Some(t), Some(c)) => Some(t.min(c)),
+        (t, c) => t.or(c),
+    }
+}
+
+/// `MemTotal:  24573892 kB` → bytes.
+fn meminfo_total(s: &str) -> Option<u64> {
+    let line = s.lines().find(|l| l.starts_with("MemTotal:"))?;
+    let mut it = line.split_whitespace().skip(1);
+    let v: u64 = it.next()?.parse().ok()?;
+    let unit = match it.next() {
+        None => 1,
+        Some(u) if u.eq_ignore_ascii_case("kb") => 1024,
+        Some(_) => return None,
+    };
+    v.checked_mul(unit)
+}
+
+/// Parses a memory size: a number with an optional unit K, M, G or T (powers of 1024;
+/// `KB`/`KiB`, `MB`/`MiB`, ... mean the same; case does not matter; `B` or nothing means
+/// bytes). Decimals are allowed (`1.5G`). `unlimited` or `none` turn the guard off
+/// (`u64::MAX`). Zero and negative sizes are refused.
+pub fn parse_size(s: &str) -> std::result::Result<u64, String> {
+    let t = s.trim();
+    let lower = t.to_ascii_lowercase();
+    if lower == "unlimited" || lower == "none" {
+        return Ok(u64::MAX);
+    }
+    let split = lower
+        .find(|c: char| !(c.is_ascii_digit() || c == '.'))
+        .unwrap_or(lower.len());
+    let (num, unit) = lower.split_at(split);
+    let shift = match unit.trim() {
+        "" | "b" => 0,
+        "k" | "kb" | "kib" => 10,
+        "m" | "mb" | "mib" => 20,
+        "g" | "gb" | "gib" => 30,
+        "t" | "tb" | "tib" => 40,
+        _ => {
+            return Err(format!(
+                "'{s}' is not a memory size: use a number with K, M, G or T (e.g. 512M, 4G) or 'unlimited'"
+            ))
+        }
+    };
+    let v: f64 = num.parse().map_err(|_| {
+        format!("'{s}' is not a memory size: use a number with K, M, G or T (e.g. 512M, 4G) or 'unlimited'")
+    })?;
+    let bytes = v * (1u64 << shift) as f64;
+    if !(bytes >= 1.0) {
+        return Err(format!("'{s}': the memory limit must be at least 1 byte"));
+    }
+    if bytes >= u64::MAX as f64 {
+        return Err(format!("'{s}' is too large a memory size"));
+    }
+    Ok(bytes as u64)
+}
+
+/// Bytes in binary units with one decimal: "512.0 MiB", "4.2 GiB".
+pub fn format_bytes(b: u64) -> String {
+    const UNITS: [&str; 6] = ["B", "KiB", "MiB", "GiB", "TiB", "PiB"];
+    let mut v = b as f64;
+    let mut u = 0;
+    while v >= 1024.0 && u + 1 < UNITS.len() {
+        v /= 1024.0;
+        u += 1;
+    }
+    if u == 0 {
+        format!("{b} B")
+    } else {
+        format!("{v:.1} {}", UNITS[u])
+    }
+}
+
+/// What the estimate needs to know about a control mesh.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct MeshSize {
+    /// Ptex face domains.
+    pub domains: usize,
+    /// Base quads (level-1 faces): the sum of the face sizes.
+    pub base_quads: usize,
+    /// Base quads with a corner at an extraordinary vertex: every base quad of an n-gon
+    /// (n != 4; its face point is extraordinary) and those at irregular control vertices.
+    pub irregular_base_quads: usize,
+}
+
+impl MeshSize {
+    pub fn of(control: &ControlMesh) -> Self {
+        let m = &control.mesh;
+        let (mut base, mut irregular) = (0usize, 0usize);
+        for f in 0..m.num_faces() {
+            let vs = m.face_vertices(FaceId::from_idx(f));
+            base += vs.len();
+            if vs.len() != 4 {
+                irregular += vs.len();
+            } else {
+                irregular += vs
+                    .iter()
+                    .filter(|&&v| !m.is_regular_vertex(VertexId(v)))
+                    .count();
+            }
+        }
+        Self {
+            domains: control.num_domains(),
+            base_quads: base,
+            irregular_base_quads: irregular,
+        }
+    }
+}
+
+/// The run being estimated.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Job {
+    /// `synth`: `channels` of facemaps.exr (R G B [A] [height] source.u source.v) from an
+    /// example of `example_pixels` pixels.
+    Synth {
+        channels: usize,
+        example_pixels: usize,
+    },
+    /// `bake` on `threads` worker threads.
+    Bake { threads: usize },
+}
+
+impl Job {
+    fn name(&self) -> &'static str {
+        match self {
+            Job::Synth { .. } => "synth",
+            Job::Bake { .. } => "bake",
+        }
+    }
+}
+
+/// An estimate of peak memory, with the parts it is made of.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Estimate {
+    pub bytes: u64,
+    /// (part, bytes), largest first.
+    pub parts: Vec<(&'static str, u64)>,
+    /// "252 domains x 64² texels x 5 channels".
+    pub shape: String,
+}
+
+/// Faces of the orientation field's limit mesh: the finest level in 1..=max_level with at
+/// most max_faces faces (as `field::OrientationField::compute` chooses it).
+pub fn field_faces(base_quads: usize) -> u64 {
+    let o = crate::field::FieldOptions::default();
+    let at = |l: u32| (base_quads as u64) << (2 * (l - 1));
+    let mut l = 1;
+    while l < o.max_level.max(1) && at(l + 1) <= o.max_faces as u64 {
+        l += 1;
+    }
+    at(l)
+}
+
+/// Peak-memory estimate of `job` on a mesh of `size` at resolution `n`.
+pub fn estimate(size: &MeshSize, n: usize, job: &Job) -> Estimate {
+    let sat = |a: u64, b: u64| a.saturating_mul(b);
+    let n64 = n as u64;
+    let domains = size.domains as u64;
+    let texels = sat(domains, sat(n64, n64));
+    let depth = crate::bake::patch_depth_for(n) as u64;
+    let irregular = size.irregular_base_quads as u64;
+    let surface = sat(
+        (size.base_quads as u64).saturating_sub(irregular),
+        REGULAR_QUAD,
+    )
+    .saturating_add(sat(
+        irregular,
+        (IRREGULAR_QUAD_PER_LEVEL * depth).min(IRREGULAR_QUAD_MAX),
+    ));
+    let mut parts = vec![("process", BASELINE), ("surface", surface)];
+    let channels = match *job {
+        Job::Synth {
+            channels,
+            example_pixels,
+        } => {
+            parts.push(("orientation field", sat(field_faces(size.base_quads), FIELD_FACE)));
+            parts.push((
+                "texel maps",
+                sat(texels, SYNTH_TEXEL + 4 * channels as u64),
+            ));
+            parts.push((
+                "neighbour lists",
+                sat(sat(domains, 4 * n64), SYNTH_BORDER_TEXEL),
+            ));
+            parts.push(("example", sat(example_pixels as u64, EXAMPLE_PIXEL)));
+            channels
+        }
+        Job::Bake { threads } => {
+            let threads = threads.max(1) as u64;
+            let tile = sat(BAKE_CHANNELS * 4, sat(n64, n64));
+            // As io::exr::write_tiles: batches of ~32 MiB, at least one tile per thread;
+            // two batches in flight, each tile as f32 buffer, interleaved block and chunk.
+            let batch = ((32u64 << 20) / tile.max(1)).clamp(threads, 4096);
+            let in_flight = (2 * batch).min(domains.max(1));
+            parts.push(("tiles in flight", sat(sat(in_flight, tile), 3)));
+            if n64 <= BAKE_WHOLE_DOMAIN_MAX_N {
+                parts.push(("evaluation scratch", sat(threads, sat(n64 * n64, LIMIT_SAMPLE))));
+            }
+            BAKE_CHANNELS as usize
+        }
+    };
+    parts.sort_by(|a, b| b.1.cmp(&a.1));
+    let bytes = parts.iter().fold(0u64, |s, p| s.saturating_add(p.1));
+    Estimate {
+        bytes,
+        parts,
+        shape: format!("{} domains x {n}² texels x {channels} channels", size.domains),
+    }
+}
+
+/// Refuses `estimate` when it is above the limit in force: one line naming `what` (the
+/// mesh file), the estimate, its largest part and the limit.
+pub fn check(what: &str, n: usize, job: &Job, e: &Estimate) -> Result<()> {
+    let lim = limit();
+    if e.bytes <= lim.bytes {
+        return Ok(());
+    }
+    let (part, part_bytes) = e.parts.first().copied().unwrap_or(("total", e.bytes));
+    Err(Error::invalid(format!(
+        "{what}: {} at --resolution {n} would need about {} of memory (estimate; {}; largest part: {part} {}), more than the limit of {} from {}; lower --resolution or raise --max-memory",
+        job.name(),
+        format_bytes(e.bytes),
+        e.shape,
+        format_bytes(part_bytes),
+        format_bytes(lim.bytes),
+        lim.source,
+    )))
+}
+
+/// Reads the control mesh at `path`, checks the estimate of `job` at resolution `n`
+/// against the limit, and only then builds the surface (with the patch depth `n` needs,
+/// as [`crate::bake::load_surface_for`]).
+pub fn load_surface_checked(path: impl AsRef<Path>, n: usize, job: &Job) -> Result<Surface> {
+    let path = path.as_ref();
+    let control = ControlMesh::load_obj(path)?;
+    let e = estimate(&MeshSize::of(&control), n, job);
+    check(&path.display().to_string(), n, job, &e)?;
+    Ok(Surface::with_options(
+        control,
+        subdiv::surface::SurfaceOptions {
+            max_depth: crate::bake::patch_depth_for(n),
+        },
+    ))
+}
+
+/// [`check`] for a surface that is already built (in-memory inputs).
+pub fn check_surface(surface: &Surface, n: usize, job: &Job) -> Result<()> {
+    let what = surface
+        .control
+        .path
+        .as_ref()
+        .map(|p| p.display().to_string())
+        .unwrap_or_else(|| "<in-memory mesh>".into());
+    check(&what, n, job, &estimate(&MeshSize::of(&surface.control), n, job))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sizes_parse() {
+        assert_eq!(parse_size("512M"), Ok(512 << 20));
+        assert_eq!(parse_size("4G"), Ok(4 << 30));
+        assert_eq!(parse_size("4g"), Ok(4 << 30));
+        assert_eq!(parse_size("4GiB"), Ok(4 << 30));
+        assert_eq!(parse_size("4 GB"), Ok(4 << 30));
+        assert_eq!(parse_size("1.5K"), Ok(1536));
+        assert_eq!(parse_size("1000"), Ok(1000));
+        assert_eq!(parse_size("2T"), Ok(2 << 40));
+        assert_eq!(parse_size("unlimited"), Ok(u64::MAX));
+        for bad in ["0", "0M", "-1G", "lots", "", "G", "1.2.3M", "5Q", "nan", "1e30T"] {
+            assert!(parse_size(bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn bytes_format() {
+        assert_eq!(format_bytes(12), "12 B");
+        assert_eq!(format_bytes(512 << 20), "512.0 MiB");
+        assert_eq!(format_bytes(3 << 29), "1.5 GiB");
+        assert_eq!(format_bytes(u64::MAX), "16384.0 PiB");
+    }
+
+    #[test]
+    fn meminfo_parses() {
+        let s = "MemTotal:       24573892 kB\nMemFree:        1 kB\n";
+        assert_eq!(meminfo_total(s), Some(24573892 * 1024));
+        assert_eq!(meminfo_total("nothing"), None);
+        assert!(physical_memory().unwrap_or(1) > 0);
+    }
+
+    fn grid(k: usize) -> ControlMesh {
+        let mut pos = Vec::new();
+        for j in 0..=k {
+            for i in 0..=k {
+                pos.push(glam::DVec3::new(i as f64, j as f64, 0.0));
+            }
+        }
+        let id = |i: usize, j: usize| (j * (k + 1) + i) as u32;
+        let faces: Vec<Vec<u32>> = (0..k)
+            .flat_map(|j| {
+                (0..k).map(move |i| vec![id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1)])
+            })
+            .collect();
+        let refs: Vec<&[u32]> = faces.iter().map(|f| f.as_slice()).collect();
+        ControlMesh::from_faces(pos, &refs).unwrap()
+    }
+
+    #[test]
+    fn mesh_size_counts_irregular_quads() {
+        // A 3x3 quad grid: boundary vertices with 3 faces do not exist; every vertex is
+        // regular (corners 1 face, edges 2, interior 4).
+        let s = MeshSize::of(&grid(3));
+        assert_eq!(s, MeshSize { domains: 9, base_quads: 36, irregular_base_quads: 0 });
+        // A triangle: 3 domains, 3 base quads, all at the extraordinary face point.
+        let tri = ControlMesh::parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+        let s = MeshSize::of(&tri);
+        assert_eq!(s, MeshSize { domains: 3, base_quads: 3, irregular_base_quads: 3 });
+    }
+
+    #[test]
+    fn estimate_grows_with_resolution_and_channels() {
+        let s = MeshSize::of(&grid(4));
+        let job = |c| Job::Synth { channels: c, example_pixels: 128 * 128 };
+        let a = estimate(&s, 32, &job(5));
+        let b = estimate(&s, 64, &job(5));
+        let c = estimate(&s, 64, &job(7));
+        assert!(b.bytes > a.bytes && c.bytes > b.bytes);
+        // The texel part at N = 64: 16 domains x 4096 texels x (112 + 20) bytes.
+        let texel_part = b.parts.iter().find(|p| p.0 == "texel maps").unwrap().1;
+        assert_eq!(texel_part, 16 * 4096 * (SYNTH_TEXEL + 20));
+        assert!(b.shape.contains("16 domains x 64² texels x 5 channels"), "{}", b.shape);
+        // Absurd sizes saturate instead of overflowing.
+        let huge = estimate(&MeshSize { domains: usize::MAX, ..s }, 1 << 20, &job(5));
+        assert_eq!(huge.bytes, u64::MAX);
+        // Bake holds only a bounded number of tiles, however many domains.
+        let bake = |d: usize| {
+            estimate(&MeshSize { domains: d, ..s }, 16, &Job::Bake { threads: 2 }).bytes
+        };
+        assert_eq!(bake(100_000), bake(1_000_000));
+    }
+
+    #[test]
+    fn refusal_is_one_line_with_estimate_and_limit() {
+        let s = MeshSize::of(&grid(4));
+        let job = Job::Bake { threads: 2 };
+        let e = estimate(&s, 4096, &job);
+        // Limit below the estimate (set and restored within this test only: the other
+        // tests in this module do not call `check`).
+        set_limit(Some(1 << 20));
+        let msg = check("m.obj", 4096, &job, &e).unwrap_err().to_string();
+        set_limit(None);
+        assert!(!msg.contains('\n'), "{msg}");
+        assert!(msg.starts_with("m.obj: bake at --resolution 4096 would need about "), "{msg}");
+        assert!(msg.contains(&format_bytes(e.bytes)), "{msg}");
+        assert!(msg.contains("limit of 1.0 MiB from --max-memory 1.0 MiB"), "{msg}");
+        set_limit(Some(u64::MAX));
+        assert!(check("m.obj", 4096, &job, &e).is_ok());
+        set_limit(None);
+    }
+}
