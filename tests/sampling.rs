@@ -39,22 +39,7 @@ fn pos(s: &Surface, l: &Option<DomainLocation>) -> Option<DVec3> {
 
 /// A planar n×n grid of unit quads at z = 0.
 fn grid(n: usize) -> Surface {
-    let mut p = Vec::new();
-    for y in 0..=n {
-        for x in 0..=n {
-            p.push(DVec3::new(x as f64, y as f64, 0.0));
-        }
-    }
-    let w = (n + 1) as u32;
-    let mut faces = Vec::new();
-    for y in 0..n as u32 {
-        for x in 0..n as u32 {
-            let i = y * w + x;
-            faces.push(vec![i, i + 1, i + 1 + w, i + w]);
-        }
-    }
-    let refs: Vec<&[u32]> = faces.iter().map(|f| f.as_slice()).collect();
-    Surface::new(ControlMesh::from_faces(p, &refs).unwrap())
+    Surface::new(ControlMesh::grid(n))
 }
 
 #[test]

@@ -140,22 +140,7 @@ mod tests {
     }
 
     fn grid(n: usize) -> Surface {
-        let mut pos = Vec::new();
-        for y in 0..=n {
-            for x in 0..=n {
-                pos.push(DVec3::new(x as f64, y as f64, 0.0));
-            }
-        }
-        let w = (n + 1) as u32;
-        let mut faces = Vec::new();
-        for y in 0..n as u32 {
-            for x in 0..n as u32 {
-                let i = y * w + x;
-                faces.push(vec![i, i + 1, i + 1 + w, i + w]);
-            }
-        }
-        let refs: Vec<&[u32]> = faces.iter().map(|f| f.as_slice()).collect();
-        Surface::new(ControlMesh::from_faces(pos, &refs).unwrap())
+        Surface::new(ControlMesh::grid(n))
     }
 
     #[test]

@@ -109,6 +109,29 @@ impl ControlMesh {
         Self::from_polygons(positions, fs, fv)
     }
 
+    /// A planar n x n grid of unit quads in the z = 0 plane, counter-clockwise seen from +z
+    /// (faces row by row from the origin). Handy as a flat test surface: away from its
+    /// border the limit surface is exactly the plane with (u, v) affine.
+    pub fn grid(n: usize) -> Self {
+        let mut pos = Vec::with_capacity((n + 1) * (n + 1));
+        for y in 0..=n {
+            for x in 0..=n {
+                pos.push(DVec3::new(x as f64, y as f64, 0.0));
+            }
+        }
+        let w = (n + 1) as u32;
+        let mut fs = vec![0u32];
+        let mut fv = Vec::with_capacity(4 * n * n);
+        for y in 0..n as u32 {
+            for x in 0..n as u32 {
+                let i = y * w + x;
+                fv.extend([i, i + 1, i + 1 + w, i + w]);
+                fs.push(fv.len() as u32);
+            }
+        }
+        Self::from_polygons(pos, fs, fv).expect("a grid is a valid mesh")
+    }
+
     /// Number of Ptex face domains: 1 per quad, n per n-gon.
     pub fn num_domains(&self) -> usize {
         (0..self.mesh.num_faces())
