@@ -16,6 +16,7 @@ pub mod field;
 pub mod io;
 pub mod maps;
 pub mod memory;
+pub mod multiscale;
 pub mod probe;
 pub mod progress;
 pub mod pyramid;

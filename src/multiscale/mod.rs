@@ -1,0 +1,909 @@
+//! Multiscale synthesis on the surface (paper 000 §4, after Wei & Levoy), with ANN or
+//! k-coherence search (paper 003 §5.2).
+//!
+//! **Levels.** Synthesis level `i` pairs example pyramid level `j0 + i` (pixel length
+//! `S·2^(j0+i)` on the surface, S = `--scale`) with face maps of `R_i` texels per side,
+//! chosen so that one texel covers about one example pixel of that level:
+//! `R_i = round(N·h / (S·2^(j0+i)))` (N = `--resolution`, h = median texel spacing at N).
+//! `j0 = max(0, round(log2(h / S)))` skips example levels finer than the output texels can
+//! show (a texture scaled down). Levels stop when the example's shorter side would drop
+//! below 16 pixels or a domain below 2x2 texels. With the default scale (S = h) this is the
+//! plain pyramid: `R_i = N / 2^i`, example level `i`, sampling step δ_i = h·2^i — the step
+//! doubles per level. `docs/multiscale.md` has worked examples.
+//!
+//! **Coarsest level**: domains in breadth-first order, texels in scan-line order;
+//! neighbourhoods marched on the surface (000 §4.1; patterns do not fit charts at coarse
+//! levels); exhaustive search under the Gaussian-weighted l2 over the generated samples,
+//! fetched with the paper's rule (bilinear when all four texels are generated, the nearest
+//! generated one when some are, skipped when none are).
+//!
+//! **Finer levels**, two passes: pass 1 matches the 5x5 block of the coarser level only
+//! (every texel independent); pass 2 refines with the 9x9 block of the level plus the same
+//! 5x5 coarser block, in scan-line order inside each domain. Patterns inside a domain use
+//! the domain as the chart; patterns crossing edges use the vertex charts (which march where
+//! no chart fits) — see [`level::pattern`].
+//!
+//! **Output**: each texel copies the centre pixel of the chosen example neighbourhood, and
+//! its source position is recorded. When the finest synthesis level is not the output
+//! resolution (`--scale` different from h), output texels continue the patch of the nearest
+//! synthesized texel: source = its source + the tangent offset / S, the continuation rule of
+//! coherent synthesis (000 §5).
+//!
+//! **Determinism**: random choices hash (seed, level, pass, texel). Domains run in the
+//! waves of [`crate::synth::schedule`]; a domain reads other domains as they were when its
+//! wave started and its own texels as it writes them ([`level::View`]), so results are
+//! bit-identical for any thread count.
+
+pub mod displace;
+pub mod level;
+
+use crate::error::{Error, Result};
+use crate::example::Example;
+use crate::field::OrientationField;
+use crate::pyramid::{levels_for, Image};
+use crate::sampling::{Sampler, SamplerKind, SamplerStats};
+use crate::search::model::{ExampleModel, Method, ModelParams, Pass, Scratch};
+use crate::search::{hash, pick, Prepared, Query};
+use crate::synth::schedule::Schedule;
+use level::{nearest_texel, pattern, LevelGeometry, Own, PatternStats, View};
+use rayon::prelude::*;
+use serde::Serialize;
+use std::time::Instant;
+use subdiv::{DomainLocation, Surface};
+
+/// Smallest example side at the coarsest synthesis level.
+pub const MIN_EXAMPLE_SIDE: usize = 16;
+/// Smallest face-map side at the coarsest synthesis level ("down to a size where domains are
+/// a few texels"; measured: stopping at 4 instead of 2 lost the large-scale layout at N = 12,
+/// seam ratio 1.56 instead of 0.81 on Blub with the leopard example).
+pub const MIN_RESOLUTION: usize = 2;
+
+/// Settings of multiscale synthesis.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MultiscaleParams {
+    /// Neighbourhood sizes and search method.
+    pub model: ModelParams,
+    /// At most this many levels (0: as many as fit).
+    pub max_levels: usize,
+    /// Spacing tolerance of vertex-chart patterns ([`Sampler::with_tolerance`]); `None`
+    /// accepts every pattern that fits a chart, as the paper does.
+    pub sampler_tolerance: Option<f64>,
+}
+
+impl Default for MultiscaleParams {
+    fn default() -> Self {
+        Self {
+            model: ModelParams::default(),
+            max_levels: 0,
+            sampler_tolerance: Some(crate::sampling::DEFAULT_TOLERANCE),
+        }
+    }
+}
+
+/// What the synthesizer needs besides the example.
+#[derive(Clone, Copy)]
+pub struct Inputs<'a> {
+    pub surface: &'a Surface,
+    pub field: &'a OrientationField,
+    /// Output texels per domain side (N).
+    pub resolution: usize,
+    /// Median texel spacing at N (h).
+    pub spacing: f64,
+    /// Surface length of one example pixel (S).
+    pub scale: f64,
+    pub seed: u64,
+    /// Matching weight per example channel ([`crate::synth::Weights::per_channel`]).
+    pub weights: &'a [f32],
+}
+
+/// One synthesis level (reported).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct LevelPlan {
+    /// Example pyramid level.
+    pub example_level: usize,
+    /// Its size in pixels.
+    pub example_size: [usize; 2],
+    /// Face-map texels per side.
+    pub resolution: usize,
+    /// Sampling step δ (surface length of one pixel of that example level).
+    pub step: f64,
+}
+
+/// Counters and times of a run (reported).
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Stats {
+    /// "brute", "ann" or "kcoherence".
+    pub search: String,
+    /// Coarsest last.
+    pub levels: Vec<LevelPlan>,
+    /// Neighbourhood searches.
+    pub queries: u64,
+    /// Candidate distances evaluated.
+    pub candidates: u64,
+    /// Coarsest-level texels with no generated sample around (a random example pixel).
+    pub seeded: u64,
+    pub patterns: PatternStats,
+    pub sampler: SamplerStats,
+    /// Finest-level texels whose source was made continuous from neighbours of the same
+    /// patch ([`PATCH_TOLERANCE`]).
+    pub continued: u64,
+    /// Output texels continued from a synthesis level of another resolution.
+    pub resampled: u64,
+    /// Seconds: example analysis (pyramid, features, search structures).
+    pub model_seconds: f64,
+    /// Seconds: texel geometry and frames of all levels.
+    pub geometry_seconds: f64,
+    /// Seconds: searching and copying.
+    pub search_seconds: f64,
+}
+
+/// Source position per output texel (level-0 example pixels, centres at +0.5) and stats.
+#[derive(Clone, Debug)]
+pub struct Output {
+    pub source: Vec<[f32; 2]>,
+    pub stats: Stats,
+}
+
+/// Synthesis levels for an example of `ex_w x ex_h` pixels: `j0` and, finest first, the
+/// face-map resolution of each level (see the module documentation).
+pub fn plan_levels(
+    ex_w: usize,
+    ex_h: usize,
+    n: usize,
+    spacing: f64,
+    scale: f64,
+    max_levels: usize,
+) -> Result<(usize, Vec<usize>)> {
+    if !(spacing > 0.0 && scale > 0.0 && spacing.is_finite() && scale.is_finite()) {
+        return Err(Error::invalid(format!(
+            "multiscale synthesis needs a positive texel spacing and scale, got {spacing} and {scale}"
+        )));
+    }
+    let ex_levels = levels_for(ex_w, ex_h, MIN_EXAMPLE_SIDE, 16);
+    let j0 = ((spacing / scale).log2().round().max(0.0) as usize).min(ex_levels - 1);
+    let cap = if max_levels == 0 {
+        usize::MAX
+    } else {
+        max_levels
+    };
+    let mut res = Vec::new();
+    for j in j0..ex_levels {
+        let r = (n as f64 * spacing / (scale * (1u64 << j) as f64)).round() as usize;
+        let r = r.max(1);
+        if !res.is_empty() && r < MIN_RESOLUTION {
+            break;
+        }
+        res.push(r);
+        if res.len() >= cap {
+            break;
+        }
+    }
+    Ok((j0, res))
+}
+
+/// Domains sharing an edge, or an edge with a domain that does: the domains whose texels
+/// one domain's 9x9 patterns can reach at one-texel steps, used to colour the waves.
+fn conflicts(adj: &[Vec<u32>]) -> Vec<Vec<u32>> {
+    adj.iter()
+        .enumerate()
+        .map(|(d, a)| {
+            let mut v: Vec<u32> = a.clone();
+            for &e in a {
+                v.extend(adj[e as usize].iter().copied());
+            }
+            v.sort_unstable();
+            v.dedup();
+            v.retain(|&e| e as usize != d);
+            v
+        })
+        .collect()
+}
+
+/// One level's synthesized state: values (weighted example channels) and the example
+/// feature index each texel was copied from.
+struct State {
+    values: Vec<f32>,
+    src: Vec<u32>,
+}
+
+/// Per-thread working buffers.
+struct Work {
+    scratch: Scratch,
+    q: Query,
+    prep: Prepared,
+    seeds: Vec<u32>,
+    buf: Vec<Option<DomainLocation>>,
+    locs: Vec<Option<DomainLocation>>,
+    val: Vec<f32>,
+    pst: PatternStats,
+    queries: u64,
+    candidates: u64,
+    seeded: u64,
+}
+
+impl Work {
+    fn new(model: &ExampleModel, level: usize, pass: Pass) -> Self {
+        let shape = model.shape(level, pass);
+        Self {
+            scratch: Scratch::default(),
+            q: Query::new(shape),
+            prep: Prepared::default(),
+            seeds: Vec::new(),
+            buf: Vec::new(),
+            locs: vec![
+                None;
+                81.max(shape.fine * shape.fine)
+                    .max(shape.coarse * shape.coarse)
+            ],
+            val: vec![0.0; shape.channels],
+            pst: PatternStats::default(),
+            queries: 0,
+            candidates: 0,
+            seeded: 0,
+        }
+    }
+}
+
+/// Everything shared by the level passes.
+struct Ctx<'a> {
+    model: &'a ExampleModel,
+    sampler: &'a Sampler<'a>,
+    seed: u64,
+    /// Sampling step of each synthesis level.
+    steps: Vec<f64>,
+    kwindow: Option<usize>,
+    channels: usize,
+}
+
+impl Ctx<'_> {
+    fn key(&self, level: usize, pass: Pass, t: usize) -> u64 {
+        hash(self.seed, &[level as u64, pass.id(), t as u64])
+    }
+
+    /// Searches with the prepared query in `w` and returns the chosen feature index.
+    fn choose(&self, level: usize, pass: Pass, t: usize, w: &mut Work) -> u32 {
+        let model = self.model;
+        let f = &model.searcher(level, pass).features;
+        f.prepare(&w.q, &mut w.prep);
+        let n = model.search(level, pass, &w.prep, &w.seeds, &mut w.scratch);
+        w.queries += 1;
+        w.candidates += n as u64;
+        pick(w.scratch.top.as_slice(), self.key(level, pass, t)).index
+    }
+
+    /// The example value (weighted channels) of feature `index` at `level`.
+    fn value(&self, level: usize, index: u32) -> &[f32] {
+        let (x, y) = self.model.pixel(level, index);
+        self.model.pyramid.level(level).pixel(x, y)
+    }
+
+    /// Continuous position of feature `index` at `level` (that level's pixels).
+    fn position(&self, level: usize, index: u32) -> [f32; 2] {
+        let (x, y) = self.model.pixel(level, index);
+        [x as f32 + 0.5, y as f32 + 0.5]
+    }
+}
+
+/// Runs multiscale synthesis of `example` on the surface. `progress(done, total)` counts
+/// texel passes over all levels.
+pub fn run(
+    example: &Example,
+    inputs: &Inputs<'_>,
+    params: &MultiscaleParams,
+    progress: &(dyn Fn(u64, u64) + Sync),
+) -> Result<Output> {
+    let n = inputs.resolution;
+    if n == 0 {
+        return Err(Error::invalid("resolution must be at least 1"));
+    }
+    let surface = inputs.surface;
+    let c = example.num_channels();
+    if inputs.weights.len() != c {
+        return Err(Error::invalid(format!(
+            "{} channel weights for an example with {c} channels",
+            inputs.weights.len()
+        )));
+    }
+    let (j0, res) = plan_levels(
+        example.width,
+        example.height,
+        n,
+        inputs.spacing,
+        inputs.scale,
+        params.max_levels,
+    )?;
+    let n_levels = res.len();
+
+    // Example analysis: weighted channels (so that plain l2 is the weighted distance),
+    // pyramid from level j0.
+    let t0 = Instant::now();
+    let mut img = Image::from_example(example);
+    let sw: Vec<f32> = inputs.weights.iter().map(|w| w.max(0.0).sqrt()).collect();
+    for px in img.data.chunks_exact_mut(c) {
+        for (v, s) in px.iter_mut().zip(&sw) {
+            *v *= s;
+        }
+    }
+    for _ in 0..j0 {
+        img = img.downsample();
+    }
+    let model = ExampleModel::build(img, n_levels, params.model)?;
+    let model_seconds = t0.elapsed().as_secs_f64();
+
+    let steps: Vec<f64> = (0..n_levels)
+        .map(|i| inputs.scale * (1u64 << (j0 + i)) as f64)
+        .collect();
+    let sampler = Sampler::new(surface, inputs.field).with_tolerance(params.sampler_tolerance);
+    let ctx = Ctx {
+        model: &model,
+        sampler: &sampler,
+        seed: inputs.seed,
+        steps,
+        kwindow: match params.model.method {
+            Method::KCoherence(k) => Some(k.window),
+            _ => None,
+        },
+        channels: c,
+    };
+    let adj = crate::texels::domain_edge_adjacency(surface);
+    let schedule = Schedule::plan(&adj, &conflicts(&adj));
+    let faces = surface.num_domains();
+    let total: u64 = res
+        .iter()
+        .enumerate()
+        .map(|(i, &r)| (faces * r * r) as u64 * if i + 1 == n_levels { 1 } else { 2 })
+        .sum();
+    let mut done = 0u64;
+    let mut stats = Stats {
+        search: params.model.method.name().into(),
+        levels: res
+            .iter()
+            .enumerate()
+            .map(|(i, &r)| {
+                let im = model.pyramid.level(i);
+                LevelPlan {
+                    example_level: j0 + i,
+                    example_size: [im.width, im.height],
+                    resolution: r,
+                    step: ctx.steps[i],
+                }
+            })
+            .collect(),
+        model_seconds,
+        ..Stats::default()
+    };
+
+    let mut geometry_seconds = 0.0;
+    let mut search_seconds = 0.0;
+    let top = n_levels - 1;
+    let t0 = Instant::now();
+    let corners = std::sync::Arc::new(level::regular_corners(surface));
+    let mut geo = LevelGeometry::new(surface, inputs.field, res[top], corners.clone());
+    geometry_seconds += t0.elapsed().as_secs_f64();
+    let t0 = Instant::now();
+    let mut state = coarsest(&ctx, top, &geo, &schedule, &mut stats);
+    search_seconds += t0.elapsed().as_secs_f64();
+    done += geo.len() as u64;
+    progress(done, total);
+    for i in (0..top).rev() {
+        let t0 = Instant::now();
+        let fine = LevelGeometry::new(surface, inputs.field, res[i], corners.clone());
+        geometry_seconds += t0.elapsed().as_secs_f64();
+        let t0 = Instant::now();
+        let (s1, cache) = pass_one(&ctx, i, &fine, &geo, &state, &mut stats);
+        done += fine.len() as u64;
+        progress(done, total);
+        let s2 = pass_two(&ctx, i, &fine, &schedule, s1, &cache, &mut stats);
+        search_seconds += t0.elapsed().as_secs_f64();
+        done += fine.len() as u64;
+        progress(done, total);
+        geo = fine;
+        state = s2;
+    }
+
+    // Sources in level-0 example pixels, made continuous.
+    let up = (1u64 << j0) as f32;
+    let discrete: Vec<[f32; 2]> = state
+        .src
+        .iter()
+        .map(|&s| {
+            let p = ctx.position(0, s);
+            [p[0] * up, p[1] * up]
+        })
+        .collect();
+    let finest = continuous_sources(surface, &geo, &discrete, inputs.scale, up, &mut stats);
+    let source = if geo.r == n && j0 == 0 {
+        finest
+    } else {
+        let t0 = Instant::now();
+        let out_geo = LevelGeometry::new(surface, inputs.field, n, corners.clone());
+        geometry_seconds += t0.elapsed().as_secs_f64();
+        stats.resampled = out_geo.len() as u64;
+        resample(&out_geo, &geo, &finest, inputs.scale, example)
+    };
+    stats.geometry_seconds = geometry_seconds;
+    stats.search_seconds = search_seconds;
+    stats.sampler = sampler.stats();
+    Ok(Output { source, stats })
+}
+
+/// Largest distance (in pixels of the finest synthesis level) between a texel's own
+/// source and a neighbour's continuation for the two to count as one patch in
+/// [`continuous_sources`].
+pub const PATCH_TOLERANCE: f32 = 1.5;
+
+/// Continuous source positions for the finest level.
+///
+/// Multiscale synthesis copies whole example pixels, so a texel's source is a pixel
+/// centre. Where texels are denser or sparser than example pixels (faces of different
+/// sizes, N·h/S not a power of two) neighbouring texels of one copied patch then get
+/// sources rounded to whole pixels: steps of 0 or 2 pixels where 1.3 would be right, which
+/// shows as blocky magnification and as a wrong local scale. Each texel's source is
+/// therefore replaced by the mean of its own and its neighbours' *continuations* —
+/// neighbour source minus the neighbour's offset in example pixels (the rule of coherent
+/// synthesis, 000 §5) — over the 3x3 texel neighbours that continue the same patch (within
+/// [`PATCH_TOLERANCE`] pixels of its own source). A texel whose neighbours all come from
+/// other patches keeps its pixel centre. Colours are then looked up bilinearly at these
+/// positions, so patches are resampled rather than repeated or skipped.
+fn continuous_sources(
+    surface: &Surface,
+    geo: &LevelGeometry,
+    src: &[[f32; 2]],
+    scale: f64,
+    up: f32,
+    stats: &mut Stats,
+) -> Vec<[f32; 2]> {
+    let r = geo.r;
+    let tol = PATCH_TOLERANCE * up;
+    let tol2 = tol * tol;
+    let out: Vec<([f32; 2], bool)> = (0..geo.len())
+        .into_par_iter()
+        .map(|t| {
+            let loc = geo.location(t);
+            let p = src[t];
+            let (mut sx, mut sy, mut n) = (p[0] as f64, p[1] as f64, 1.0f64);
+            for b in -1i32..=1 {
+                for a in -1i32..=1 {
+                    if a == 0 && b == 0 {
+                        continue;
+                    }
+                    let (du, dv) = (a as f64 / r as f64, b as f64 / r as f64);
+                    let Some(l) = surface.walk(loc, du, dv) else {
+                        continue;
+                    };
+                    let Some(q) = nearest_texel(&geo.layout.taps(l)) else {
+                        continue;
+                    };
+                    if q == t {
+                        continue;
+                    }
+                    let e = geo.offset_pixels(t, q, scale);
+                    let c = [src[q][0] - e[0], src[q][1] - e[1]];
+                    let (dx, dy) = (c[0] - p[0], c[1] - p[1]);
+                    if dx * dx + dy * dy <= tol2 {
+                        sx += c[0] as f64;
+                        sy += c[1] as f64;
+                        n += 1.0;
+                    }
+                }
+            }
+            ([(sx / n) as f32, (sy / n) as f32], n > 1.0)
+        })
+        .collect();
+    stats.continued = out.iter().filter(|o| o.1).count() as u64;
+    out.into_iter().map(|o| o.0).collect()
+}
+
+/// Output texel sources continued from the nearest texel of the finest synthesis level.
+fn resample(
+    out: &LevelGeometry,
+    syn: &LevelGeometry,
+    src: &[[f32; 2]],
+    scale: f64,
+    example: &Example,
+) -> Vec<[f32; 2]> {
+    let (hi_x, hi_y) = (example.width as f32 - 0.5, example.height as f32 - 0.5);
+    (0..out.len())
+        .into_par_iter()
+        .map(|t| {
+            let loc = out.location(t);
+            let q = nearest_texel(&syn.layout.taps(loc)).unwrap_or(0);
+            let d = (out.pos[t] - syn.pos[q]).as_dvec3();
+            let f = &out.frames[t];
+            let e = [(d.dot(f.v1) / scale) as f32, (-d.dot(f.v2) / scale) as f32];
+            let s = src[q];
+            [
+                (s[0] + e[0]).clamp(0.5, hi_x),
+                (s[1] + e[1]).clamp(0.5, hi_y),
+            ]
+        })
+        .collect()
+}
+
+/// Results of one domain task: its texels' values and sources.
+struct DomainOut {
+    values: Vec<f32>,
+    src: Vec<u32>,
+    work: Work,
+}
+
+/// The coarsest level: marched neighbourhoods of generated texels, exhaustive search.
+fn coarsest(
+    ctx: &Ctx<'_>,
+    level: usize,
+    geo: &LevelGeometry,
+    schedule: &Schedule,
+    stats: &mut Stats,
+) -> State {
+    let c = ctx.channels;
+    let nn = geo.per_domain();
+    let mut values = vec![0.0f32; geo.len() * c];
+    let mut src = vec![0u32; geo.len()];
+    let mut generated = vec![false; geo.len()];
+    let shape = ctx.model.shape(level, Pass::Coarsest);
+    let k = shape.fine;
+    let delta = ctx.steps[level];
+    for wave in &schedule.waves {
+        let outs: Vec<DomainOut> = wave
+            .par_iter()
+            .map(|&d| {
+                let d = d as usize;
+                let start = d * nn;
+                let mut w = Work::new(ctx.model, level, Pass::Coarsest);
+                let mut own_vals = vec![0.0f32; nn * c];
+                let mut own_gen = vec![false; nn];
+                let mut own_src = vec![0u32; nn];
+                for li in 0..nn {
+                    let t = start + li;
+                    pattern(
+                        geo,
+                        ctx.sampler,
+                        t,
+                        delta,
+                        k,
+                        SamplerKind::March,
+                        &mut w.buf,
+                        &mut w.locs,
+                        &mut w.pst,
+                    );
+                    let view = View {
+                        channels: c,
+                        values: &values,
+                        generated: Some(&generated),
+                        own: Some(Own {
+                            start,
+                            len: nn,
+                            values: &own_vals,
+                            generated: &own_gen,
+                            all_generated: false,
+                        }),
+                    };
+                    w.q.clear_all();
+                    for s in 0..k * k {
+                        if let Some(loc) = w.locs[s] {
+                            if view.fetch_at(&geo.layout, loc, &mut w.val) {
+                                w.q.set(s, &w.val);
+                            }
+                        }
+                    }
+                    let index = if w.q.present_count() == 0 {
+                        w.seeded += 1;
+                        (ctx.key(level, Pass::Coarsest, t) % ctx.model.candidates(level) as u64)
+                            as u32
+                    } else {
+                        w.seeds.clear();
+                        ctx.choose(level, Pass::Coarsest, t, &mut w)
+                    };
+                    own_vals[li * c..(li + 1) * c].copy_from_slice(ctx.value(level, index));
+                    own_src[li] = index;
+                    own_gen[li] = true;
+                }
+                DomainOut {
+                    values: own_vals,
+                    src: own_src,
+                    work: w,
+                }
+            })
+            .collect();
+        for (&d, o) in wave.iter().zip(outs) {
+            let start = d as usize * nn;
+            values[start * c..(start + nn) * c].copy_from_slice(&o.values);
+            src[start..start + nn].copy_from_slice(&o.src);
+            generated[start..start + nn]
+                .iter_mut()
+                .for_each(|g| *g = true);
+            absorb(stats, &o.work);
+        }
+    }
+    State { values, src }
+}
+
+fn absorb(stats: &mut Stats, w: &Work) {
+    stats.queries += w.queries;
+    stats.candidates += w.candidates;
+    stats.seeded += w.seeded;
+    stats.patterns.add(&w.pst);
+}
+
+/// The coarser-level block of every texel (reused by pass 2) with presence flags.
+struct CoarseCache {
+    samples: usize,
+    values: Vec<f32>,
+    present: Vec<bool>,
+}
+
+/// k-coherence seeds from the coarser level: the forward-shifted sources of the coarse
+/// texels nearest to the central `window x window` samples of the coarse pattern, scaled
+/// to this level.
+#[allow(clippy::too_many_arguments)]
+fn coarse_seeds(
+    ctx: &Ctx<'_>,
+    level: usize,
+    fine: &LevelGeometry,
+    coarse: &LevelGeometry,
+    coarse_src: &[u32],
+    t: usize,
+    locs: &[Option<DomainLocation>],
+    k: usize,
+    window: usize,
+    seeds: &mut Vec<u32>,
+) {
+    seeds.clear();
+    let h = (k / 2) as i64;
+    let r = (window / 2) as i64;
+    let delta = ctx.steps[level + 1];
+    for dy in -r..=r {
+        for dx in -r..=r {
+            let Some(loc) = locs[((dy + h) * k as i64 + dx + h) as usize] else {
+                continue;
+            };
+            let Some(q) = nearest_texel(&coarse.layout.taps(loc)) else {
+                continue;
+            };
+            let d = (coarse.pos[q] - fine.pos[t]).as_dvec3();
+            let f = &fine.frames[t];
+            let e = [d.dot(f.v1) / delta, -d.dot(f.v2) / delta];
+            let s = ctx.position(level + 1, coarse_src[q]);
+            let (x, y) = ((s[0] as f64 - e[0]) * 2.0, (s[1] as f64 - e[1]) * 2.0);
+            seeds.push(ctx.model.nearest_index(level, x as f32, y as f32));
+        }
+    }
+}
+
+/// Pass 1: every texel from the coarser level's 5x5 block alone (all independent).
+fn pass_one(
+    ctx: &Ctx<'_>,
+    level: usize,
+    fine: &LevelGeometry,
+    coarse: &LevelGeometry,
+    cstate: &State,
+    stats: &mut Stats,
+) -> (State, CoarseCache) {
+    let c = ctx.channels;
+    let shape = ctx.model.shape(level, Pass::One);
+    let k = shape.coarse;
+    let ns = k * k;
+    let delta = ctx.steps[level + 1];
+    let nn = fine.per_domain();
+    let faces = fine.len() / nn;
+    let view = View {
+        channels: c,
+        values: &cstate.values,
+        generated: None,
+        own: None,
+    };
+    // Per domain: coarse-block values, their presence, chosen features, counters.
+    type DomainPass1 = (Vec<f32>, Vec<bool>, Vec<u32>, Work);
+    let results: Vec<DomainPass1> = (0..faces)
+        .into_par_iter()
+        .map(|d| {
+            let mut w = Work::new(ctx.model, level, Pass::One);
+            let mut vals = vec![0.0f32; nn * ns * c];
+            let mut pres = vec![false; nn * ns];
+            let mut src = vec![0u32; nn];
+            for li in 0..nn {
+                let t = d * nn + li;
+                pattern(
+                    fine,
+                    ctx.sampler,
+                    t,
+                    delta,
+                    k,
+                    SamplerKind::Chart,
+                    &mut w.buf,
+                    &mut w.locs,
+                    &mut w.pst,
+                );
+                w.q.clear_all();
+                for s in 0..ns {
+                    if let Some(loc) = w.locs[s] {
+                        if view.fetch_at(&coarse.layout, loc, &mut w.val) {
+                            w.q.set(s, &w.val);
+                            let o = (li * ns + s) * c;
+                            vals[o..o + c].copy_from_slice(&w.val);
+                            pres[li * ns + s] = true;
+                        }
+                    }
+                }
+                if let Some(win) = ctx.kwindow {
+                    let mut seeds = std::mem::take(&mut w.seeds);
+                    coarse_seeds(
+                        ctx,
+                        level,
+                        fine,
+                        coarse,
+                        &cstate.src,
+                        t,
+                        &w.locs,
+                        k,
+                        win,
+                        &mut seeds,
+                    );
+                    w.seeds = seeds;
+                }
+                src[li] = ctx.choose(level, Pass::One, t, &mut w);
+            }
+            (vals, pres, src, w)
+        })
+        .collect();
+    let mut values = vec![0.0f32; fine.len() * c];
+    let mut src = vec![0u32; fine.len()];
+    let mut cache = CoarseCache {
+        samples: ns,
+        values: Vec::with_capacity(fine.len() * ns * c),
+        present: Vec::with_capacity(fine.len() * ns),
+    };
+    for (d, (vals, pres, s, w)) in results.into_iter().enumerate() {
+        for (li, &index) in s.iter().enumerate() {
+            let t = d * nn + li;
+            values[t * c..(t + 1) * c].copy_from_slice(ctx.value(level, index));
+            src[t] = index;
+        }
+        cache.values.extend_from_slice(&vals);
+        cache.present.extend_from_slice(&pres);
+        absorb(stats, &w);
+    }
+    (State { values, src }, cache)
+}
+
+/// Pass 2: refine with the level's 9x9 block plus the cached coarser block; scan-line
+/// order inside each domain, domains in waves.
+fn pass_two(
+    ctx: &Ctx<'_>,
+    level: usize,
+    geo: &LevelGeometry,
+    schedule: &Schedule,
+    mut state: State,
+    cache: &CoarseCache,
+    stats: &mut Stats,
+) -> State {
+    let c = ctx.channels;
+    let shape = ctx.model.shape(level, Pass::Two);
+    let k = shape.fine;
+    let nf = k * k;
+    let ns = cache.samples;
+    let nn = geo.per_domain();
+    let delta = ctx.steps[level];
+    let all_gen = vec![true; nn];
+    for wave in &schedule.waves {
+        let outs: Vec<DomainOut> = wave
+            .par_iter()
+            .map(|&d| {
+                let d = d as usize;
+                let start = d * nn;
+                let mut w = Work::new(ctx.model, level, Pass::Two);
+                let mut own_vals = state.values[start * c..(start + nn) * c].to_vec();
+                let mut own_src = state.src[start..start + nn].to_vec();
+                for li in 0..nn {
+                    let t = start + li;
+                    pattern(
+                        geo,
+                        ctx.sampler,
+                        t,
+                        delta,
+                        k,
+                        SamplerKind::Chart,
+                        &mut w.buf,
+                        &mut w.locs,
+                        &mut w.pst,
+                    );
+                    let view = View {
+                        channels: c,
+                        values: &state.values,
+                        generated: None,
+                        own: Some(Own {
+                            start,
+                            len: nn,
+                            values: &own_vals,
+                            generated: &all_gen,
+                            all_generated: true,
+                        }),
+                    };
+                    for s in 0..nf {
+                        match w.locs[s] {
+                            Some(loc) => {
+                                view.fetch_at(&geo.layout, loc, &mut w.val);
+                                w.q.set(s, &w.val);
+                            }
+                            None => w.q.clear(s),
+                        }
+                    }
+                    for s in 0..ns {
+                        if cache.present[t * ns + s] {
+                            let o = (t * ns + s) * c;
+                            w.q.set(nf + s, &cache.values[o..o + c]);
+                        } else {
+                            w.q.clear(nf + s);
+                        }
+                    }
+                    w.seeds.clear();
+                    if let Some(win) = ctx.kwindow {
+                        let h = (k / 2) as i64;
+                        let r = (win / 2) as i64;
+                        for dy in -r..=r {
+                            for dx in -r..=r {
+                                let Some(loc) = w.locs[((dy + h) * k as i64 + dx + h) as usize]
+                                else {
+                                    continue;
+                                };
+                                let Some(q) = nearest_texel(&geo.layout.taps(loc)) else {
+                                    continue;
+                                };
+                                let sq = if q >= start && q < start + nn {
+                                    own_src[q - start]
+                                } else {
+                                    state.src[q]
+                                };
+                                let e = geo.offset_pixels(t, q, delta);
+                                let s = ctx.position(level, sq);
+                                w.seeds.push(ctx.model.nearest_index(
+                                    level,
+                                    s[0] - e[0],
+                                    s[1] - e[1],
+                                ));
+                            }
+                        }
+                    }
+                    let index = ctx.choose(level, Pass::Two, t, &mut w);
+                    own_vals[li * c..(li + 1) * c].copy_from_slice(ctx.value(level, index));
+                    own_src[li] = index;
+                }
+                DomainOut {
+                    values: own_vals,
+                    src: own_src,
+                    work: w,
+                }
+            })
+            .collect();
+        for (&d, o) in wave.iter().zip(outs) {
+            let start = d as usize * nn;
+            state.values[start * c..(start + nn) * c].copy_from_slice(&o.values);
+            state.src[start..start + nn].copy_from_slice(&o.src);
+            absorb(stats, &o.work);
+        }
+    }
+    state
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn levels_follow_the_scale() {
+        let plan = |w, n, h, s, max| plan_levels(w, w, n, h, s, max).unwrap();
+        // Default scale: the plain pyramid, R halving with the example; the example's
+        // 16-pixel floor ends it.
+        assert_eq!(plan(64, 64, 0.01, 0.01, 0), (0, vec![64, 32, 16]));
+        assert_eq!(plan(192, 60, 0.01, 0.01, 0), (0, vec![60, 30, 15, 8]));
+        // Texture twice as large (S = 2h): half the texels per side at every level.
+        assert_eq!(plan(64, 64, 0.01, 0.02, 0), (0, vec![32, 16, 8]));
+        // Texture four times smaller (S = h/4): example levels 0 and 1 are finer than the
+        // texels and are skipped; 256 px has levels 256..16, so levels 2, 3, 4 remain.
+        assert_eq!(plan(256, 32, 0.01, 0.0025, 0), (2, vec![32, 16, 8]));
+        // Small maps stop at 2x2 texels; max_levels caps.
+        assert_eq!(plan(512, 16, 0.01, 0.01, 0), (0, vec![16, 8, 4, 2]));
+        assert_eq!(plan(512, 64, 0.01, 0.01, 2), (0, vec![64, 32]));
+        assert!(plan_levels(64, 64, 8, 0.0, 0.01, 0).is_err());
+    }
+}

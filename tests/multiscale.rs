@@ -1,0 +1,390 @@
+//! Multiscale synthesis on surfaces (issue 5), measured with the project's evaluator on
+//! shared meshes and textures: coverage, seam ratio, scale fidelity, patch fidelity on a
+//! flat grid against the 2D reference synthesizer, determinism across thread counts,
+//! `--scale` handling, joint alpha/height synthesis and displacement.
+
+use std::path::{Path, PathBuf};
+use subdiv::Surface;
+use surfsynth::example::Example;
+use surfsynth::field::{Orientation, OrientationField};
+use surfsynth::io::exr::FaceMaps;
+use surfsynth::multiscale::{self, Inputs, MultiscaleParams, Output};
+use surfsynth::pyramid::Image;
+use surfsynth::search::ann::AnnParams;
+use surfsynth::search::kcoherence::KParams;
+use surfsynth::search::model::Method;
+use surfsynth::texels::TexelGeometry;
+
+fn shared(rel: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/data")
+        .join(rel)
+}
+
+/// A shared texture halved until its width is below `2 * size`, cropped to a square of at
+/// most `size` pixels.
+fn texture(name: &str, size: usize) -> Example {
+    let ex = Example::load(shared(&format!("textures/{name}"))).unwrap();
+    let mut img = Image::from_example(&ex);
+    while img.width >= 2 * size {
+        img = img.downsample();
+    }
+    let size = size.min(img.width).min(img.height);
+    let rgb = (0..size * size)
+        .map(|i| {
+            let p = img.pixel(i % size, i / size);
+            [p[0], p[1], p[2]]
+        })
+        .collect();
+    Example::from_linear(size, size, rgb)
+}
+
+/// A flat k x k grid of unit quads in the z = 0 plane.
+fn flat_grid(k: usize) -> Surface {
+    let mut pos = Vec::new();
+    for y in 0..=k {
+        for x in 0..=k {
+            pos.push(glam::DVec3::new(x as f64, y as f64, 0.0));
+        }
+    }
+    let w = (k + 1) as u32;
+    let mut faces = Vec::new();
+    for y in 0..k as u32 {
+        for x in 0..k as u32 {
+            let i = y * w + x;
+            faces.push(vec![i, i + 1, i + 1 + w, i + w]);
+        }
+    }
+    let refs: Vec<&[u32]> = faces.iter().map(|f| f.as_slice()).collect();
+    Surface::new(subdiv::ControlMesh::from_faces(pos, &refs).unwrap())
+}
+
+struct Run {
+    maps: FaceMaps,
+    geometry: FaceMaps,
+    scale: f64,
+    out: Output,
+}
+
+fn kcoherence() -> Method {
+    Method::KCoherence(KParams::default())
+}
+
+/// Runs multiscale synthesis; `scale_factor` multiplies the default scale h.
+fn run(
+    surface: &Surface,
+    ex: &Example,
+    n: usize,
+    method: Method,
+    seed: u64,
+    scale_factor: f64,
+    orient: &Orientation,
+) -> Run {
+    let field = OrientationField::compute(surface, orient).unwrap();
+    let geom = TexelGeometry::compute(surface, n);
+    let spacing = geom.median_spacing(surface);
+    let scale = spacing * scale_factor;
+    let mut params = MultiscaleParams::default();
+    params.model.method = method;
+    let weights = vec![1.0f32; ex.num_channels()];
+    let inputs = Inputs {
+        surface,
+        field: &field,
+        resolution: n,
+        spacing,
+        scale,
+        seed,
+        weights: &weights,
+    };
+    let out = multiscale::run(ex, &inputs, &params, &|_, _| {}).unwrap();
+    let maps = surfsynth::synth::face_maps(ex, &out.source, surface.num_domains(), n);
+    let geometry = surfsynth::synth::geometry_maps(&geom);
+    Run {
+        maps,
+        geometry,
+        scale,
+        out,
+    }
+}
+
+fn quality(r: &Run, example: Option<&Example>) -> surfsynth::eval::Quality {
+    surfsynth::eval::evaluate_maps(&r.maps, &r.geometry, Some(r.scale), example).unwrap()
+}
+
+/// The example upside down. Both synthesizers put image rows along −v2 (so the texture is
+/// not mirrored when seen from outside); on a flat grid with v1 = +x that is −v, while
+/// `eval` reads tiles with rows along +v. Its patch fidelity therefore sees the texture
+/// mirrored, and a fair comparison uses the mirrored example.
+fn flipped(ex: &Example) -> Example {
+    let (w, h) = (ex.width, ex.height);
+    let rgb = (0..w * h)
+        .map(|i| ex.rgb[(h - 1 - i / w) * w + i % w])
+        .collect();
+    Example::from_linear(w, h, rgb)
+}
+
+#[test]
+fn flat_grid_matches_2d_multiscale_patch_fidelity() {
+    let ex = texture("etr_gravel.png", 64);
+    let (k, n) = (6, 24);
+    let r = run(
+        &flat_grid(k),
+        &ex,
+        n,
+        kcoherence(),
+        3,
+        1.0,
+        &Orientation::Axis(glam::DVec3::X),
+    );
+    let q = quality(&r, Some(&flipped(&ex)));
+    let as_stored = quality(&r, Some(&ex)).patch_fidelity.unwrap();
+    // The 2D reference at the same size, same example, search and seed, measured by the
+    // same evaluator (one domain holding the whole picture).
+    let mut p2 = surfsynth::synth2d::Params2d::new(k * n, k * n);
+    p2.seed = 3;
+    let o = surfsynth::synth2d::synthesize(&Image::from_example(&ex), &p2).unwrap();
+    let mut m2 = FaceMaps::new(1, k * n, &["R", "G", "B"]);
+    for c in 0..3 {
+        let ch = m2.channels[c].1.as_mut_slice();
+        for (i, v) in ch.iter_mut().enumerate() {
+            *v = o.image.data[i * 3 + c];
+        }
+    }
+    let g2 = FaceMaps::new(1, k * n, &["P.X", "P.Y", "P.Z", "N.X", "N.Y", "N.Z"]);
+    let pf2 = surfsynth::eval::evaluate_maps(&m2, &g2, None, Some(&ex))
+        .unwrap()
+        .patch_fidelity
+        .unwrap();
+    let pf = q.patch_fidelity.unwrap();
+    let s = q.scale_fidelity.unwrap();
+    eprintln!(
+        "flat {k}x{k} N={n}: patch fidelity {pf:.3} (2D {pf2:.3}, ratio {:.3}; unmirrored {as_stored:.3}), seam {:?}, scale {s:?}, stats {:?}",
+        pf / pf2,
+        q.seam_ratio,
+        r.out.stats
+    );
+    assert_eq!(q.coverage, 1.0);
+    assert!(pf <= 1.1 * pf2, "patch fidelity {pf:.3} vs 2D {pf2:.3}");
+    // The orientation check: the texture as seen from outside is the example, not its
+    // mirror image (gravel is lit from one side, so the mirror matches worse).
+    assert!(as_stored > 1.2 * pf, "mirrored {as_stored:.3} vs {pf:.3}");
+    assert!(
+        q.seam_ratio.unwrap() <= 1.15,
+        "seam ratio {:?}",
+        q.seam_ratio
+    );
+    assert!((s.median - 1.0).abs() <= 0.05, "{s:?}");
+    assert!(s.p10 >= 0.8 && s.p90 <= 1.2, "{s:?}");
+    // Flat, regular grid: every pattern is laid out in a chart, none needs the sampler's
+    // marching except the coarsest level, which the paper marches.
+    let ps = r.out.stats.patterns;
+    assert_eq!(ps.sampler_chart, 0);
+    assert_eq!(
+        ps.sampler_march as usize,
+        k * k * 6 * 6,
+        "coarsest level 6x6 texels"
+    );
+}
+
+#[test]
+fn curved_meshes_meet_the_quality_bar() {
+    // An open mesh of triangles (every domain an n-gon sub-face, extraordinary vertices
+    // at every face centre). Blub and the double torus are measured in docs/multiscale.md;
+    // they take longer than a test should. A stochastic example: periodic ones (bricks)
+    // whose period divides the texel grid, or examples with a 2-pixel parity
+    // (gimp_coffee_beans), make the seam ratio measure the texture's phase at the domain
+    // border rather than seams (docs/multiscale.md).
+    let (mesh, tex, n, seed) = ("meshes/cube_no_bottom.obj", "etr_gravel.png", 12, 5);
+    {
+        let surface = surfsynth::bake::load_surface_for(shared(mesh), n).unwrap();
+        let ex = texture(tex, 64);
+        let r = run(
+            &surface,
+            &ex,
+            n,
+            kcoherence(),
+            seed,
+            1.0,
+            &Orientation::Auto,
+        );
+        let q = quality(&r, None);
+        let s = q.scale_fidelity.unwrap();
+        eprintln!(
+            "{mesh} N={n}: seam {:?}, scale {s:?}, coherent {:?}, stats {:?}",
+            q.seam_ratio, q.coherent_fraction, r.out.stats
+        );
+        assert_eq!(q.coverage, 1.0, "{mesh}");
+        assert!(
+            q.seam_ratio.unwrap() <= 1.15,
+            "{mesh}: seam ratio {:?}",
+            q.seam_ratio
+        );
+        assert!((s.median - 1.0).abs() <= 0.05, "{mesh}: {s:?}");
+    }
+}
+
+#[test]
+fn output_is_identical_for_any_thread_count() {
+    // A coarse torus: every level crosses domain edges, and at this resolution most
+    // patterns are marched — all the machinery that could depend on scheduling.
+    let n = 8;
+    let surface = Surface::new(surfsynth::bench::torus_mesh(8));
+    let ex = texture("gimp_coffee_beans.png", 48);
+    let field = OrientationField::compute(&surface, &Orientation::Auto).unwrap();
+    let spacing = TexelGeometry::compute(&surface, n).median_spacing(&surface);
+    let weights = [1.0f32; 3];
+    let inputs = Inputs {
+        surface: &surface,
+        field: &field,
+        resolution: n,
+        spacing,
+        scale: spacing,
+        seed: 11,
+        weights: &weights,
+    };
+    for method in [kcoherence(), Method::Ann(AnnParams::default())] {
+        let mut params = MultiscaleParams::default();
+        params.model.method = method;
+        let runs: Vec<Output> = [1, 2]
+            .iter()
+            .map(|&t| {
+                rayon::ThreadPoolBuilder::new()
+                    .num_threads(t)
+                    .build()
+                    .unwrap()
+                    .install(|| multiscale::run(&ex, &inputs, &params, &|_, _| {}).unwrap())
+            })
+            .collect();
+        let bits = |o: &Output| -> Vec<u32> {
+            o.source
+                .iter()
+                .flat_map(|s| [s[0].to_bits(), s[1].to_bits()])
+                .collect()
+        };
+        assert_eq!(bits(&runs[0]), bits(&runs[1]), "{method:?}");
+        // Counters are sums, so they agree too.
+        assert_eq!(runs[0].stats.candidates, runs[1].stats.candidates);
+        assert_eq!(runs[0].stats.patterns, runs[1].stats.patterns);
+    }
+}
+
+#[test]
+fn scale_picks_levels_and_keeps_the_texture_size() {
+    // S = 2h: the texture twice as large; synthesis at half the texels per side, output
+    // texels continue the nearest synthesized texel's patch.
+    let ex = texture("gimp_leopard.png", 48);
+    let (k, n) = (4, 24);
+    let r = run(
+        &flat_grid(k),
+        &ex,
+        n,
+        kcoherence(),
+        1,
+        2.0,
+        &Orientation::Axis(glam::DVec3::X),
+    );
+    let st = &r.out.stats;
+    let res: Vec<usize> = st.levels.iter().map(|l| l.resolution).collect();
+    assert_eq!(res, vec![12, 6]);
+    assert_eq!(st.levels[0].example_level, 0);
+    assert!(
+        (st.levels[0].step - r.scale).abs() < 1e-12
+            && (st.levels[1].step - 2.0 * r.scale).abs() < 1e-12
+    );
+    assert_eq!(st.resampled as usize, k * k * n * n);
+    let s = quality(&r, None).scale_fidelity.unwrap();
+    eprintln!("S = 2h: scale {s:?}");
+    assert!((s.median - 1.0).abs() <= 0.05, "{s:?}");
+}
+
+#[test]
+fn alpha_and_height_are_synthesized_jointly_and_displace_the_surface() {
+    // RGBA stripes (the stripes are in alpha; colour is flat) with a height map derived
+    // from the alpha (same size, as --height requires).
+    let mut ex = Example::load(shared("textures/gimp_stripes_alpha.png")).unwrap();
+    assert!(ex.alpha.is_some());
+    let hmap: Vec<f32> = ex
+        .alpha
+        .as_ref()
+        .unwrap()
+        .iter()
+        .map(|a| 0.2 + 0.6 * a)
+        .collect();
+    ex.height_map = Some(hmap);
+    let (k, n) = (2, 16);
+    let surface = flat_grid(k);
+    let r = run(
+        &surface,
+        &ex,
+        n,
+        kcoherence(),
+        4,
+        1.0,
+        &Orientation::Axis(glam::DVec3::X),
+    );
+    assert_eq!(
+        r.maps.names(),
+        vec!["R", "G", "B", "A", "height", "source.u", "source.v"]
+    );
+    // Every channel comes from the same example position.
+    let (a, h, su, sv) = (
+        r.maps.channel("A").unwrap(),
+        r.maps.channel("height").unwrap(),
+        r.maps.channel("source.u").unwrap(),
+        r.maps.channel("source.v").unwrap(),
+    );
+    let mut v = [0.0f32; 5];
+    for i in (0..a.len()).step_by(7) {
+        ex.bilinear(su[i], sv[i], &mut v);
+        assert_eq!((v[3], v[4]), (a[i], h[i]));
+    }
+    // Alpha varies (the stripes are partly transparent) and is synthesized, not constant.
+    let (amin, amax) = a
+        .iter()
+        .fold((f32::MAX, f32::MIN), |(lo, hi), &x| (lo.min(x), hi.max(x)));
+    assert!(amin < 0.2 && amax > 0.8, "alpha {amin}..{amax}");
+
+    // Displacement: z = amount · (height − 0.5) along the +z normal, one shared vertex per
+    // surface point (no cracks).
+    let amount = 0.25;
+    let mesh = multiscale::displace::displaced_mesh(&surface, &r.maps, amount).unwrap();
+    let level = multiscale::displace::level_for_texels(&surface, n);
+    assert_eq!(level, 4); // 16 segments per quad domain side
+    let side = k * (1 << level) + 1;
+    assert_eq!(mesh.positions.len(), side * side);
+    let layout = std::sync::Arc::new(surfsynth::maps::MapLayout::new(&surface, n));
+    let hm = surfsynth::maps::FaceMaps::from_data(layout, 1, h.to_vec());
+    let mut zmin = f64::MAX;
+    let mut zmax = f64::MIN;
+    for p in &mesh.positions {
+        // On the flat grid, domain (x, y) covers [x, x+1] x [y, y+1].
+        let (fx, fy) = (p[0].min(k as f64 - 1e-9), p[1].min(k as f64 - 1e-9));
+        let d = subdiv::DomainId::from_idx(fy as usize * k + fx as usize);
+        let loc = subdiv::DomainLocation {
+            domain: d,
+            u: p[0] - fx.floor(),
+            v: p[1] - fy.floor(),
+        };
+        let mut hv = [0.0f32];
+        hm.sample(loc, &mut hv);
+        let want = amount * (hv[0] as f64 - 0.5);
+        assert!((p[2] - want).abs() < 1e-5, "{p:?}: want z = {want}");
+        zmin = zmin.min(p[2]);
+        zmax = zmax.max(p[2]);
+    }
+    assert!(zmax - zmin > 0.05, "relief {zmin}..{zmax}");
+    // Missing height channel: a one-line error.
+    let plain = run(
+        &surface,
+        &texture("etr_gravel.png", 32),
+        8,
+        kcoherence(),
+        1,
+        1.0,
+        &Orientation::Axis(glam::DVec3::X),
+    );
+    let e = multiscale::displace::displaced_mesh(&surface, &plain.maps, 0.1)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("height") && !e.contains('\n'), "{e}");
+}
