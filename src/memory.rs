@@ -37,20 +37,22 @@ const BASELINE: u64 = 8 << 20;
 /// Surface cost of a base quad whose four corners are regular (one bicubic patch, its
 /// node, the control mesh's share).
 const REGULAR_QUAD: u64 = 700;
-/// Surface cost of a base quad at an extraordinary vertex, per stored patch-tree level,
-/// and its cap (measured on a triangle mesh: 2 KB at depth 1, 10–13 KB at depth 3–4,
-/// 16.5 KB at depth 6–7, including the transient copy of the parallel build).
-const IRREGULAR_QUAD_PER_LEVEL: u64 = 4 << 10;
-const IRREGULAR_QUAD_MAX: u64 = 18 << 10;
+/// Surface cost of a base quad at an extraordinary vertex: a constant plus a share per
+/// stored patch-tree level (peak while building, measured on four triangle meshes:
+/// 2.0–2.5 KB at depth 1, 8–12.7 KB at 3, 13.5–15.2 KB at 5, 19.2–20.5 KB at 7,
+/// 28–30 KB at 10).
+const IRREGULAR_QUAD: u64 = 1536;
+const IRREGULAR_QUAD_PER_LEVEL: u64 = 2867;
 /// Orientation field: per face of its limit mesh (positions, normals, locations, the
-/// solver's arrays), measured 340–440 B.
-const FIELD_FACE: u64 = 440;
+/// solver's arrays; most of it is kept for the texel frames), measured ~430 B.
+const FIELD_FACE: u64 = 430;
 /// `synth`, per texel, besides 4 bytes per map channel: position + normal (24), frames,
 /// graph starts, source positions, geometry maps (24), atlas and tessellation shares,
-/// and the transient copies of the stages (measured slope: 118–136 B/texel at 5 channels).
-const SYNTH_TEXEL: u64 = 112;
+/// and the transient copies of the stages (measured slope: 118–121 B/texel at 5 channels;
+/// two more channels added only ~2 B/texel, so 4 B per channel is on the safe side).
+const SYNTH_TEXEL: u64 = 100;
 /// `synth`, per border texel (4N per domain): its neighbour list across the face edges.
-const SYNTH_BORDER_TEXEL: u64 = 128;
+const SYNTH_BORDER_TEXEL: u64 = 64;
 /// `synth`, per example pixel: decoded image, linear copy, alpha/height.
 const EXAMPLE_PIXEL: u64 = 64;
 /// `bake`: geometry channels and the per-texel scratch of a whole-domain evaluation
@@ -165,7 +167,7 @@ pub fn parse_size(s: &str) -> std::result::Result<u64, String> {
         format!("'{s}' is not a memory size: use a number with K, M, G or T (e.g. 512M, 4G) or 'unlimited'")
     })?;
     let bytes = v * (1u64 << shift) as f64;
-    if !(bytes >= 1.0) {
+    if bytes.is_nan() || bytes < 1.0 {
         return Err(format!("'{s}': the memory limit must be at least 1 byte"));
     }
     if bytes >= u64::MAX as f64 {
@@ -284,7 +286,7 @@ pub fn estimate(size: &MeshSize, n: usize, job: &Job) -> Estimate {
     )
     .saturating_add(sat(
         irregular,
-        (IRREGULAR_QUAD_PER_LEVEL * depth).min(IRREGULAR_QUAD_MAX),
+        IRREGULAR_QUAD + IRREGULAR_QUAD_PER_LEVEL * depth,
     ));
     let mut parts = vec![("process", BASELINE), ("surface", surface)];
     let channels = match *job {
@@ -292,11 +294,11 @@ pub fn estimate(size: &MeshSize, n: usize, job: &Job) -> Estimate {
             channels,
             example_pixels,
         } => {
-            parts.push(("orientation field", sat(field_faces(size.base_quads), FIELD_FACE)));
             parts.push((
-                "texel maps",
-                sat(texels, SYNTH_TEXEL + 4 * channels as u64),
+                "orientation field",
+                sat(field_faces(size.base_quads), FIELD_FACE),
             ));
+            parts.push(("texel maps", sat(texels, SYNTH_TEXEL + 4 * channels as u64)));
             parts.push((
                 "neighbour lists",
                 sat(sat(domains, 4 * n64), SYNTH_BORDER_TEXEL),
@@ -308,22 +310,29 @@ pub fn estimate(size: &MeshSize, n: usize, job: &Job) -> Estimate {
             let threads = threads.max(1) as u64;
             let tile = sat(BAKE_CHANNELS * 4, sat(n64, n64));
             // As io::exr::write_tiles: batches of ~32 MiB, at least one tile per thread;
-            // two batches in flight, each tile as f32 buffer, interleaved block and chunk.
+            // one batch of blocks is written while each thread fills the next (measured
+            // at N = 2048: 2.0 tiles with one thread, 3.2 with two).
             let batch = ((32u64 << 20) / tile.max(1)).clamp(threads, 4096);
-            let in_flight = (2 * batch).min(domains.max(1));
-            parts.push(("tiles in flight", sat(sat(in_flight, tile), 3)));
+            let in_flight = batch.min(domains.max(1)) + threads;
+            parts.push(("tiles in flight", sat(in_flight, tile)));
             if n64 <= BAKE_WHOLE_DOMAIN_MAX_N {
-                parts.push(("evaluation scratch", sat(threads, sat(n64 * n64, LIMIT_SAMPLE))));
+                parts.push((
+                    "evaluation scratch",
+                    sat(threads, sat(n64 * n64, LIMIT_SAMPLE)),
+                ));
             }
             BAKE_CHANNELS as usize
         }
     };
-    parts.sort_by(|a, b| b.1.cmp(&a.1));
+    parts.sort_by_key(|p| std::cmp::Reverse(p.1));
     let bytes = parts.iter().fold(0u64, |s, p| s.saturating_add(p.1));
     Estimate {
         bytes,
         parts,
-        shape: format!("{} domains x {n}² texels x {channels} channels", size.domains),
+        shape: format!(
+            "{} domains x {n}² texels x {channels} channels",
+            size.domains
+        ),
     }
 }
 
@@ -370,7 +379,12 @@ pub fn check_surface(surface: &Surface, n: usize, job: &Job) -> Result<()> {
         .as_ref()
         .map(|p| p.display().to_string())
         .unwrap_or_else(|| "<in-memory mesh>".into());
-    check(&what, n, job, &estimate(&MeshSize::of(&surface.control), n, job))
+    check(
+        &what,
+        n,
+        job,
+        &estimate(&MeshSize::of(&surface.control), n, job),
+    )
 }
 
 #[cfg(test)]
@@ -388,7 +402,9 @@ mod tests {
         assert_eq!(parse_size("1000"), Ok(1000));
         assert_eq!(parse_size("2T"), Ok(2 << 40));
         assert_eq!(parse_size("unlimited"), Ok(u64::MAX));
-        for bad in ["0", "0M", "-1G", "lots", "", "G", "1.2.3M", "5Q", "nan", "1e30T"] {
+        for bad in [
+            "0", "0M", "-1G", "lots", "", "G", "1.2.3M", "5Q", "nan", "1e30T",
+        ] {
             assert!(parse_size(bad).is_err(), "{bad}");
         }
     }
@@ -431,17 +447,34 @@ mod tests {
         // A 3x3 quad grid: boundary vertices with 3 faces do not exist; every vertex is
         // regular (corners 1 face, edges 2, interior 4).
         let s = MeshSize::of(&grid(3));
-        assert_eq!(s, MeshSize { domains: 9, base_quads: 36, irregular_base_quads: 0 });
+        assert_eq!(
+            s,
+            MeshSize {
+                domains: 9,
+                base_quads: 36,
+                irregular_base_quads: 0
+            }
+        );
         // A triangle: 3 domains, 3 base quads, all at the extraordinary face point.
         let tri = ControlMesh::parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
         let s = MeshSize::of(&tri);
-        assert_eq!(s, MeshSize { domains: 3, base_quads: 3, irregular_base_quads: 3 });
+        assert_eq!(
+            s,
+            MeshSize {
+                domains: 3,
+                base_quads: 3,
+                irregular_base_quads: 3
+            }
+        );
     }
 
     #[test]
     fn estimate_grows_with_resolution_and_channels() {
         let s = MeshSize::of(&grid(4));
-        let job = |c| Job::Synth { channels: c, example_pixels: 128 * 128 };
+        let job = |c| Job::Synth {
+            channels: c,
+            example_pixels: 128 * 128,
+        };
         let a = estimate(&s, 32, &job(5));
         let b = estimate(&s, 64, &job(5));
         let c = estimate(&s, 64, &job(7));
@@ -449,14 +482,24 @@ mod tests {
         // The texel part at N = 64: 16 domains x 4096 texels x (112 + 20) bytes.
         let texel_part = b.parts.iter().find(|p| p.0 == "texel maps").unwrap().1;
         assert_eq!(texel_part, 16 * 4096 * (SYNTH_TEXEL + 20));
-        assert!(b.shape.contains("16 domains x 64² texels x 5 channels"), "{}", b.shape);
+        assert!(
+            b.shape.contains("16 domains x 64² texels x 5 channels"),
+            "{}",
+            b.shape
+        );
         // Absurd sizes saturate instead of overflowing.
-        let huge = estimate(&MeshSize { domains: usize::MAX, ..s }, 1 << 20, &job(5));
+        let huge = estimate(
+            &MeshSize {
+                domains: usize::MAX,
+                ..s
+            },
+            1 << 20,
+            &job(5),
+        );
         assert_eq!(huge.bytes, u64::MAX);
         // Bake holds only a bounded number of tiles, however many domains.
-        let bake = |d: usize| {
-            estimate(&MeshSize { domains: d, ..s }, 16, &Job::Bake { threads: 2 }).bytes
-        };
+        let bake =
+            |d: usize| estimate(&MeshSize { domains: d, ..s }, 16, &Job::Bake { threads: 2 }).bytes;
         assert_eq!(bake(100_000), bake(1_000_000));
     }
 
@@ -471,9 +514,15 @@ mod tests {
         let msg = check("m.obj", 4096, &job, &e).unwrap_err().to_string();
         set_limit(None);
         assert!(!msg.contains('\n'), "{msg}");
-        assert!(msg.starts_with("m.obj: bake at --resolution 4096 would need about "), "{msg}");
+        assert!(
+            msg.starts_with("m.obj: bake at --resolution 4096 would need about "),
+            "{msg}"
+        );
         assert!(msg.contains(&format_bytes(e.bytes)), "{msg}");
-        assert!(msg.contains("limit of 1.0 MiB from --max-memory 1.0 MiB"), "{msg}");
+        assert!(
+            msg.contains("limit of 1.0 MiB from --max-memory 1.0 MiB"),
+            "{msg}"
+        );
         set_limit(Some(u64::MAX));
         assert!(check("m.obj", 4096, &job, &e).is_ok());
         set_limit(None);

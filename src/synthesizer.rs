@@ -394,9 +394,17 @@ impl Synthesizer {
                 (**e).clone()
             }
         };
+        // Memory guard (crate::memory): refuse before the surface and the maps are built.
+        let job = crate::memory::Job::Synth {
+            channels: example.num_channels() + 2,
+            example_pixels: example.width * example.height,
+        };
         let surface = match self.mesh {
-            MeshSource::Path(ref p) => crate::bake::load_surface_for(p, n)?,
-            MeshSource::Surface(ref s) => (**s).clone(),
+            MeshSource::Path(ref p) => crate::memory::load_surface_checked(p, n, &job)?,
+            MeshSource::Surface(ref s) => {
+                crate::memory::check_surface(s, n, &job)?;
+                (**s).clone()
+            }
         };
         let faces = surface.num_domains();
         check_size(faces, n)?;

@@ -4,7 +4,7 @@ use super::{parse_resolution, ExrCompression};
 use clap::Args;
 use std::path::PathBuf;
 use std::time::Instant;
-use surfsynth::bake::{bake_to_file, load_surface_for, GEOMETRY_FILE};
+use surfsynth::bake::{bake_to_file, GEOMETRY_FILE};
 use surfsynth::io::atomic::prepare_out_dir;
 use surfsynth::progress;
 
@@ -22,12 +22,20 @@ pub struct BakeArgs {
     /// EXR compression (lossless).
     #[arg(long, value_enum, default_value_t = ExrCompression::None)]
     pub compression: ExrCompression,
+    /// Refuse to start when the estimated peak memory is above this (e.g. 512M, 4G,
+    /// unlimited; default: 75% of physical memory).
+    #[arg(long, value_name = "SIZE", value_parser = surfsynth::memory::parse_size)]
+    pub max_memory: Option<u64>,
 }
 
 pub fn run(a: BakeArgs) -> anyhow::Result<()> {
     let t0 = Instant::now();
     let spin = progress::spinner("mesh");
-    let surface = load_surface_for(&a.mesh, a.resolution)?;
+    surfsynth::memory::set_limit(a.max_memory);
+    let job = surfsynth::memory::Job::Bake {
+        threads: rayon::current_num_threads(),
+    };
+    let surface = surfsynth::memory::load_surface_checked(&a.mesh, a.resolution, &job)?;
     spin.finish_and_clear();
     let load_s = t0.elapsed().as_secs_f64();
     // Inputs are valid: only now create the output directory.

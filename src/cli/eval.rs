@@ -11,7 +11,7 @@ pub struct EvalArgs {
     #[arg(value_name = "DIR")]
     pub dir: PathBuf,
     /// Scale S used for scale fidelity (default: the one in DIR/report.json).
-    #[arg(long, value_name = "S", value_parser = parse_positive)]
+    #[arg(long, value_name = "S", value_parser = parse_positive, allow_negative_numbers = true)]
     pub scale: Option<f64>,
     /// Example image: also report patch fidelity (flat meshes only; see docs/eval.md).
     #[arg(long, value_name = "E.png")]

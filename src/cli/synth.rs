@@ -43,7 +43,7 @@ pub struct SynthArgs {
     #[arg(long, value_name = "N", default_value_t = 32, value_parser = parse_resolution)]
     pub resolution: usize,
     /// Surface length covered by one example pixel (default: median texel spacing).
-    #[arg(long, value_name = "S", value_parser = parse_positive)]
+    #[arg(long, value_name = "S", value_parser = parse_positive, allow_negative_numbers = true)]
     pub scale: Option<f64>,
     /// Orientation field: auto, +x|-x|+y|-y|+z|-z, or a constraints file.
     #[arg(long, value_name = "auto|AXIS|FILE", default_value = "auto", value_parser = parse_orient, allow_hyphen_values = true)]
@@ -57,6 +57,10 @@ pub struct SynthArgs {
     /// Output directory (created if missing).
     #[arg(long, value_name = "DIR")]
     pub out: PathBuf,
+    /// Refuse to start when the estimated peak memory is above this (e.g. 512M, 4G,
+    /// unlimited; default: 75% of physical memory).
+    #[arg(long, value_name = "SIZE", value_parser = surfsynth::memory::parse_size)]
+    pub max_memory: Option<u64>,
 }
 
 pub fn run(a: SynthArgs) -> anyhow::Result<()> {
@@ -64,6 +68,7 @@ pub fn run(a: SynthArgs) -> anyhow::Result<()> {
     if a.displace.is_some() {
         return not_implemented("synth --displace");
     }
+    surfsynth::memory::set_limit(a.max_memory);
     let method = match a.method {
         Method::Coherent => surfsynth::synthesizer::Method::Coherent,
         Method::Multiscale => surfsynth::synthesizer::Method::Multiscale,
