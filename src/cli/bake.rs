@@ -14,7 +14,7 @@ pub struct BakeArgs {
     #[arg(long, value_name = "M.obj")]
     pub mesh: PathBuf,
     /// Texels per side of every face map.
-    #[arg(long, value_name = "N", default_value_t = 32, value_parser = parse_resolution)]
+    #[arg(long, value_name = "N", default_value_t = 32, value_parser = parse_resolution, allow_negative_numbers = true)]
     pub resolution: usize,
     /// Output directory (created if missing); receives geometry.exr.
     #[arg(long, value_name = "DIR")]

@@ -19,7 +19,7 @@ use surfsynth::io::exr::{Compression, MAX_RESOLUTION};
 #[command(name = "surfsynth", version, about, max_term_width = 100)]
 pub struct Cli {
     /// Worker threads (default: all cores, or RAYON_NUM_THREADS). Results do not depend on it.
-    #[arg(long, global = true, value_name = "T", value_parser = parse_threads)]
+    #[arg(long, global = true, value_name = "T", value_parser = parse_threads, allow_negative_numbers = true)]
     pub threads: Option<usize>,
 
     #[command(subcommand)]

@@ -40,7 +40,7 @@ pub struct SynthArgs {
     #[arg(long, value_enum)]
     pub search: Option<Search>,
     /// Texels per side of every face map.
-    #[arg(long, value_name = "N", default_value_t = 32, value_parser = parse_resolution)]
+    #[arg(long, value_name = "N", default_value_t = 32, value_parser = parse_resolution, allow_negative_numbers = true)]
     pub resolution: usize,
     /// Surface length covered by one example pixel (default: median texel spacing).
     #[arg(long, value_name = "S", value_parser = parse_positive, allow_negative_numbers = true)]
@@ -49,7 +49,12 @@ pub struct SynthArgs {
     #[arg(long, value_name = "auto|AXIS|FILE", default_value = "auto", value_parser = parse_orient, allow_hyphen_values = true)]
     pub orient: Orientation,
     /// Random seed; the same seed gives the same files for any thread count.
-    #[arg(long, value_name = "K", default_value_t = 1)]
+    #[arg(
+        long,
+        value_name = "K",
+        default_value_t = 1,
+        allow_negative_numbers = true
+    )]
     pub seed: u64,
     /// Also write displaced.obj, moved along the normal by AMOUNT x (height - 0.5).
     #[arg(long, value_name = "AMOUNT", value_parser = parse_finite, allow_negative_numbers = true)]

@@ -1,0 +1,812 @@
+//! The bad-input matrix (issue 6): every way of calling `surfsynth` wrongly that we know
+//! of, run through the built binary. Each case must fail with
+//!
+//! - a non-zero exit code (1 for bad input, 2 for bad usage; never 101, an internal error),
+//! - exactly one non-empty line on stderr, `error: ...`, that names the offending file (or
+//!   flag) and the problem,
+//! - no panic text ("panicked", "RUST_BACKTRACE"),
+//! - nothing on stdout and no file in the output directory (`--out`) afterwards.
+//!
+//! tests/bad_inputs.rs (bake, one test per mesh defect) and tests/synth.rs (example and
+//! height checks through the library) cover some of these too; this file is the complete
+//! table, mostly through `synth` (the command users run), with mesh defects checked
+//! through both `synth` and `bake`. docs/robustness.md lists every case with its message.
+
+use std::ffi::{OsStr, OsString};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn fixture(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("fixtures")
+        .join(name)
+}
+
+fn spot() -> PathBuf {
+    fixture("spot_control_mesh.obj")
+}
+
+fn gravel() -> PathBuf {
+    fixture("gravel.png")
+}
+
+fn surfsynth<S: AsRef<OsStr>>(args: &[S]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_surfsynth"))
+        .args(args)
+        .env_remove("RUST_BACKTRACE")
+        .output()
+        .expect("run surfsynth")
+}
+
+/// Every file below `dir` (recursively); nothing when it does not exist or is a file.
+fn files_below(dir: &Path) -> Vec<PathBuf> {
+    let mut v = Vec::new();
+    if let Ok(rd) = std::fs::read_dir(dir) {
+        for e in rd.flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                v.extend(files_below(&p));
+            } else {
+                v.push(p);
+            }
+        }
+    }
+    v
+}
+
+/// Checks the error contract; `names` must appear in the line verbatim, every `problem`
+/// word case-insensitively. Returns the line (without `error: `).
+#[track_caller]
+fn assert_clean_failure(o: &Output, out: &Path, names: &str, problem: &[&str]) -> String {
+    let stderr = String::from_utf8_lossy(&o.stderr).into_owned();
+    let code = o.status.code();
+    assert!(
+        matches!(code, Some(1) | Some(2)),
+        "exit code {code:?} (want 1 or 2); stderr: {stderr:?}"
+    );
+    assert!(
+        !stderr.contains("panicked") && !stderr.contains("RUST_BACKTRACE"),
+        "panic text: {stderr}"
+    );
+    let line = stderr.strip_suffix('\n').unwrap_or(&stderr);
+    assert!(
+        !line.trim().is_empty() && !line.contains('\n'),
+        "exactly one line on stderr: {stderr:?}"
+    );
+    let msg = line
+        .strip_prefix("error: ")
+        .unwrap_or_else(|| panic!("starts with 'error: ': {line}"));
+    assert!(msg.contains(names), "names {names:?}: {line}");
+    let lower = msg.to_lowercase();
+    for w in problem {
+        assert!(lower.contains(&w.to_lowercase()), "mentions {w:?}: {line}");
+    }
+    assert!(
+        o.stdout.is_empty(),
+        "nothing on stdout: {}",
+        String::from_utf8_lossy(&o.stdout)
+    );
+    let left = files_below(out);
+    assert!(left.is_empty(), "files left in {}: {left:?}", out.display());
+    if std::env::var_os("MATRIX_PRINT").is_some() {
+        eprintln!("MATRIX | {msg}");
+    }
+    msg.to_string()
+}
+
+fn os(v: &[&dyn AsRef<OsStr>]) -> Vec<OsString> {
+    v.iter().map(|s| s.as_ref().to_os_string()).collect()
+}
+
+/// `synth` on `mesh` and `example` into a fresh `out`, plus `extra`; checks the failure
+/// and that `--out` was not even created (inputs are checked before it is).
+#[track_caller]
+fn synth_fails(mesh: &Path, example: &Path, extra: &[&str], names: &str, problem: &[&str]) {
+    let out = synth_fails_in(mesh, example, extra, names, problem);
+    assert!(
+        !out.0.path().join("out").exists(),
+        "--out is not even created for bad input"
+    );
+}
+
+/// Like [`synth_fails`] for failures found after `--out` was created (it must be empty).
+#[track_caller]
+fn synth_fails_in(
+    mesh: &Path,
+    example: &Path,
+    extra: &[&str],
+    names: &str,
+    problem: &[&str],
+) -> (tempfile::TempDir, String) {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    let mut args = os(&[
+        &"synth",
+        &"--mesh",
+        &mesh,
+        &"--example",
+        &example,
+        &"--out",
+        &out,
+    ]);
+    args.extend(extra.iter().map(OsString::from));
+    let o = surfsynth(&args);
+    let msg = assert_clean_failure(&o, &out, names, problem);
+    (tmp, msg)
+}
+
+/// `bake` on `mesh` into a fresh `out`, plus `extra` (N = 4 unless `extra` sets it).
+#[track_caller]
+fn bake_fails(mesh: &Path, extra: &[&str], names: &str, problem: &[&str]) {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    let mut args = os(&[&"bake", &"--mesh", &mesh, &"--out", &out]);
+    if !extra.contains(&"--resolution") {
+        args.extend(os(&[&"--resolution", &"4"]));
+    }
+    args.extend(extra.iter().map(OsString::from));
+    let o = surfsynth(&args);
+    assert_clean_failure(&o, &out, names, problem);
+    assert!(!out.exists(), "--out is not even created for bad input");
+}
+
+/// Writes `obj` as a mesh file and checks that both `synth` and `bake` refuse it.
+#[track_caller]
+fn bad_mesh(obj: &[u8], problem: &[&str]) {
+    let tmp = tempfile::tempdir().unwrap();
+    let mesh = tmp.path().join("bad mesh.obj");
+    std::fs::write(&mesh, obj).unwrap();
+    let name = mesh.display().to_string();
+    synth_fails(&mesh, &gravel(), &[], &name, problem);
+    bake_fails(&mesh, &[], &name, problem);
+}
+
+/// Writes `bytes` as the example and checks that `synth` refuses it.
+#[track_caller]
+fn bad_example(file: &str, bytes: &[u8], problem: &[&str]) {
+    let tmp = tempfile::tempdir().unwrap();
+    let ex = tmp.path().join(file);
+    std::fs::write(&ex, bytes).unwrap();
+    synth_fails(&spot(), &ex, &[], &ex.display().to_string(), problem);
+}
+
+/// `synth` with good inputs and `extra` flags: a usage error naming `flag`.
+#[track_caller]
+fn bad_flag(extra: &[&str], flag: &str, problem: &[&str]) {
+    synth_fails(&spot(), &gravel(), extra, flag, problem);
+}
+
+const SQUARE: &str = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n";
+
+fn png(img: image::DynamicImage) -> Vec<u8> {
+    let mut v = Vec::new();
+    img.write_to(&mut std::io::Cursor::new(&mut v), image::ImageFormat::Png)
+        .unwrap();
+    v
+}
+
+fn rgb_png(w: u32, h: u32) -> Vec<u8> {
+    png(image::DynamicImage::ImageRgb8(image::RgbImage::from_fn(
+        w,
+        h,
+        |x, y| image::Rgb([(x * 7) as u8, (y * 13) as u8, ((x ^ y) * 5) as u8]),
+    )))
+}
+
+/// Deterministic pseudo-random bytes (xorshift).
+fn noise(len: usize, mut s: u64) -> Vec<u8> {
+    (0..len)
+        .map(|_| {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            (s >> 24) as u8
+        })
+        .collect()
+}
+
+fn crc32(data: &[u8]) -> u32 {
+    let mut c = 0xFFFF_FFFFu32;
+    for &b in data {
+        c ^= b as u32;
+        for _ in 0..8 {
+            c = if c & 1 != 0 {
+                0xEDB8_8320 ^ (c >> 1)
+            } else {
+                c >> 1
+            };
+        }
+    }
+    !c
+}
+
+fn png_chunk(kind: &[u8; 4], data: &[u8]) -> Vec<u8> {
+    let mut v = (data.len() as u32).to_be_bytes().to_vec();
+    let mut body = kind.to_vec();
+    body.extend_from_slice(data);
+    v.extend_from_slice(&body);
+    v.extend_from_slice(&crc32(&body).to_be_bytes());
+    v
+}
+
+// ---------------------------------------------------------------- meshes (synth + bake)
+
+#[test]
+fn m01_missing_mesh() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mesh = tmp.path().join("nowhere.obj");
+    let name = mesh.display().to_string();
+    synth_fails(
+        &mesh,
+        &gravel(),
+        &[],
+        &name,
+        &["cannot read", "no such file"],
+    );
+    bake_fails(&mesh, &[], &name, &["cannot read", "no such file"]);
+}
+
+#[test]
+fn m02_empty_obj() {
+    bad_mesh(b"", &["zero faces"]);
+}
+
+#[test]
+fn m03_truncated_obj_face_cut_midway() {
+    // The file ends inside the second face line.
+    bad_mesh(
+        format!("{SQUARE}v 2 0 0\nv 2 1 0\nf 1 2 3 4\nf 2 5").as_bytes(),
+        &["face 2", "2 vertices", "at least 3"],
+    );
+}
+
+#[test]
+fn m04_non_manifold_edge() {
+    // Three quads share edge (2, 3).
+    let obj =
+        format!("{SQUARE}v 2 0 0\nv 2 1 0\nv 1 0 1\nv 1 1 1\nf 1 2 3 4\nf 2 5 6 3\nf 2 3 8 7\n");
+    bad_mesh(obj.as_bytes(), &["non-manifold edge"]);
+}
+
+#[test]
+fn m05_non_manifold_vertex_bow_tie() {
+    bad_mesh(
+        b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv -1 0 0\nv 0 -1 0\nf 1 2 3\nf 1 4 5\n",
+        &["non-manifold vertex 1"],
+    );
+}
+
+#[test]
+fn m06_nan_coordinate() {
+    bad_mesh(
+        b"v 0 0 0\nv 1 nan 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n",
+        &["vertex 2", "non-finite"],
+    );
+}
+
+#[test]
+fn m07_coordinate_overflowing_to_infinity() {
+    bad_mesh(
+        b"v 0 0 0\nv 1e400 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n",
+        &["vertex 2", "non-finite"],
+    );
+}
+
+#[test]
+fn m08_out_of_range_index() {
+    bad_mesh(
+        format!("{SQUARE}f 1 2 3 9\n").as_bytes(),
+        &["face 1", "vertex 9", "only 4 vertices"],
+    );
+}
+
+#[test]
+fn m09_index_too_large_for_any_integer() {
+    bad_mesh(
+        format!("{SQUARE}f 1 2 3 99999999999999999999\n").as_bytes(),
+        &["line 5", "bad vertex reference"],
+    );
+}
+
+#[test]
+fn m10_zero_faces() {
+    bad_mesh(
+        format!("# vertices only\n{SQUARE}vt 0 0\n").as_bytes(),
+        &["zero faces"],
+    );
+}
+
+#[test]
+fn m11_binary_garbage_obj() {
+    bad_mesh(&noise(4096, 0x9E37_79B9_7F4A_7C15), &["zero faces"]);
+}
+
+#[test]
+fn m12_inconsistent_orientation() {
+    bad_mesh(
+        format!("{SQUARE}v 2 0 0\nv 2 1 0\nf 1 2 3 4\nf 2 3 6 5\n").as_bytes(),
+        &["inconsistent", "orientation"],
+    );
+}
+
+#[test]
+fn m13_mesh_is_a_directory() {
+    let tmp = tempfile::tempdir().unwrap();
+    let name = tmp.path().display().to_string();
+    synth_fails(tmp.path(), &gravel(), &[], &name, &["directory"]);
+    bake_fails(tmp.path(), &[], &name, &["directory"]);
+}
+
+#[test]
+fn m14_degenerate_surface_without_scale() {
+    // Every vertex at one point: no texel spacing to derive the default scale from.
+    let tmp = tempfile::tempdir().unwrap();
+    let mesh = tmp.path().join("point.obj");
+    std::fs::write(&mesh, "v 0 0 0\nv 0 0 0\nv 0 0 0\nv 0 0 0\nf 1 2 3 4\n").unwrap();
+    // Found once texel positions exist, after --out was created: it stays empty.
+    synth_fails_in(
+        &mesh,
+        &gravel(),
+        &["--resolution", "4"],
+        &mesh.display().to_string(),
+        &["degenerate", "--scale"],
+    );
+}
+
+// ---------------------------------------------------------------------- examples (synth)
+
+#[test]
+fn e01_missing_example() {
+    let tmp = tempfile::tempdir().unwrap();
+    let ex = tmp.path().join("nowhere.png");
+    synth_fails(
+        &spot(),
+        &ex,
+        &[],
+        &ex.display().to_string(),
+        &["no such file"],
+    );
+}
+
+#[test]
+fn e02_corrupt_png_valid_header_garbage_body() {
+    let good = rgb_png(64, 64);
+    // Signature (8 bytes) + IHDR chunk (25 bytes) intact, then noise.
+    let mut bytes = good[..33].to_vec();
+    bytes.extend(noise(2000, 7));
+    bad_example("corrupt.png", &bytes, &["cannot decode"]);
+}
+
+#[test]
+fn e03_corrupt_png_garbage_image_data() {
+    // Valid chunks with valid CRCs, but the IDAT payload is not a zlib stream.
+    let mut ihdr = Vec::new();
+    ihdr.extend(64u32.to_be_bytes());
+    ihdr.extend(64u32.to_be_bytes());
+    ihdr.extend([8, 2, 0, 0, 0]);
+    let mut bytes = b"\x89PNG\r\n\x1a\n".to_vec();
+    bytes.extend(png_chunk(b"IHDR", &ihdr));
+    bytes.extend(png_chunk(b"IDAT", &noise(500, 3)));
+    bytes.extend(png_chunk(b"IEND", &[]));
+    bad_example("badzlib.png", &bytes, &["cannot decode"]);
+}
+
+#[test]
+fn e04_truncated_png() {
+    let good = rgb_png(64, 64);
+    bad_example("truncated.png", &good[..good.len() / 2], &["cannot decode"]);
+}
+
+#[test]
+fn e05_zero_byte_png() {
+    bad_example("empty.png", b"", &["empty", "0 bytes"]);
+}
+
+#[test]
+fn e06_text_file_named_png() {
+    bad_example(
+        "notes.png",
+        b"this is not an image\n",
+        &["not a PNG or JPEG image"],
+    );
+}
+
+#[test]
+fn e07_example_smaller_than_8x8() {
+    bad_example("tiny.png", &rgb_png(7, 12), &["7x12", "at least 8x8"]);
+}
+
+#[test]
+fn e08_png_claiming_huge_dimensions() {
+    // A 100000 x 100000 header (decompression bomb): refused before allocating.
+    let mut ihdr = Vec::new();
+    ihdr.extend(100_000u32.to_be_bytes());
+    ihdr.extend(100_000u32.to_be_bytes());
+    ihdr.extend([8, 2, 0, 0, 0]);
+    let mut bytes = b"\x89PNG\r\n\x1a\n".to_vec();
+    bytes.extend(png_chunk(b"IHDR", &ihdr));
+    bytes.extend(png_chunk(
+        b"IDAT",
+        &[0x78, 0x9c, 0x03, 0x00, 0x00, 0x00, 0x00, 0x01],
+    ));
+    bytes.extend(png_chunk(b"IEND", &[]));
+    bad_example("bomb.png", &bytes, &["cannot decode", "limit"]);
+}
+
+#[test]
+fn e09_example_is_a_directory() {
+    let tmp = tempfile::tempdir().unwrap();
+    synth_fails(
+        &spot(),
+        tmp.path(),
+        &[],
+        &tmp.path().display().to_string(),
+        &["is a directory"],
+    );
+}
+
+#[test]
+fn e10_height_map_of_another_size() {
+    let tmp = tempfile::tempdir().unwrap();
+    let ex = tmp.path().join("ex.png");
+    let h = tmp.path().join("height.png");
+    std::fs::write(&ex, rgb_png(32, 32)).unwrap();
+    std::fs::write(&h, rgb_png(16, 24)).unwrap();
+    let hs = h.to_str().unwrap();
+    synth_fails(
+        &spot(),
+        &ex,
+        &["--height", hs],
+        hs,
+        &["16x24", "32x32", "same size"],
+    );
+}
+
+#[test]
+fn e11_missing_height_map() {
+    let tmp = tempfile::tempdir().unwrap();
+    let h = tmp.path().join("nowhere-height.png");
+    let hs = h.to_str().unwrap();
+    synth_fails(&spot(), &gravel(), &["--height", hs], hs, &["no such file"]);
+}
+
+#[test]
+fn e12_corrupt_height_map() {
+    let tmp = tempfile::tempdir().unwrap();
+    let h = tmp.path().join("height.png");
+    std::fs::write(&h, b"P5\n128 128\n255\n").unwrap();
+    let hs = h.to_str().unwrap();
+    synth_fails(
+        &spot(),
+        &gravel(),
+        &["--height", hs],
+        hs,
+        &["not a PNG or JPEG"],
+    );
+}
+
+// ------------------------------------------------------------------------- flags (synth)
+
+#[test]
+fn f01_unknown_flag() {
+    bad_flag(&["--colour", "red"], "--colour", &["unexpected argument"]);
+}
+
+#[test]
+fn f02_unknown_method() {
+    bad_flag(
+        &["--method", "magic"],
+        "--method",
+        &["'magic'", "coherent", "multiscale"],
+    );
+}
+
+#[test]
+fn f03_unknown_orient() {
+    bad_flag(
+        &["--orient", "sideways"],
+        "--orient",
+        &["'sideways'", "auto", "+x"],
+    );
+}
+
+#[test]
+fn f04_resolution_zero() {
+    bad_flag(&["--resolution", "0"], "--resolution", &["at least 1"]);
+    bake_fails(
+        &spot(),
+        &["--resolution", "0"],
+        "--resolution",
+        &["at least 1"],
+    );
+}
+
+#[test]
+fn f05_resolution_absurd() {
+    bad_flag(
+        &["--resolution", "100000"],
+        "--resolution",
+        &["too large", "8192"],
+    );
+    bad_flag(
+        &["--resolution", "99999999999999999999999"],
+        "--resolution",
+        &["not a whole number"],
+    );
+    bad_flag(
+        &["--resolution", "-4"],
+        "--resolution",
+        &["not a whole number"],
+    );
+}
+
+#[test]
+fn f06_resolution_too_large_for_memory() {
+    // Accepted by the parser, but 252 domains x 4096² texels would need ~0.5 TB: the
+    // memory guard refuses before building anything (default limit: 75% of RAM).
+    synth_fails(
+        &spot(),
+        &gravel(),
+        &["--resolution", "4096"],
+        &spot().display().to_string(),
+        &[
+            "would need about",
+            "GiB",
+            "75% of physical memory",
+            "--max-memory",
+        ],
+    );
+}
+
+#[test]
+fn f07_negative_scale() {
+    bad_flag(
+        &["--scale", "-1"],
+        "--scale",
+        &["-1", "finite number greater than 0"],
+    );
+}
+
+#[test]
+fn f08_zero_and_non_finite_scale() {
+    for s in ["0", "nan", "inf", "ten"] {
+        bad_flag(&["--scale", s], "--scale", &[s]);
+    }
+}
+
+#[test]
+fn f09_zero_threads() {
+    bad_flag(&["--threads", "0"], "--threads", &["between 1 and 1024"]);
+}
+
+#[test]
+fn f10_bad_max_memory() {
+    bad_flag(
+        &["--max-memory", "lots"],
+        "--max-memory",
+        &["'lots'", "512M"],
+    );
+    bad_flag(&["--max-memory", "0"], "--max-memory", &["at least 1 byte"]);
+}
+
+#[test]
+fn f11_max_memory_below_the_estimate() {
+    synth_fails(
+        &spot(),
+        &gravel(),
+        &["--max-memory", "10M"],
+        &spot().display().to_string(),
+        &["would need about", "limit of 10.0 MiB from --max-memory"],
+    );
+}
+
+#[test]
+fn f12_missing_required_flag() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    let o = surfsynth(&os(&[&"synth", &"--mesh", &spot(), &"--out", &out]));
+    assert_clean_failure(&o, &out, "--example", &["required"]);
+}
+
+// ------------------------------------------------------------------------------- outputs
+
+#[test]
+fn o01_out_below_a_regular_file() {
+    let tmp = tempfile::tempdir().unwrap();
+    let file = tmp.path().join("plain-file");
+    std::fs::write(&file, b"x").unwrap();
+    let out = file.join("out");
+    let o = surfsynth(&os(&[
+        &"synth",
+        &"--mesh",
+        &spot(),
+        &"--example",
+        &gravel(),
+        &"--resolution",
+        &"4",
+        &"--out",
+        &out,
+    ]));
+    assert_clean_failure(&o, &out, &out.display().to_string(), &["output directory"]);
+    assert_eq!(std::fs::read(&file).unwrap(), b"x", "the file is untouched");
+    assert_eq!(files_below(tmp.path()), vec![file]);
+}
+
+#[test]
+fn o02_out_is_an_existing_regular_file() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("taken");
+    std::fs::write(&out, b"keep me").unwrap();
+    let o = surfsynth(&os(&[
+        &"synth",
+        &"--mesh",
+        &spot(),
+        &"--example",
+        &gravel(),
+        &"--resolution",
+        &"4",
+        &"--out",
+        &out,
+    ]));
+    assert_clean_failure(
+        &o,
+        &out,
+        &out.display().to_string(),
+        &["must be a directory"],
+    );
+    assert_eq!(
+        std::fs::read(&out).unwrap(),
+        b"keep me",
+        "the file is untouched"
+    );
+    assert_eq!(
+        files_below(tmp.path()),
+        vec![out],
+        "no temporaries beside it"
+    );
+}
+
+#[test]
+fn o03_out_not_writable() {
+    // Tests run as root, where permission bits do not stop writes; sysfs refuses new
+    // entries even to root.
+    let out = Path::new("/sys/kernel");
+    if !out.is_dir() {
+        return; // not Linux
+    }
+    let before = files_below(out).len();
+    let o = surfsynth(&os(&[
+        &"synth",
+        &"--mesh",
+        &spot(),
+        &"--example",
+        &gravel(),
+        &"--resolution",
+        &"4",
+        &"--out",
+        &out,
+    ]));
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(matches!(o.status.code(), Some(1)), "{stderr}");
+    let line = stderr.trim_end();
+    assert!(
+        !line.contains('\n') && !stderr.contains("panicked"),
+        "{stderr}"
+    );
+    assert!(
+        line.contains("/sys/kernel") && line.contains("not writable"),
+        "{line}"
+    );
+    assert_eq!(files_below(out).len(), before);
+}
+
+/// A tiny valid result directory (one quad, N = 4).
+fn small_result(dir: &Path) -> PathBuf {
+    let mesh = dir.join("quad.obj");
+    std::fs::write(&mesh, format!("{SQUARE}f 1 2 3 4\n")).unwrap();
+    let out = dir.join("result");
+    let o = surfsynth(&os(&[
+        &"synth",
+        &"--mesh",
+        &mesh,
+        &"--example",
+        &gravel(),
+        &"--resolution",
+        &"4",
+        &"--out",
+        &out,
+    ]));
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    out
+}
+
+#[test]
+fn o04_render_and_eval_of_a_directory_without_results() {
+    let tmp = tempfile::tempdir().unwrap();
+    for cmd in ["render", "eval"] {
+        let o = surfsynth(&os(&[&cmd, &tmp.path()]));
+        let facemaps = tmp.path().join("facemaps.exr");
+        assert_clean_failure(
+            &o,
+            tmp.path(),
+            &facemaps.display().to_string(),
+            &["no such file"],
+        );
+    }
+}
+
+#[test]
+fn o05_render_and_eval_of_a_missing_directory() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("nowhere");
+    for cmd in ["render", "eval"] {
+        let o = surfsynth(&os(&[&cmd, &dir]));
+        assert_clean_failure(&o, &dir, &dir.display().to_string(), &["no such file"]);
+        assert!(!dir.exists());
+    }
+}
+
+#[test]
+fn o06_render_and_eval_of_a_truncated_result() {
+    let tmp = tempfile::tempdir().unwrap();
+    let res = small_result(tmp.path());
+    let f = res.join("facemaps.exr");
+    let bytes = std::fs::read(&f).unwrap();
+    std::fs::write(&f, &bytes[..bytes.len() / 3]).unwrap();
+    let before = files_below(&res);
+    for cmd in ["render", "eval"] {
+        let o = surfsynth(&os(&[&cmd, &res]));
+        let empty = tmp.path().join("no-out");
+        assert_clean_failure(
+            &o,
+            &empty,
+            &f.display().to_string(),
+            &["not a readable OpenEXR"],
+        );
+        assert_eq!(files_below(&res), before, "{cmd} wrote nothing");
+    }
+}
+
+#[test]
+fn o07_render_out_below_a_regular_file() {
+    let tmp = tempfile::tempdir().unwrap();
+    let res = small_result(tmp.path());
+    let file = tmp.path().join("plain-file");
+    std::fs::write(&file, b"x").unwrap();
+    let pic = file.join("p.png");
+    let before = files_below(&res);
+    let o = surfsynth(&os(&[
+        &"render",
+        &res,
+        &"--out",
+        &pic,
+        &"--width",
+        &"64",
+        &"--height",
+        &"48",
+    ]));
+    assert_clean_failure(&o, &file, &pic.display().to_string(), &["cannot create"]);
+    assert_eq!(files_below(&res), before);
+}
+
+#[test]
+fn o08_render_out_is_a_directory() {
+    let tmp = tempfile::tempdir().unwrap();
+    let res = small_result(tmp.path());
+    let before = files_below(&res);
+    let o = surfsynth(&os(&[&"render", &res, &"--out", &res]));
+    assert_clean_failure(
+        &o,
+        tmp.path().join("none").as_path(),
+        &res.display().to_string(),
+        &[".png"],
+    );
+    assert_eq!(files_below(&res), before);
+}
+
+#[test]
+fn o09_eval_negative_scale() {
+    let tmp = tempfile::tempdir().unwrap();
+    let o = surfsynth(&os(&[&"eval", &tmp.path(), &"--scale", &"-2"]));
+    assert_clean_failure(&o, tmp.path(), "--scale", &["greater than 0"]);
+}
