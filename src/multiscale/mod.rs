@@ -34,6 +34,7 @@
 //! wave started and its own texels as it writes them ([`level::View`]), so results are
 //! bit-identical for any thread count.
 
+pub mod bench;
 pub mod displace;
 pub mod level;
 
