@@ -810,3 +810,81 @@ fn o09_eval_negative_scale() {
     let o = surfsynth(&os(&[&"eval", &tmp.path(), &"--scale", &"-2"]));
     assert_clean_failure(&o, tmp.path(), "--scale", &["greater than 0"]);
 }
+
+// ------------------------------------------------------------------------- memory guard
+
+#[test]
+fn g01_bake_refuses_above_max_memory_and_passes_below() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    let args = |mm: &str| {
+        os(&[
+            &"bake",
+            &"--mesh",
+            &spot(),
+            &"--resolution",
+            &"8",
+            &"--max-memory",
+            &mm,
+            &"--out",
+            &out,
+        ])
+    };
+    let o = surfsynth(&args("1M"));
+    let msg = assert_clean_failure(
+        &o,
+        &out,
+        &spot().display().to_string(),
+        &[
+            "bake at --resolution 8 would need about",
+            "MiB",
+            "limit of 1.0 MiB from --max-memory",
+        ],
+    );
+    assert!(
+        msg.contains("252 domains x 8² texels x 6 channels"),
+        "{msg}"
+    );
+    assert!(!out.exists());
+    // The same run with room to spare succeeds.
+    let o = surfsynth(&args("4G"));
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(out.join("geometry.exr").is_file());
+}
+
+#[test]
+fn g02_synth_normal_run_passes_the_default_guard_and_the_estimate_is_close() {
+    // One run both checks that the default limit lets a normal job through and measures
+    // the estimate against the process's real peak (VmHWM, recorded in report.json).
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    let n = 32;
+    let o = surfsynth(&os(&[
+        &"synth",
+        &"--mesh",
+        &spot(),
+        &"--example",
+        &gravel(),
+        &"--resolution",
+        &"32",
+        &"--out",
+        &out,
+    ]));
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report = surfsynth::report::read(&out).unwrap();
+    let Some(peak) = report["peak_memory_bytes"].as_u64() else {
+        return; // no /proc: nothing to compare with
+    };
+    let control = subdiv::ControlMesh::load_obj(spot()).unwrap();
+    let size = surfsynth::memory::MeshSize::of(&control);
+    let job = surfsynth::memory::Job::Synth {
+        channels: 5,
+        example_pixels: 128 * 128,
+    };
+    let est = surfsynth::memory::estimate(&size, n, &job).bytes;
+    let ratio = est as f64 / peak as f64;
+    assert!(
+        (0.8..1.6).contains(&ratio),
+        "estimate {est} vs measured peak {peak}: ratio {ratio:.2}"
+    );
+}
