@@ -90,6 +90,9 @@ pub struct Report {
     pub threads: usize,
     pub schedule: ScheduleInfo,
     pub stats: Stats,
+    /// Multiscale levels and counters (`--method multiscale` only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub multiscale: Option<crate::multiscale::Stats>,
     pub seconds: Seconds,
     /// Texels per second of the whole run (`texels / seconds.total`).
     pub texels_per_second: f64,

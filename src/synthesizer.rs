@@ -323,11 +323,6 @@ impl Synthesizer {
         if self.threads == Some(0) {
             return Err(Error::invalid("threads must be at least 1"));
         }
-        if self.method == Method::Multiscale {
-            return Err(Error::invalid(
-                "method 'multiscale' is not available yet; use --method coherent",
-            ));
-        }
         Ok(())
     }
 
@@ -447,23 +442,58 @@ impl Synthesizer {
 
         progress(Stage::Synthesis, 0, faces);
         let t0 = Instant::now();
-        let inputs = coherent::Inputs {
-            geometry: &geometry,
-            graph: &graph,
-            frames: &frames,
-            schedule: &schedule,
-            scale,
-            seed: self.seed,
+        let (source, stats, multiscale_stats) = if self.method == Method::Multiscale {
+            // Multiscale (000 §4) needs the surface, field and scale, not the texel graph.
+            let weights = self.weights.per_channel(&example);
+            let inputs = crate::multiscale::Inputs {
+                surface: &surface,
+                field: &field,
+                resolution: n,
+                spacing,
+                scale,
+                seed: self.seed,
+                weights: &weights,
+            };
+            let ms = crate::multiscale::run(
+                &example,
+                &inputs,
+                &crate::multiscale::MultiscaleParams::default(),
+                &|done, total| {
+                    progress(
+                        Stage::Synthesis,
+                        (done * faces as u64 / total.max(1)) as usize,
+                        faces,
+                    )
+                },
+            )?;
+            (
+                ms.source,
+                crate::synth::coherent::Stats::default(),
+                Some(ms.stats),
+            )
+        } else {
+            let inputs = coherent::Inputs {
+                geometry: &geometry,
+                graph: &graph,
+                frames: &frames,
+                schedule: &schedule,
+                scale,
+                seed: self.seed,
+            };
+            let out = crate::synth::run_coherent(
+                &example,
+                &self.weights,
+                inputs,
+                &self.params,
+                &|done| progress(Stage::Synthesis, done, faces),
+            );
+            (out.source, out.stats, None)
         };
-        let out =
-            crate::synth::run_coherent(&example, &self.weights, inputs, &self.params, &|done| {
-                progress(Stage::Synthesis, done, faces)
-            });
         let synthesis_s = t0.elapsed().as_secs_f64();
 
         progress(Stage::Maps, 0, 1);
         let t0 = Instant::now();
-        let maps = crate::synth::face_maps(&example, &out.source, faces, n);
+        let maps = crate::synth::face_maps(&example, &source, faces, n);
         let maps_s = t0.elapsed().as_secs_f64();
         progress(Stage::Maps, 1, 1);
 
@@ -503,7 +533,8 @@ impl Synthesizer {
                 layers: schedule.layers,
                 waves: schedule.waves.len(),
             },
-            stats: out.stats,
+            stats,
+            multiscale: multiscale_stats,
             seconds: Seconds {
                 load,
                 geometry: geometry_s,
