@@ -48,8 +48,13 @@ impl Error {
 
 /// Collapses line breaks and runs of whitespace, because third-party messages (image
 /// decoders, clap) sometimes span several lines and our contract is one line per error.
+/// Other control characters (which hostile files can smuggle into messages that quote
+/// them, e.g. terminal escape sequences) become U+FFFD.
 pub fn one_line(s: &str) -> String {
-    s.split_whitespace().collect::<Vec<_>>().join(" ")
+    s.split_whitespace()
+        .map(|w| w.replace(|c: char| c.is_control(), "\u{fffd}"))
+        .collect::<Vec<_>>()
+        .join(" ")
 }
 
 #[cfg(test)]
@@ -60,6 +65,7 @@ mod tests {
     fn messages_are_one_line_and_name_the_file() {
         let e = Error::file("a/b.png", "bad\n  header\r\nline");
         assert_eq!(e.to_string(), "a/b.png: bad header line");
+        assert_eq!(one_line("'\x1b[31mred\x07'"), "'\u{fffd}[31mred\u{fffd}'");
         let e = Error::io(
             "x.exr",
             "cannot create",

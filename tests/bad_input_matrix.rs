@@ -353,6 +353,21 @@ fn m14_degenerate_surface_without_scale() {
     );
 }
 
+#[test]
+fn m15_control_characters_are_not_echoed() {
+    // A terminal escape sequence and a bell inside a quoted token: the message quotes the
+    // token, but without the control characters.
+    let tmp = tempfile::tempdir().unwrap();
+    let mesh = tmp.path().join("esc.obj");
+    std::fs::write(&mesh, "v 0 0 \x1b[31mred\x07\nf 1 2 3\n").unwrap();
+    let name = mesh.display().to_string();
+    synth_fails(&mesh, &gravel(), &[], &name, &["line 1", "bad coordinate"]);
+    let out = tmp.path().join("out");
+    let o = surfsynth(&os(&[&"bake", &"--mesh", &mesh, &"--out", &out]));
+    let msg = assert_clean_failure(&o, &out, &name, &["[31mred"]);
+    assert!(!msg.chars().any(|c| c.is_control()), "{msg:?}");
+}
+
 // ---------------------------------------------------------------------- examples (synth)
 
 #[test]
