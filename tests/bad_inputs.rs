@@ -150,7 +150,10 @@ fn face_with_repeated_vertex() {
 
 #[test]
 fn face_with_two_vertices() {
-    bad_obj(&format!("{SQUARE_VERTS}f 1 2\n"), &["face 1 ", "at least 3"]);
+    bad_obj(
+        &format!("{SQUARE_VERTS}f 1 2\n"),
+        &["face 1 ", "at least 3"],
+    );
 }
 
 #[test]
