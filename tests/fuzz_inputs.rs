@@ -230,13 +230,13 @@ enum Edit {
 fn edit() -> impl Strategy<Value = Edit> {
     let at = any::<usize>();
     prop_oneof![
-        3 => (at.clone(), 1usize..16).prop_map(|(at, len)| Edit::Delete { at, len }),
-        3 => (at.clone(), prop::collection::vec(edit_byte(), 1..8))
+        3 => (at, 1usize..16).prop_map(|(at, len)| Edit::Delete { at, len }),
+        3 => (at, prop::collection::vec(edit_byte(), 1..8))
             .prop_map(|(at, bytes)| Edit::Insert { at, bytes }),
-        3 => (at.clone(), edit_byte()).prop_map(|(at, byte)| Edit::Set { at, byte }),
-        2 => (at.clone(), 0u8..8).prop_map(|(at, bit)| Edit::Flip { at, bit }),
-        1 => at.clone().prop_map(|at| Edit::Truncate { at }),
-        2 => (at.clone(), 1usize..64, at).prop_map(|(from, len, to)| Edit::Splice { from, len, to }),
+        3 => (at, edit_byte()).prop_map(|(at, byte)| Edit::Set { at, byte }),
+        2 => (at, 0u8..8).prop_map(|(at, bit)| Edit::Flip { at, bit }),
+        1 => at.prop_map(|at| Edit::Truncate { at }),
+        2 => (at, 1usize..64, at).prop_map(|(from, len, to)| Edit::Splice { from, len, to }),
     ]
 }
 
