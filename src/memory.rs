@@ -339,7 +339,11 @@ pub fn estimate(size: &MeshSize, n: usize, job: &Job) -> Estimate {
 /// Refuses `estimate` when it is above the limit in force: one line naming `what` (the
 /// mesh file), the estimate, its largest part and the limit.
 pub fn check(what: &str, n: usize, job: &Job, e: &Estimate) -> Result<()> {
-    let lim = limit();
+    check_against(&limit(), what, n, job, e)
+}
+
+/// [`check`] against an explicit limit.
+pub fn check_against(lim: &Limit, what: &str, n: usize, job: &Job, e: &Estimate) -> Result<()> {
     if e.bytes <= lim.bytes {
         return Ok(());
     }
@@ -508,11 +512,15 @@ mod tests {
         let s = MeshSize::of(&grid(4));
         let job = Job::Bake { threads: 2 };
         let e = estimate(&s, 4096, &job);
-        // Limit below the estimate (set and restored within this test only: the other
-        // tests in this module do not call `check`).
-        set_limit(Some(1 << 20));
-        let msg = check("m.obj", 4096, &job, &e).unwrap_err().to_string();
-        set_limit(None);
+        // An explicit limit: the process-wide one is left alone, since other unit tests
+        // may be running synthesis at the same time.
+        let lim = |b: u64| Limit {
+            bytes: b,
+            source: format!("--max-memory {}", format_bytes(b)),
+        };
+        let msg = check_against(&lim(1 << 20), "m.obj", 4096, &job, &e)
+            .unwrap_err()
+            .to_string();
         assert!(!msg.contains('\n'), "{msg}");
         assert!(
             msg.starts_with("m.obj: bake at --resolution 4096 would need about "),
@@ -523,8 +531,7 @@ mod tests {
             msg.contains("limit of 1.0 MiB from --max-memory 1.0 MiB"),
             "{msg}"
         );
-        set_limit(Some(u64::MAX));
-        assert!(check("m.obj", 4096, &job, &e).is_ok());
-        set_limit(None);
+        assert!(check_against(&lim(e.bytes), "m.obj", 4096, &job, &e).is_ok());
+        assert!(check_against(&lim(u64::MAX), "m.obj", 4096, &job, &e).is_ok());
     }
 }
