@@ -55,6 +55,13 @@ const SYNTH_TEXEL: u64 = 100;
 const SYNTH_BORDER_TEXEL: u64 = 64;
 /// `synth`, per example pixel: decoded image, linear copy, alpha/height.
 const EXAMPLE_PIXEL: u64 = 64;
+/// `synth --method multiscale`, per texel and per example pixel, for each synthesized
+/// channel (R G B [A] [height]): the texel pyramid's neighbourhood features and the
+/// example pyramid's features, PCA projections and search structures. Measured on Spot
+/// at N = 16–64 with 64–256 px examples: ~900 B/texel and ~2.9 KB/example pixel with
+/// three channels.
+const MULTISCALE_TEXEL_PER_CHANNEL: u64 = 260;
+const MULTISCALE_PIXEL_PER_CHANNEL: u64 = 950;
 /// `bake`: geometry channels and the per-texel scratch of a whole-domain evaluation
 /// (`subdiv::LimitSample`, four f64 vectors), used up to N = 512.
 const BAKE_CHANNELS: u64 = 6;
@@ -232,10 +239,11 @@ impl MeshSize {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Job {
     /// `synth`: `channels` of facemaps.exr (R G B [A] [height] source.u source.v) from an
-    /// example of `example_pixels` pixels.
+    /// example of `example_pixels` pixels, with the multiscale method or the coherent one.
     Synth {
         channels: usize,
         example_pixels: usize,
+        multiscale: bool,
     },
     /// `bake` on `threads` worker threads.
     Bake { threads: usize },
@@ -293,6 +301,7 @@ pub fn estimate(size: &MeshSize, n: usize, job: &Job) -> Estimate {
         Job::Synth {
             channels,
             example_pixels,
+            multiscale,
         } => {
             parts.push((
                 "orientation field",
@@ -304,6 +313,17 @@ pub fn estimate(size: &MeshSize, n: usize, job: &Job) -> Estimate {
                 sat(sat(domains, 4 * n64), SYNTH_BORDER_TEXEL),
             ));
             parts.push(("example", sat(example_pixels as u64, EXAMPLE_PIXEL)));
+            if multiscale {
+                let c = channels.saturating_sub(2).max(1) as u64;
+                parts.push((
+                    "multiscale texel features",
+                    sat(texels, MULTISCALE_TEXEL_PER_CHANNEL * c),
+                ));
+                parts.push((
+                    "multiscale example features",
+                    sat(example_pixels as u64, MULTISCALE_PIXEL_PER_CHANNEL * c),
+                ));
+            }
             channels
         }
         Job::Bake { threads } => {
@@ -478,6 +498,7 @@ mod tests {
         let job = |c| Job::Synth {
             channels: c,
             example_pixels: 128 * 128,
+            multiscale: false,
         };
         let a = estimate(&s, 32, &job(5));
         let b = estimate(&s, 64, &job(5));
@@ -491,6 +512,13 @@ mod tests {
             "{}",
             b.shape
         );
+        // The multiscale method needs more per texel and per example pixel.
+        let ms = Job::Synth {
+            channels: 5,
+            example_pixels: 128 * 128,
+            multiscale: true,
+        };
+        assert!(estimate(&s, 64, &ms).bytes > b.bytes + 16 * 4096 * 3 * 200);
         // Absurd sizes saturate instead of overflowing.
         let huge = estimate(
             &MeshSize {

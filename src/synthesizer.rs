@@ -393,6 +393,7 @@ impl Synthesizer {
         let job = crate::memory::Job::Synth {
             channels: example.num_channels() + 2,
             example_pixels: example.width * example.height,
+            multiscale: self.method == Method::Multiscale,
         };
         let surface = match self.mesh {
             MeshSource::Path(ref p) => crate::memory::load_surface_checked(p, n, &job)?,

@@ -895,6 +895,7 @@ fn g02_synth_normal_run_passes_the_default_guard_and_the_estimate_is_close() {
     let job = surfsynth::memory::Job::Synth {
         channels: 5,
         example_pixels: 128 * 128,
+        multiscale: false,
     };
     let est = surfsynth::memory::estimate(&size, n, &job).bytes;
     let ratio = est as f64 / peak as f64;
