@@ -16,7 +16,8 @@
 //! - `synth`: the orientation field's limit mesh (at most 400,000 faces), per texel
 //!   `domains x N²` x (fixed overhead + 4 bytes x channels) — positions, normals, frames,
 //!   the neighbourhood graph, source positions, both map sets, the atlas — plus the border
-//!   texels' neighbour lists, plus the example;
+//!   texels' neighbour lists, plus the example; the multiscale method adds per-channel
+//!   feature costs per texel and per example pixel;
 //! - `bake`: only the tiles in flight (two batches, see [`crate::io::exr::write_tiles`]) and
 //!   the per-thread scratch: the maps are streamed, never held whole.
 //!
