@@ -40,6 +40,8 @@ pub fn command(out: &Path) -> SynthCommand {
         scale: None,
         orientation: Orientation::Auto,
         seed: SEED,
+        search: None,
+        displace: None,
         out: out.to_path_buf(),
     }
 }

@@ -63,6 +63,27 @@ const EXAMPLE_PIXEL: u64 = 64;
 /// three channels.
 const MULTISCALE_TEXEL_PER_CHANNEL: u64 = 260;
 const MULTISCALE_PIXEL_PER_CHANNEL: u64 = 950;
+/// `--displace`, per vertex of the tessellation: the limit mesh (its half-edge topology,
+/// f64 positions, normals and locations) and the displaced f32 copy with texture
+/// coordinates and quads. Measured: 341 MB peak with vs 108 MB without on Spot at N = 32
+/// (749,570 vertices), 311 B per vertex.
+const DISPLACE_VERTEX: u64 = 320;
+
+/// Vertices of displaced.obj: the limit mesh at the level with >= N segments per domain
+/// side ([`crate::multiscale::displace::level_for_texels`]): base quads x (2^(level-1))².
+/// With n-gon sub-faces (a sub-face is one base quad) quad domains get twice N per side.
+pub fn displaced_vertices(size: &MeshSize, n: usize) -> u64 {
+    let all_quads = size.base_quads == 4 * size.domains;
+    let n = n.clamp(1, 1024) as u64;
+    let per_base = if all_quads {
+        (n.next_power_of_two() / 2).max(1)
+    } else {
+        n.next_power_of_two()
+    }
+    .min(512); // level_for_texels stops at level 10
+
+    (size.base_quads as u64).saturating_mul(per_base * per_base)
+}
 /// `bake`: geometry channels and the per-texel scratch of a whole-domain evaluation
 /// (`subdiv::LimitSample`, four f64 vectors), used up to N = 512.
 const BAKE_CHANNELS: u64 = 6;
@@ -245,6 +266,8 @@ pub enum Job {
         channels: usize,
         example_pixels: usize,
         multiscale: bool,
+        /// `--displace`: displaced.obj is tessellated at texel resolution.
+        displace: bool,
     },
     /// `bake` on `threads` worker threads.
     Bake { threads: usize },
@@ -303,6 +326,7 @@ pub fn estimate(size: &MeshSize, n: usize, job: &Job) -> Estimate {
             channels,
             example_pixels,
             multiscale,
+            displace,
         } => {
             parts.push((
                 "orientation field",
@@ -323,6 +347,12 @@ pub fn estimate(size: &MeshSize, n: usize, job: &Job) -> Estimate {
                 parts.push((
                     "multiscale example features",
                     sat(example_pixels as u64, MULTISCALE_PIXEL_PER_CHANNEL * c),
+                ));
+            }
+            if displace {
+                parts.push((
+                    "displaced tessellation",
+                    sat(displaced_vertices(size, n), DISPLACE_VERTEX),
                 ));
             }
             channels
@@ -494,12 +524,29 @@ mod tests {
     }
 
     #[test]
+    fn displaced_vertices_count_the_tessellation() {
+        // Against the limit mesh displaced.obj is made of: all quads, and with n-gons.
+        let spot = ControlMesh::load_obj(
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/spot_control_mesh.obj"),
+        )
+        .unwrap();
+        for (control, n) in [(grid(4), 8), (grid(4), 5), (spot, 4)] {
+            let size = MeshSize::of(&control);
+            let surface = subdiv::Surface::new(control);
+            let level = crate::multiscale::displace::level_for_texels(&surface, n);
+            let quads = surface.limit_mesh(level).mesh.num_faces() as u64;
+            assert_eq!(displaced_vertices(&size, n), quads, "n = {n}");
+        }
+    }
+
+    #[test]
     fn estimate_grows_with_resolution_and_channels() {
         let s = MeshSize::of(&grid(4));
         let job = |c| Job::Synth {
             channels: c,
             example_pixels: 128 * 128,
             multiscale: false,
+            displace: false,
         };
         let a = estimate(&s, 32, &job(5));
         let b = estimate(&s, 64, &job(5));
@@ -518,6 +565,7 @@ mod tests {
             channels: 5,
             example_pixels: 128 * 128,
             multiscale: true,
+            displace: false,
         };
         assert!(estimate(&s, 64, &ms).bytes > b.bytes + 16 * 4096 * 3 * 200);
         // Absurd sizes saturate instead of overflowing.

@@ -93,6 +93,9 @@ pub struct Report {
     /// Multiscale levels and counters (`--method multiscale` only).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub multiscale: Option<crate::multiscale::Stats>,
+    /// `--displace` amount (displaced.obj written), when given.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub displace: Option<f64>,
     pub seconds: Seconds,
     /// Texels per second of the whole run (`texels / seconds.total`).
     pub texels_per_second: f64,

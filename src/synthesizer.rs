@@ -60,7 +60,29 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 use subdiv::Surface;
 
+pub use crate::multiscale::MultiscaleParams;
 pub use crate::synth::{CoherentParams, Method, Weights};
+
+/// Neighbourhood search of the multiscale method (`--search`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Search {
+    /// PCA-projected kd-tree, re-ranked by the exact distance (000 §4 with ANN).
+    Ann,
+    /// k-coherence candidate sets (003 §5.2): the default, faster at equal quality
+    /// (docs/multiscale.md has the comparison).
+    KCoherence,
+}
+
+impl Search {
+    /// This search with the default parameters of its kind.
+    pub fn method(self) -> crate::search::model::Method {
+        use crate::search::model::Method as M;
+        match self {
+            Search::Ann => M::Ann(Default::default()),
+            Search::KCoherence => M::KCoherence(Default::default()),
+        }
+    }
+}
 
 /// Output file names.
 pub const FACEMAPS_FILE: &str = "facemaps.exr";
@@ -177,6 +199,8 @@ pub struct Synthesizer {
     threads: Option<usize>,
     weights: Weights,
     params: CoherentParams,
+    multiscale: MultiscaleParams,
+    displace: Option<f64>,
     progress: Option<std::sync::Arc<Progress>>,
 }
 
@@ -207,6 +231,8 @@ pub struct SynthResult {
     /// report.json content; `seconds.write`, `seconds.total` and the rates are completed
     /// by [`SynthResult::write`].
     pub report: Report,
+    /// `--displace` amount: [`SynthResult::write`] also writes displaced.obj.
+    displace: Option<f64>,
     /// Time the run started (for the total).
     started: Instant,
 }
@@ -228,6 +254,8 @@ impl Synthesizer {
             threads: None,
             weights: Weights::default(),
             params: CoherentParams::default(),
+            multiscale: MultiscaleParams::default(),
+            displace: None,
             progress: None,
         }
     }
@@ -237,7 +265,7 @@ impl Synthesizer {
         self.height = Some(path.into());
         self
     }
-    /// Synthesis method (only [`Method::Coherent`] is available so far).
+    /// Synthesis method: [`Method::Coherent`] (default) or [`Method::Multiscale`].
     pub fn method(mut self, m: Method) -> Self {
         self.method = m;
         self
@@ -275,6 +303,23 @@ impl Synthesizer {
     /// Tuning of the coherent method.
     pub fn coherent_params(mut self, p: CoherentParams) -> Self {
         self.params = p;
+        self
+    }
+    /// Tuning of the multiscale method (neighbourhood sizes, search, levels).
+    pub fn multiscale_params(mut self, p: MultiscaleParams) -> Self {
+        self.multiscale = p;
+        self
+    }
+    /// Neighbourhood search of the multiscale method (`--search`), default parameters.
+    pub fn search(mut self, s: Search) -> Self {
+        self.multiscale.model.method = s.method();
+        self
+    }
+    /// Shape synthesis (`--displace AMOUNT`, 000 §6): [`SynthResult::write`] also writes
+    /// `displaced.obj`, the limit surface tessellated at texel resolution and moved along
+    /// the limit normal by `amount · (height − 0.5)`. Needs a height channel.
+    pub fn displace(mut self, amount: impl Into<Option<f64>>) -> Self {
+        self.displace = amount.into();
         self
     }
     /// Progress callback (see [`Progress`]).
@@ -322,6 +367,13 @@ impl Synthesizer {
         }
         if self.threads == Some(0) {
             return Err(Error::invalid("threads must be at least 1"));
+        }
+        if let Some(a) = self.displace {
+            if !a.is_finite() {
+                return Err(Error::invalid(format!(
+                    "displacement amount {a} is not a finite number"
+                )));
+            }
         }
         Ok(())
     }
@@ -389,11 +441,17 @@ impl Synthesizer {
                 (**e).clone()
             }
         };
+        if self.displace.is_some() && !example.channel_names().contains(&"height") {
+            return Err(Error::invalid(format!(
+                "--displace needs a height channel, and {example_label} has none: pass --height H.png"
+            )));
+        }
         // Memory guard (crate::memory): refuse before the surface and the maps are built.
         let job = crate::memory::Job::Synth {
             channels: example.num_channels() + 2,
             example_pixels: example.width * example.height,
             multiscale: self.method == Method::Multiscale,
+            displace: self.displace.is_some(),
         };
         let surface = match self.mesh {
             MeshSource::Path(ref p) => crate::memory::load_surface_checked(p, n, &job)?,
@@ -455,18 +513,14 @@ impl Synthesizer {
                 seed: self.seed,
                 weights: &weights,
             };
-            let ms = crate::multiscale::run(
-                &example,
-                &inputs,
-                &crate::multiscale::MultiscaleParams::default(),
-                &|done, total| {
+            let ms =
+                crate::multiscale::run(&example, &inputs, &self.multiscale, &|done, total| {
                     progress(
                         Stage::Synthesis,
                         (done * faces as u64 / total.max(1)) as usize,
                         faces,
                     )
-                },
-            )?;
+                })?;
             (
                 ms.source,
                 crate::synth::coherent::Stats::default(),
@@ -536,6 +590,7 @@ impl Synthesizer {
             },
             stats,
             multiscale: multiscale_stats,
+            displace: self.displace,
             seconds: Seconds {
                 load,
                 geometry: geometry_s,
@@ -557,6 +612,7 @@ impl Synthesizer {
             surface,
             example,
             report,
+            displace: self.displace,
             started,
         })
     }
@@ -589,18 +645,36 @@ impl SynthResult {
     }
 
     /// Writes BRIEF's output directory into `dir` (created if missing): facemaps.exr,
-    /// geometry.exr, surface.obj + surface.mtl + atlas.png ([`crate::io::atlas`]) and
-    /// report.json, last. Every file is written atomically; if one fails, the files written
+    /// geometry.exr, surface.obj + surface.mtl + atlas.png ([`crate::io::atlas`]),
+    /// displaced.obj when the run was given [`Synthesizer::displace`], and report.json,
+    /// last. Every file is written atomically; if one fails, the files written
     /// by this call are removed again, so the directory never holds a partial result of
     /// this run.
     pub fn write(&self, dir: impl AsRef<Path>) -> Result<Report> {
         self.write_with(dir, |d| {
             crate::io::atlas::export(d, &self.surface, &self.maps, &Default::default())?;
-            Ok(vec![
+            let mut written = vec![
                 d.join(crate::io::atlas::OBJ_NAME),
                 d.join(crate::io::atlas::MTL_NAME),
                 d.join(crate::io::atlas::ATLAS_NAME),
-            ])
+            ];
+            if let Some(amount) = self.displace {
+                match crate::multiscale::displace::write_displaced(
+                    d,
+                    &self.surface,
+                    &self.maps,
+                    amount,
+                ) {
+                    Ok(p) => written.push(p),
+                    Err(e) => {
+                        for p in &written {
+                            let _ = std::fs::remove_file(p);
+                        }
+                        return Err(e);
+                    }
+                }
+            }
+            Ok(written)
         })
     }
 
@@ -654,6 +728,10 @@ pub struct SynthCommand {
     pub scale: Option<f64>,
     pub orientation: Orientation,
     pub seed: u64,
+    /// `--search` (multiscale only; `None` = the default, k-coherence).
+    pub search: Option<Search>,
+    /// `--displace AMOUNT`.
+    pub displace: Option<f64>,
     pub out: PathBuf,
 }
 
@@ -666,9 +744,13 @@ impl SynthCommand {
             .resolution(self.resolution)
             .scale(self.scale)
             .orientation(self.orientation.clone())
-            .seed(self.seed);
+            .seed(self.seed)
+            .displace(self.displace);
         if let Some(h) = &self.height {
             s = s.height(h);
+        }
+        if let Some(search) = self.search {
+            s = s.search(search);
         }
         s
     }

@@ -896,6 +896,7 @@ fn g02_synth_normal_run_passes_the_default_guard_and_the_estimate_is_close() {
         channels: 5,
         example_pixels: 128 * 128,
         multiscale: false,
+        displace: false,
     };
     let est = surfsynth::memory::estimate(&size, n, &job).bytes;
     let ratio = est as f64 / peak as f64;

@@ -53,3 +53,37 @@ fn multiscale_runs_from_the_cli() {
     let seam = q.seam_ratio.unwrap();
     assert!(seam <= 1.15, "seam ratio {seam}");
 }
+
+#[test]
+fn search_flag_selects_ann_and_is_refused_for_the_coherent_method() {
+    let dir = tempfile::tempdir().unwrap();
+    let mesh = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/fixtures/spot_control_mesh.obj"
+    );
+    let example = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/gravel.png");
+    let run = |extra: &[&str], out: &std::path::Path| {
+        Command::new(env!("CARGO_BIN_EXE_surfsynth"))
+            .args(["synth", "--mesh", mesh, "--example", example])
+            .args(["--resolution", "4"])
+            .args(extra)
+            .arg("--out")
+            .arg(out)
+            .output()
+            .unwrap()
+    };
+    for search in ["ann", "kcoherence"] {
+        let out = dir.path().join(search);
+        let o = run(&["--method", "multiscale", "--search", search], &out);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let report = surfsynth::report::read(&out).unwrap();
+        assert_eq!(report["multiscale"]["search"], search);
+        assert_eq!(surfsynth::eval::evaluate(&out, None).unwrap().coverage, 1.0);
+    }
+    let out = dir.path().join("coherent");
+    let o = run(&["--search", "ann"], &out);
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("--method multiscale"), "{err}");
+    assert!(!out.exists());
+}

@@ -115,11 +115,6 @@ fn usage_error(e: clap::Error) -> i32 {
     }
 }
 
-/// The error for subcommands whose implementation has not landed yet.
-pub fn not_implemented(name: &str) -> anyhow::Result<()> {
-    anyhow::bail!("`surfsynth {name}` is not implemented yet")
-}
-
 /// `--resolution`: 1..=8192 texels per face side.
 pub fn parse_resolution(s: &str) -> Result<usize, String> {
     let n: usize = s

@@ -1,7 +1,7 @@
-//! `surfsynth synth`: the main job (issues 4 and 5). Arguments are final; the handler is a
-//! placeholder until the synthesizers land.
+//! `surfsynth synth`: the main job (issues 4 and 5). The handler is
+//! [`surfsynth::synthesizer::run_command`]; this module only maps the arguments.
 
-use super::{not_implemented, parse_finite, parse_orient, parse_positive, parse_resolution};
+use super::{parse_finite, parse_orient, parse_positive, parse_resolution};
 use clap::{Args, ValueEnum};
 use std::path::PathBuf;
 use surfsynth::field::Orientation;
@@ -36,7 +36,8 @@ pub struct SynthArgs {
     /// Synthesis method.
     #[arg(long, value_enum, default_value_t = Method::Coherent)]
     pub method: Method,
-    /// Neighbourhood search for the multiscale method (default: the faster of equal quality).
+    /// Neighbourhood search of the multiscale method (default: kcoherence, the faster at
+    /// equal quality).
     #[arg(long, value_enum)]
     pub search: Option<Search>,
     /// Texels per side of every face map.
@@ -70,10 +71,11 @@ pub struct SynthArgs {
 
 pub fn run(a: SynthArgs) -> anyhow::Result<()> {
     // The handler lives in the library (surfsynth::synthesizer::run_command).
-    if a.displace.is_some() {
-        return not_implemented("synth --displace");
+    if a.search.is_some() && a.method != Method::Multiscale {
+        anyhow::bail!("--search applies to --method multiscale only (the coherent method has no search structure)");
     }
     surfsynth::memory::set_limit(a.max_memory);
+    use surfsynth::synthesizer::Search as S;
     let method = match a.method {
         Method::Coherent => surfsynth::synthesizer::Method::Coherent,
         Method::Multiscale => surfsynth::synthesizer::Method::Multiscale,
@@ -87,6 +89,11 @@ pub fn run(a: SynthArgs) -> anyhow::Result<()> {
         scale: a.scale,
         orientation: a.orient,
         seed: a.seed,
+        search: a.search.map(|s| match s {
+            Search::Ann => S::Ann,
+            Search::Kcoherence => S::KCoherence,
+        }),
+        displace: a.displace,
         out: a.out,
     })?;
     Ok(())

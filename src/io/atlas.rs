@@ -502,8 +502,17 @@ pub fn face_domain_corners(surface: &Surface, lm: &LimitMesh) -> Vec<(u32, [(f64
 /// Tessellates the limit surface at `level` (>= 1; see [`level_for_resolution`]) with UVs
 /// into `layout`.
 pub fn tessellate(surface: &Surface, layout: &AtlasLayout, level: u32) -> SurfaceMesh {
-    let level = level.max(1);
-    let lm = surface.limit_mesh(level);
+    tessellate_limit_mesh(surface, layout, &surface.limit_mesh(level.max(1)))
+}
+
+/// [`tessellate`] of a limit mesh the caller already has (`surface.limit_mesh(level)`), for
+/// callers that also need its vertex locations (displacement).
+pub fn tessellate_limit_mesh(
+    surface: &Surface,
+    layout: &AtlasLayout,
+    lm: &LimitMesh,
+) -> SurfaceMesh {
+    let level = lm.level;
     let per_base = 1usize << (level - 1);
     // UV grid per domain: (M+1)² points, M = segments per domain side.
     let segments = |d: usize| match surface.domain(DomainId::from_idx(d)) {
@@ -522,7 +531,7 @@ pub fn tessellate(surface: &Surface, layout: &AtlasLayout, level: u32) -> Surfac
             }
         }
     }
-    let corners = face_domain_corners(surface, &lm);
+    let corners = face_domain_corners(surface, lm);
     let mut quads = Vec::with_capacity(corners.len());
     let mut quad_domain = Vec::with_capacity(corners.len());
     for (f, &(d, uv)) in corners.iter().enumerate() {

@@ -16,7 +16,7 @@
 //! changes them.
 
 use crate::error::{Error, Result};
-use crate::io::atlas::{tessellate, AtlasLayout, SurfaceMesh, DEFAULT_GUTTER, MTL_NAME};
+use crate::io::atlas::{tessellate_limit_mesh, AtlasLayout, SurfaceMesh, DEFAULT_GUTTER, MTL_NAME};
 use crate::io::atomic::AtomicFile;
 use crate::io::exr::FaceMaps;
 use crate::maps::{self, MapLayout};
@@ -66,10 +66,9 @@ pub fn displaced_mesh(surface: &Surface, facemaps: &FaceMaps, amount: f64) -> Re
     let hmap = maps::FaceMaps::from_data(layout, 1, height.to_vec());
     let level = level_for_texels(surface, n);
     let atlas = AtlasLayout::new(facemaps.faces, n, DEFAULT_GUTTER);
-    let mut mesh = tessellate(surface, &atlas, level);
-    // The same refinement gives the same vertex order; it also knows where each vertex is.
+    // One limit mesh: the tessellation's vertices, and where each of them is.
     let lm = surface.limit_mesh(level);
-    assert_eq!(lm.position.len(), mesh.positions.len());
+    let mut mesh = tessellate_limit_mesh(surface, &atlas, &lm);
     mesh.positions
         .par_iter_mut()
         .enumerate()
