@@ -42,6 +42,7 @@ pub fn command(out: &Path) -> SynthCommand {
         seed: SEED,
         search: None,
         displace: None,
+        handedness: Default::default(),
         out: out.to_path_buf(),
     }
 }

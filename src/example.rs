@@ -167,6 +167,27 @@ impl Example {
         }
     }
 
+    /// The example upside down (row y becomes row height − 1 − y; every channel). A
+    /// continuous position (x, y) of the original is (x, height − y) in the copy, and
+    /// bilinear lookups agree there exactly.
+    pub fn flipped_rows(&self) -> Self {
+        let (w, h) = (self.width, self.height);
+        fn flip<T: Copy>(v: &[T], w: usize, h: usize) -> Vec<T> {
+            (0..h)
+                .rev()
+                .flat_map(|y| v[y * w..(y + 1) * w].iter().copied())
+                .collect()
+        }
+        Self {
+            path: self.path.clone(),
+            width: w,
+            height: h,
+            rgb: flip(&self.rgb, w, h),
+            alpha: self.alpha.as_ref().map(|a| flip(a, w, h)),
+            height_map: self.height_map.as_ref().map(|a| flip(a, w, h)),
+        }
+    }
+
     /// Names of the channels [`Example::bilinear`] fills, in its order: `R G B`, then `A`
     /// when present, then `height` when present (the facemaps.exr channel names).
     pub fn channel_names(&self) -> Vec<&'static str> {

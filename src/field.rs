@@ -580,6 +580,33 @@ impl LevelProblem {
     }
 }
 
+/// `auto` leaves one freedom: E (without targets) is unchanged when every vector turns by
+/// the same angle about its normal, and the eigenvector's phase is arbitrary. Fix it
+/// predictably: turn the field so that it follows world +x as closely as possible (least
+/// squares over the vertices), or +y, then +z where the axis is (almost) normal everywhere
+/// or the field winds around it. On a flat grid in the xy plane v1 is then exactly +x, so
+/// the texture lines up with the grid (and with the face maps when u runs along +x).
+fn align_global_rotation(lm: &LimitMesh, v1: &mut [DVec3]) {
+    for axis in [DVec3::X, DVec3::Y, DVec3::Z] {
+        let mut sum = DVec2::ZERO;
+        let mut total = 0.0;
+        for (v, n) in v1.iter().zip(&lm.normal) {
+            let w = n.cross(*v);
+            sum += DVec2::new(axis.dot(*v), axis.dot(w));
+            total += (axis - n * axis.dot(*n)).length();
+        }
+        // Meaningful only where the axis is not (almost) normal to the surface throughout.
+        if sum.length() > 0.05 * total && total > 1e-3 * v1.len() as f64 {
+            let c = sum / sum.length();
+            for (v, n) in v1.iter_mut().zip(&lm.normal) {
+                let r = *v * c.x + n.cross(*v) * c.y;
+                *v = r.try_normalize().unwrap_or(*v);
+            }
+            return;
+        }
+    }
+}
+
 /// Splits vertices into two classes with no edge inside a class (BFS), or one class if the
 /// graph is not bipartite.
 fn two_colour(start: &[u32], nbr: &[u32]) -> Vec<Vec<u32>> {
@@ -726,7 +753,10 @@ impl OrientationField {
             let v1: Vec<DVec3> = (0..prob.nv()).map(|i| prob.to_3d(i, z[i])).collect();
             prev = Some((lm, v1));
         }
-        let (mesh, v1) = prev.expect("at least one level");
+        let (mesh, mut v1) = prev.expect("at least one level");
+        if *orientation == Orientation::Auto {
+            align_global_rotation(&mesh, &mut v1);
+        }
         Ok(OrientationField {
             mesh,
             v1,

@@ -96,6 +96,9 @@ pub struct Report {
     /// `--displace` amount (displaced.obj written), when given.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub displace: Option<f64>,
+    /// Image rows along +v2 (`tiles`) or −v2 (`outside`), see
+    /// [`crate::synthesizer::Handedness`].
+    pub handedness: crate::synthesizer::Handedness,
     pub seconds: Seconds,
     /// Texels per second of the whole run (`texels / seconds.total`).
     pub texels_per_second: f64,

@@ -63,6 +63,31 @@ use subdiv::Surface;
 pub use crate::multiscale::MultiscaleParams;
 pub use crate::synth::{CoherentParams, Method, Weights};
 
+/// Which way round the example is laid on the surface (`--handedness`).
+///
+/// Image columns always run along v1. Image rows can run along +v2 or −v2 (v2 = n × v1),
+/// and the two choices are mirror images of each other; BRIEF's tiles (u to the right, v
+/// downwards) and the surface seen from outside (v1 to the right, v2 up) are themselves
+/// mirror images, so exactly one of them shows the example unmirrored:
+///
+/// - [`Handedness::Tiles`] (default): rows along +v2. Where v1 runs along u, a face map is
+///   the example as stored (on a flat grid with `--orient +x`, or `auto`, whose free
+///   rotation follows +x, the tiles are crops of the example), which is what tile-based
+///   measures such as `eval`'s patch fidelity compare. Seen from outside, the texture is
+///   mirrored: invisible for stochastic or symmetric examples, visible for text.
+/// - [`Handedness::Outside`]: rows along −v2. Seen from the side the normals point to, the
+///   texture reads exactly as the example (text stays readable); the tiles are mirrored.
+///
+/// Both synthesizers work in the `Outside` frame; for `Tiles` the builder hands them the
+/// example upside down and turns the source positions back (exact: bilinear lookups agree).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Handedness {
+    #[default]
+    Tiles,
+    Outside,
+}
+
 /// Neighbourhood search of the multiscale method (`--search`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Search {
@@ -201,6 +226,7 @@ pub struct Synthesizer {
     params: CoherentParams,
     multiscale: MultiscaleParams,
     displace: Option<f64>,
+    handedness: Handedness,
     progress: Option<std::sync::Arc<Progress>>,
 }
 
@@ -256,6 +282,7 @@ impl Synthesizer {
             params: CoherentParams::default(),
             multiscale: MultiscaleParams::default(),
             displace: None,
+            handedness: Handedness::default(),
             progress: None,
         }
     }
@@ -320,6 +347,11 @@ impl Synthesizer {
     /// the limit normal by `amount · (height − 0.5)`. Needs a height channel.
     pub fn displace(mut self, amount: impl Into<Option<f64>>) -> Self {
         self.displace = amount.into();
+        self
+    }
+    /// Which way round the example is laid on the surface (see [`Handedness`]).
+    pub fn handedness(mut self, h: Handedness) -> Self {
+        self.handedness = h;
         self
     }
     /// Progress callback (see [`Progress`]).
@@ -501,9 +533,19 @@ impl Synthesizer {
 
         progress(Stage::Synthesis, 0, faces);
         let t0 = Instant::now();
-        let (source, stats, multiscale_stats) = if self.method == Method::Multiscale {
+        // The synthesizers lay image rows along −v2 (Handedness::Outside); for Tiles they
+        // get the example upside down, and the sources are turned back below.
+        let flipped;
+        let synth_example = match self.handedness {
+            Handedness::Outside => &example,
+            Handedness::Tiles => {
+                flipped = example.flipped_rows();
+                &flipped
+            }
+        };
+        let (mut source, stats, multiscale_stats) = if self.method == Method::Multiscale {
             // Multiscale (000 §4) needs the surface, field and scale, not the texel graph.
-            let weights = self.weights.per_channel(&example);
+            let weights = self.weights.per_channel(synth_example);
             let inputs = crate::multiscale::Inputs {
                 surface: &surface,
                 field: &field,
@@ -513,14 +555,18 @@ impl Synthesizer {
                 seed: self.seed,
                 weights: &weights,
             };
-            let ms =
-                crate::multiscale::run(&example, &inputs, &self.multiscale, &|done, total| {
+            let ms = crate::multiscale::run(
+                synth_example,
+                &inputs,
+                &self.multiscale,
+                &|done, total| {
                     progress(
                         Stage::Synthesis,
                         (done * faces as u64 / total.max(1)) as usize,
                         faces,
                     )
-                })?;
+                },
+            )?;
             (
                 ms.source,
                 crate::synth::coherent::Stats::default(),
@@ -536,7 +582,7 @@ impl Synthesizer {
                 seed: self.seed,
             };
             let out = crate::synth::run_coherent(
-                &example,
+                synth_example,
                 &self.weights,
                 inputs,
                 &self.params,
@@ -544,6 +590,12 @@ impl Synthesizer {
             );
             (out.source, out.stats, None)
         };
+        if self.handedness == Handedness::Tiles {
+            let h = example.height as f32;
+            for s in &mut source {
+                s[1] = h - s[1];
+            }
+        }
         let synthesis_s = t0.elapsed().as_secs_f64();
 
         progress(Stage::Maps, 0, 1);
@@ -591,6 +643,7 @@ impl Synthesizer {
             stats,
             multiscale: multiscale_stats,
             displace: self.displace,
+            handedness: self.handedness,
             seconds: Seconds {
                 load,
                 geometry: geometry_s,
@@ -732,6 +785,8 @@ pub struct SynthCommand {
     pub search: Option<Search>,
     /// `--displace AMOUNT`.
     pub displace: Option<f64>,
+    /// `--handedness`.
+    pub handedness: Handedness,
     pub out: PathBuf,
 }
 
@@ -745,7 +800,8 @@ impl SynthCommand {
             .scale(self.scale)
             .orientation(self.orientation.clone())
             .seed(self.seed)
-            .displace(self.displace);
+            .displace(self.displace)
+            .handedness(self.handedness);
         if let Some(h) = &self.height {
             s = s.height(h);
         }

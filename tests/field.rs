@@ -199,3 +199,45 @@ fn result_does_not_depend_on_the_thread_count() {
     assert_eq!(a.vertex_v1(), b.vertex_v1());
     assert_eq!(a.history(), b.history());
 }
+
+/// `auto` on flat grids: the smoothest field is constant, and its free global rotation is
+/// fixed to follow world +x (then +y where +x is normal to the plane), so textures line up
+/// with grids whose u runs along +x.
+#[test]
+fn auto_field_on_flat_grids_follows_world_x_then_y() {
+    // (rotation applied to the xy grid, expected v1)
+    let cases = [
+        (glam::DMat3::IDENTITY, DVec3::X),
+        // Tilted about x: still contains +x.
+        (glam::DMat3::from_rotation_x(0.7), DVec3::X),
+        // The yz plane: +x is normal, so +y.
+        (
+            glam::DMat3::from_rotation_y(std::f64::consts::FRAC_PI_2),
+            DVec3::Y,
+        ),
+        // Turned 30° in its plane: v1 is still +x, no longer along u.
+        (glam::DMat3::from_rotation_z(0.5), DVec3::X),
+    ];
+    for (rot, want) in cases {
+        let p: Vec<DVec3> = (0..25)
+            .map(|i| rot * DVec3::new((i % 5) as f64, (i / 5) as f64, 0.0))
+            .collect();
+        let faces: Vec<[u32; 4]> = (0..16u32)
+            .map(|f| {
+                let i = f / 4 * 5 + f % 4;
+                [i, i + 1, i + 6, i + 5]
+            })
+            .collect();
+        let faces: Vec<&[u32]> = faces.iter().map(|f| &f[..]).collect();
+        let s = Surface::new(subdiv::ControlMesh::from_faces(p, &faces).unwrap());
+        let f = OrientationField::compute(&s, &Orientation::Auto).unwrap();
+        let mut worst = 0.0f64;
+        for d in 0..s.num_domains() {
+            for (u, v) in [(0.5, 0.5), (0.1, 0.9), (0.95, 0.05)] {
+                let fr = f.frame(&s, DomainId::from_idx(d), u, v);
+                worst = worst.max(fr.v1.angle_between(want).to_degrees());
+            }
+        }
+        assert!(worst < 1e-6, "{rot:?}: v1 off {want} by {worst}°");
+    }
+}

@@ -22,6 +22,14 @@ pub enum Search {
     Kcoherence,
 }
 
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Handedness {
+    /// Face maps show the example as stored.
+    Tiles,
+    /// The surface seen from outside shows the example as stored.
+    Outside,
+}
+
 #[derive(Args, Debug)]
 pub struct SynthArgs {
     /// Control mesh (OBJ).
@@ -60,6 +68,11 @@ pub struct SynthArgs {
     /// Also write displaced.obj, moved along the normal by AMOUNT x (height - 0.5).
     #[arg(long, value_name = "AMOUNT", value_parser = parse_finite, allow_negative_numbers = true)]
     pub displace: Option<f64>,
+    /// Image rows along +v2 (tiles: face maps show the example as stored, so the surface
+    /// seen from outside shows its mirror image) or along -v2 (outside: the texture reads
+    /// correctly seen from outside, e.g. text; the tiles are mirrored).
+    #[arg(long, value_enum, default_value_t = Handedness::Tiles)]
+    pub handedness: Handedness,
     /// Output directory (created if missing).
     #[arg(long, value_name = "DIR")]
     pub out: PathBuf,
@@ -94,6 +107,10 @@ pub fn run(a: SynthArgs) -> anyhow::Result<()> {
             Search::Kcoherence => S::KCoherence,
         }),
         displace: a.displace,
+        handedness: match a.handedness {
+            Handedness::Tiles => surfsynth::synthesizer::Handedness::Tiles,
+            Handedness::Outside => surfsynth::synthesizer::Handedness::Outside,
+        },
         out: a.out,
     })?;
     Ok(())
