@@ -388,3 +388,246 @@ fn alpha_and_height_are_synthesized_jointly_and_displace_the_surface() {
         .to_string();
     assert!(e.contains("height") && !e.contains('\n'), "{e}");
 }
+
+/// Figures for docs/benchmarks.md, not a test (timings depend on the machine and its
+/// load): `cargo test --release --test multiscale figures -- --ignored --nocapture`.
+/// `MS_FIGURES` picks rows: `spot` (Spot N 32, the `synth`/`demo` gravel fixture), `t64`,
+/// `t192` (Torus rows, k-coherence and ANN); default all. `MS_SEARCH=ann|kcoherence`
+/// restricts the Torus rows to one search. Each row runs in a fresh thread pool of
+/// `RAYON_NUM_THREADS` (default: all cores).
+#[test]
+#[ignore]
+fn figures() {
+    let rows = std::env::var("MS_FIGURES").unwrap_or_else(|_| "spot,t64,t192".into());
+    let search = std::env::var("MS_SEARCH").ok();
+    let methods: Vec<Method> = [kcoherence(), Method::Ann(AnnParams::default())]
+        .into_iter()
+        .filter(|m| {
+            search
+                .as_deref()
+                .is_none_or(|s| (s == "ann") == matches!(m, Method::Ann(_)))
+        })
+        .collect();
+    for row in rows.split(',') {
+        let (ex, faces, n): (Example, Option<usize>, usize) = match row {
+            "spot" => (
+                Example::load(Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/gravel.png"))
+                    .unwrap(),
+                None,
+                32,
+            ),
+            "t64" => (texture("etr_gravel.png", 64), Some(32), 60),
+            "t192" => (texture("etr_gravel.png", 192), Some(32), 60),
+            other => panic!("unknown row {other}"),
+        };
+        let list = if faces.is_some() {
+            methods.clone()
+        } else {
+            vec![kcoherence()]
+        };
+        for method in list {
+            let mut params = MultiscaleParams::default();
+            params.model.method = method;
+            let r = match faces {
+                Some(f) => multiscale::bench::bench_torus(f, n, &ex, &params, 1).unwrap(),
+                None => {
+                    let surface = surfsynth::bake::load_surface_for(
+                        shared("meshes/spot_control_mesh.obj"),
+                        n,
+                    )
+                    .unwrap();
+                    multiscale::bench::bench_surface(&surface, n, &ex, &params, 1).unwrap()
+                }
+            };
+            let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
+            println!(
+                "FIGURES {row} {}: wall {:.2} s, cpu {:?} s, synthesis {:.2} s, model {:.2} s, \
+                 geometry {:.2} s, search {:.2} s, {:.0} texels/s, {:.1} distances/query, \
+                 peak {:?} B/texel, threads {}, load {}",
+                r.search,
+                r.total_seconds,
+                r.cpu_seconds.map(|c| (c * 100.0).round() / 100.0),
+                r.synthesis_seconds,
+                r.stats.model_seconds,
+                r.stats.geometry_seconds,
+                r.stats.search_seconds,
+                r.texels_per_second,
+                r.stats.candidates as f64 / r.stats.queries as f64,
+                r.peak_bytes_per_texel.map(|b| b.round()),
+                r.threads,
+                load.trim()
+            );
+            println!(
+                "FIGURES {row} patterns {:?} sampler {:?}",
+                r.stats.patterns, r.stats.sampler
+            );
+        }
+    }
+}
+
+/// Accuracy of the parameter-space patterns against the vertex-chart sampler on Spot, for
+/// docs/multiscale.md: `cargo test --release --test multiscale pattern_accuracy --
+/// --ignored --nocapture`. Per level of a N = 32 run (9x9 at that level's step), texels
+/// bucketed by the spacing error the parameter pattern's check sees (interpolated texel
+/// positions); per bucket the true spacing error (limit evaluation) of the parameter
+/// pattern and of the sampler's pattern on the same texels, and how often the sampler
+/// marched.
+#[test]
+#[ignore]
+fn pattern_accuracy() {
+    use surfsynth::multiscale::level::{
+        parameter_pattern, regular_corners, shift_pattern, spacing_error,
+    };
+    use surfsynth::sampling::{Method as SMethod, Sampler, SamplerKind};
+    let mesh = std::env::var("MS_MESH").unwrap_or_else(|_| "meshes/spot_control_mesh.obj".into());
+    let n = 32;
+    let surface = surfsynth::bake::load_surface_for(shared(&mesh), n).unwrap();
+    let field = OrientationField::compute(&surface, &Orientation::Auto).unwrap();
+    let h = TexelGeometry::compute(&surface, n).median_spacing(&surface);
+    let sampler = Sampler::new(&surface, &field);
+    let corners = std::sync::Arc::new(regular_corners(&surface));
+    let k = 9;
+    let bounds = [0.04, 0.08, 0.15, 0.25, f64::INFINITY];
+    for (level, r) in [(0usize, 32usize), (1, 16), (2, 8)] {
+        let delta = h * (1 << level) as f64;
+        let geo = multiscale::level::LevelGeometry::new(&surface, &field, r, corners.clone());
+        let stride = if r >= 32 { 7 } else { 1 };
+        // Per bucket: (param true errors, sampler true errors, marched count); last bucket:
+        // parameter pattern not applicable.
+        let mut buckets: Vec<(Vec<f64>, Vec<f64>, usize)> =
+            vec![(Vec::new(), Vec::new(), 0); bounds.len() + 1];
+        let mut locs = vec![None; k * k];
+        let mut buf = vec![None; k * k];
+        let mut pts = Vec::new();
+        let mut truth = vec![glam::Vec3::NAN; k * k];
+        let true_error =
+            |locs: &[Option<subdiv::DomainLocation>], truth: &mut Vec<glam::Vec3>, nrm| {
+                for (p, l) in truth.iter_mut().zip(locs) {
+                    *p = match l {
+                        Some(l) => surface.eval(l.domain, l.u, l.v).p.as_vec3(),
+                        None => glam::Vec3::NAN,
+                    };
+                }
+                spacing_error(truth, k, delta, nrm, f64::INFINITY)
+            };
+        for t in (0..geo.len()).step_by(stride) {
+            let nrm = geo.frames[t].n.as_vec3();
+            let p = parameter_pattern(
+                &geo,
+                &surface,
+                t,
+                delta,
+                k,
+                f64::INFINITY,
+                &mut locs,
+                &mut pts,
+            );
+            let (b, pe) = match p {
+                Some(p) => (
+                    bounds.iter().position(|&x| p.error <= x).unwrap(),
+                    Some(true_error(&locs, &mut truth, nrm)),
+                ),
+                None => (bounds.len(), None),
+            };
+            let info = sampler.sample_with_frame(
+                geo.location(t),
+                &geo.frames[t],
+                delta,
+                k,
+                SamplerKind::Chart,
+                &mut buf,
+            );
+            // Sampler rows run along +v2: flip to our order for the flip check.
+            let mut ours = vec![None; k * k];
+            for m in 0..k {
+                ours[(k - 1 - m) * k..(k - m) * k].copy_from_slice(&buf[m * k..(m + 1) * k]);
+            }
+            let se = true_error(&ours, &mut truth, nrm);
+            let e = &mut buckets[b];
+            if let Some(pe) = pe {
+                e.0.push(pe);
+            }
+            e.1.push(se);
+            if info.method == SMethod::March {
+                e.2 += 1;
+            }
+        }
+        // Shifted patterns: the sampler's pattern at the centre of the texel's 3x3 block
+        // moved to the texel, against the sampler's own pattern there (sample distance
+        // in units of δ).
+        let mut dev = Vec::new();
+        let mut anchor = vec![None; k * k];
+        let mut moved = vec![None; k * k];
+        let sample = |t: usize, out: &mut Vec<Option<subdiv::DomainLocation>>| {
+            let mut raw = vec![None; k * k];
+            sampler.sample_with_frame(
+                geo.location(t),
+                &geo.frames[t],
+                delta,
+                k,
+                SamplerKind::Chart,
+                &mut raw,
+            );
+            for m in 0..k {
+                out[(k - 1 - m) * k..(k - m) * k].copy_from_slice(&raw[m * k..(m + 1) * k]);
+            }
+        };
+        for t in (0..geo.len()).step_by(stride * 3 + 1) {
+            let li = t % (r * r);
+            let (x, y) = (li % r, li / r);
+            let a = t - li + (3 * (y / 3) + 1).min(r - 1) * r + (3 * (x / 3) + 1).min(r - 1);
+            if a == t {
+                continue;
+            }
+            sample(a, &mut anchor);
+            sample(t, &mut buf);
+            if !shift_pattern(&geo, &surface, a, t, &anchor, &mut moved) {
+                continue;
+            }
+            for (m, d) in moved.iter().zip(&buf) {
+                if let (Some(m), Some(d)) = (m, d) {
+                    let pm = surface.eval(m.domain, m.u, m.v).p;
+                    let pd = surface.eval(d.domain, d.u, d.v).p;
+                    dev.push((pm - pd).length() / delta);
+                }
+            }
+        }
+        dev.sort_by(|a, b| a.total_cmp(b));
+        println!(
+            "ACCURACY r={r} shifted: {} samples, distance to the sampler's own / δ: mean {:.4} p95 {:.4} max {:.4}",
+            dev.len(),
+            dev.iter().sum::<f64>() / dev.len().max(1) as f64,
+            dev[dev.len() * 95 / 100],
+            dev[dev.len() - 1]
+        );
+        let summary = |v: &mut Vec<f64>| -> String {
+            if v.is_empty() {
+                return "-".into();
+            }
+            v.sort_by(|a, b| a.total_cmp(b));
+            let fin: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
+            let mean = fin.iter().sum::<f64>() / fin.len().max(1) as f64;
+            format!(
+                "mean {:.3} p95 {:.3} max {:.3} flipped {}",
+                mean,
+                v[(v.len() * 95 / 100).min(v.len() - 1)],
+                v[v.len() - 1],
+                v.len() - fin.len()
+            )
+        };
+        for (i, (pe, se, marched)) in buckets.iter_mut().enumerate() {
+            let label = if i < bounds.len() {
+                format!("check <= {}", bounds[i])
+            } else {
+                "not applicable".into()
+            };
+            println!(
+                "ACCURACY r={r} {label}: {} patterns; parameter {}; sampler {} ({} marched)",
+                se.len(),
+                summary(pe),
+                summary(se),
+                marched
+            );
+        }
+    }
+}

@@ -48,16 +48,28 @@ pub fn bench_torus(
     seed: u64,
 ) -> Result<BenchResult> {
     let surface = Surface::new(crate::bench::torus_mesh(min_domains));
+    bench_surface(&surface, n, example, params, seed)
+}
+
+/// The same figures on any surface (e.g. Spot, loaded with
+/// [`crate::bake::load_surface_for`]), with the default scale and orientation (`Auto`).
+pub fn bench_surface(
+    surface: &Surface,
+    n: usize,
+    example: &Example,
+    params: &MultiscaleParams,
+    seed: u64,
+) -> Result<BenchResult> {
     let cpu0 = crate::bench::cpu_seconds();
     let t0 = Instant::now();
-    let geom = TexelGeometry::compute(&surface, n);
-    let field = OrientationField::compute(&surface, &Orientation::Auto)
+    let geom = TexelGeometry::compute(surface, n);
+    let field = OrientationField::compute(surface, &Orientation::Auto)
         .map_err(|e| crate::Error::invalid(format!("orientation field: {e:#}")))?;
-    let spacing = geom.median_spacing(&surface);
+    let spacing = geom.median_spacing(surface);
     let setup_seconds = t0.elapsed().as_secs_f64();
     let weights = crate::synth::Weights::default().per_channel(example);
     let inputs = Inputs {
-        surface: &surface,
+        surface,
         field: &field,
         resolution: n,
         spacing,

@@ -20,13 +20,46 @@ pub struct LevelGeometry {
     /// Per texel, the change of (u, v) per unit surface length along v1 and along v2:
     /// `[w1.u, w1.v, w2.u, w2.v]`, from the pseudo-inverse of the Jacobian (∂P/∂u, ∂P/∂v).
     pub axes: Vec<[f64; 4]>,
-    /// Per texel, the largest relative change of the metric (JᵀJ) to an adjacent texel of
-    /// the same domain: how far the parameterisation is from an isometry to the plane
-    /// around the texel (see [`pattern`]).
-    pub bend: Vec<f32>,
+    /// Per texel, the Christoffel symbols of the parameterisation
+    /// `[Γᵘ_uu, Γᵘ_uv, Γᵘ_vv, Γᵛ_uu, Γᵛ_uv, Γᵛ_vv]` (tangential part of the second
+    /// derivatives, by differences of ∂P/∂u, ∂P/∂v between the domain's texels): the
+    /// second-order term of the geodesics from the texel (see [`pattern`]).
+    pub christoffel: Vec<[f32; 6]>,
     /// Per domain, whether each corner ((0,0), (1,0), (0,1), (1,1)) is a regular vertex of
     /// the base mesh (see [`pattern`]).
     pub regular_corners: Arc<Vec<[bool; 4]>>,
+}
+
+/// Christoffel symbols `[Γᵘ_uu, Γᵘ_uv, Γᵘ_vv, Γᵛ_uu, Γᵛ_uv, Γᵛ_vv]` at texel `i` of one
+/// domain's `r x r` limit samples: Γᵏ_ij = gᵏˡ⟨∂ᵢ∂ⱼP, ∂ₗP⟩ with the second derivatives
+/// from differences of the first ones between adjacent texels (central inside the domain,
+/// one-sided at its rim; over one texel, the scale of the patterns that use them).
+/// `g` = (E, F, G, EG − F²) of the texel.
+fn christoffel_at(buf: &[LimitSample], r: usize, i: usize, g: (f64, f64, f64, f64)) -> [f32; 6] {
+    if r < 2 {
+        return [0.0; 6];
+    }
+    let (x, y) = (i % r, i / r);
+    let h = 1.0 / r as f64;
+    let (xa, xb) = (x.saturating_sub(1), (x + 1).min(r - 1));
+    let (ya, yb) = (y.saturating_sub(1), (y + 1).min(r - 1));
+    let su = (xb - xa) as f64 * h;
+    let sv = (yb - ya) as f64 * h;
+    let (ea, eb) = (&buf[y * r + xa], &buf[y * r + xb]);
+    let (na, nb) = (&buf[ya * r + x], &buf[yb * r + x]);
+    let p_uu = (eb.du - ea.du) / su;
+    let p_uv = ((eb.dv - ea.dv) / su + (nb.du - na.du) / sv) * 0.5;
+    let p_vv = (nb.dv - na.dv) / sv;
+    let s = &buf[i];
+    let (e, f, gg, det) = g;
+    let raise = |p: glam::DVec3| {
+        let (x, y) = (p.dot(s.du), p.dot(s.dv));
+        ((gg * x - f * y) / det, (e * y - f * x) / det)
+    };
+    let (uu_u, uu_v) = raise(p_uu);
+    let (uv_u, uv_v) = raise(p_uv);
+    let (vv_u, vv_v) = raise(p_vv);
+    [uu_u, uv_u, vv_u, uu_v, uv_v, vv_v].map(|x| x as f32)
 }
 
 /// Per domain, whether its corners are regular base-mesh vertices (interior valence 4, or
@@ -75,21 +108,20 @@ impl LevelGeometry {
         let faces = surface.num_domains();
         let mut pos = vec![Vec3::ZERO; faces * nn];
         let mut axes = vec![[0.0f64; 4]; faces * nn];
-        let mut metric = vec![[0.0f64; 3]; faces * nn];
+        let mut christoffel = vec![[0.0f32; 6]; faces * nn];
         pos.par_chunks_mut(nn)
             .zip(axes.par_chunks_mut(nn))
-            .zip(metric.par_chunks_mut(nn))
+            .zip(christoffel.par_chunks_mut(nn))
             .enumerate()
             .for_each_init(
                 || vec![LimitSample::default(); nn],
-                |buf, (d, ((p, ax), g))| {
+                |buf, (d, ((p, ax), gam))| {
                     surface.eval_texels(DomainId::from_idx(d), r, buf);
                     for (i, s) in buf.iter().enumerate() {
                         p[i] = s.p.as_vec3();
                         let f = &frames[d * nn + i];
                         // (JᵀJ)⁻¹ Jᵀ v: the parameter step that moves along v to first order.
                         let (a, b, c) = (s.du.dot(s.du), s.du.dot(s.dv), s.dv.dot(s.dv));
-                        g[i] = [a, b, c];
                         let det = a * c - b * b;
                         if det > 0.0 && det.is_finite() {
                             let solve = |v: glam::DVec3| {
@@ -99,6 +131,7 @@ impl LevelGeometry {
                             let (w1u, w1v) = solve(f.v1);
                             let (w2u, w2v) = solve(f.v2);
                             ax[i] = [w1u, w1v, w2u, w2v];
+                            gam[i] = christoffel_at(buf, r, i, (a, b, c, det));
                         } else {
                             // Degenerate derivatives (never at texel centres in practice):
                             // mark unusable so patterns go through the sampler.
@@ -107,47 +140,13 @@ impl LevelGeometry {
                     }
                 },
             );
-        let bend = (0..faces * nn)
-            .into_par_iter()
-            .map(|t| {
-                let (x, y) = (t % r, (t / r) % r);
-                let g = metric[t];
-                let norm = (g[0] * g[0] + 2.0 * g[1] * g[1] + g[2] * g[2]).sqrt();
-                let mut worst = 0.0f64;
-                let mut visit = |q: usize| {
-                    let h = metric[q];
-                    let d = ((h[0] - g[0]).powi(2)
-                        + 2.0 * (h[1] - g[1]).powi(2)
-                        + (h[2] - g[2]).powi(2))
-                    .sqrt();
-                    worst = worst.max(d / norm);
-                };
-                if x > 0 {
-                    visit(t - 1);
-                }
-                if x + 1 < r {
-                    visit(t + 1);
-                }
-                if y > 0 {
-                    visit(t - r);
-                }
-                if y + 1 < r {
-                    visit(t + r);
-                }
-                if norm > 0.0 && worst.is_finite() {
-                    worst as f32
-                } else {
-                    f32::INFINITY
-                }
-            })
-            .collect();
         Self {
             r,
             layout,
             pos,
             frames,
             axes,
-            bend,
+            christoffel,
             regular_corners,
         }
     }
@@ -173,6 +172,31 @@ impl LevelGeometry {
         self.layout.texel_location(t)
     }
 
+    /// Limit position at a domain point, bilinear between the level's texel centres (across
+    /// domain edges through the map layout's ring).
+    #[inline]
+    pub fn position_at(&self, loc: DomainLocation) -> Vec3 {
+        let n = self.r;
+        let fx = loc.u * n as f64 - 0.5;
+        let fy = loc.v * n as f64 - 0.5;
+        let (x0, y0) = (fx.floor(), fy.floor());
+        if x0 >= 0.0 && y0 >= 0.0 && x0 + 1.0 < n as f64 && y0 + 1.0 < n as f64 {
+            let (ax, ay) = ((fx - x0) as f32, (fy - y0) as f32);
+            let base = self
+                .layout
+                .texel_index(loc.domain, x0 as usize, y0 as usize);
+            let p = &self.pos;
+            let top = p[base] * (1.0 - ax) + p[base + 1] * ax;
+            let bottom = p[base + n] * (1.0 - ax) + p[base + n + 1] * ax;
+            return top * (1.0 - ay) + bottom * ay;
+        }
+        let mut out = Vec3::ZERO;
+        for (i, w) in self.layout.taps(loc).iter() {
+            out += self.pos[i] * w;
+        }
+        out
+    }
+
     /// Offset of texel `q` from texel `t` in example pixels of a level whose pixels are
     /// `delta` long on the surface, in the frame of `t`: image x along v1, image y along
     /// −v2 (rows grow downwards while v2 = n × v1 turns counter-clockwise seen from
@@ -186,12 +210,11 @@ impl LevelGeometry {
     }
 }
 
-/// Largest estimated relative spacing error at the rim of a first-order pattern (see
-/// [`pattern`]). The estimate is pessimistic: at 8% the accepted patterns measured a mean
-/// spacing error of 1–2% and a 95th percentile of 3–6% on the torus, Spot and Blub
-/// (`docs/multiscale.md`), against 0.1–0.2% for the vertex-chart sampler, which is ~20x
-/// slower; at 4% a third of the Torus benchmark's patterns went to the sampler.
-pub const BEND_TOLERANCE: f64 = 0.08;
+/// Relative spacing tolerance of parameter-space patterns: every pair of adjacent samples
+/// must be δ·(1 ± tol) apart (measured on the level's texel positions) and no cell may be
+/// flipped, else the vertex-chart sampler takes the pattern. The same 4% the sampler
+/// demands of its chart patterns ([`crate::sampling::DEFAULT_TOLERANCE`]).
+pub const PATTERN_TOLERANCE: f64 = 0.08;
 
 /// How patterns were obtained (summed over texels; reported).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
@@ -209,6 +232,12 @@ pub struct PatternStats {
     pub sampler_march: u64,
     /// Samples off an open surface.
     pub missing: u64,
+    /// Parameter-space patterns that failed the spacing check (then sampled by the
+    /// vertex-chart sampler: counted there too).
+    pub rejected: u64,
+    /// Sampler patterns not sampled but moved from the pattern of the anchor texel (the
+    /// centre) of their 3x3 block of the domain, at most one texel step away.
+    pub shifted: u64,
 }
 
 impl PatternStats {
@@ -218,30 +247,117 @@ impl PatternStats {
         self.sampler_chart += o.sampler_chart;
         self.sampler_march += o.sampler_march;
         self.missing += o.missing;
+        self.rejected += o.rejected;
+        self.shifted += o.shifted;
     }
 }
 
 /// The K×K pattern around texel `t` at step `delta`, in [`crate::search::Shape`] order
 /// (`locs[(dy + h)·K + dx + h]`, dx along v1 = image columns, dy along −v2 = image rows).
 ///
-/// Chart sampling (000 §4.2, steps 1–5) with the cheapest valid chart:
-/// * a pattern inside the texel's own domain is laid out in that domain's
-///   parameterisation with the first-order map (u, v) + δ·(dx·w1 − dy·w2) — the face is
-///   its own chart — at no evaluation cost;
-/// * a pattern that crosses domain edges but stays within one domain of its own and
-///   reaches across corners only where they are regular vertices ([`regular_corners`]) is
-///   laid out the same way and its outside samples are walked across the edges in
-///   parameter space ([`Surface::walk`]): around regular vertices the faces' parameter
-///   planes are the paper's vertex chart (the valence-4 characteristic map is the
-///   parameter grid);
-/// * everything else goes to the vertex charts of [`Sampler`], which marches where no
-///   chart fits.
+/// Chart sampling (000 §4.2) with the cheapest chart that passes the check:
+/// * the texel's own domain parameterisation, extended across its edges by walking in
+///   parameter space ([`Surface::walk`]). Samples follow the geodesics from the centre to
+///   second order (Riemann normal coordinates): the sample at tangent offset
+///   δ·(dx·v1 − dy·v2) sits at parameter offset q − ½Γ(q, q), q = δ·(dx·w1 − dy·w2), w the
+///   parameter steps per unit length along v1, v2, Γ the texel's Christoffel symbols —
+///   the second-order term of paper 000's chart patterns, in the domain's own chart, at no
+///   evaluation cost. Allowed when the pattern reaches at most half a domain beyond its
+///   own and goes around a domain corner (a sample beyond both edges meeting there) only
+///   where that corner is a regular vertex: around regular vertices the faces' parameter
+///   planes join as one uniform B-spline grid, across an edge they join wherever the
+///   surface is regular. The pattern is then *checked* on the level's texel positions
+///   (bilinear between texel centres): adjacent samples δ·(1 ± [`PATTERN_TOLERANCE`])
+///   apart and no flipped cell — the sampler's check, without its limit evaluations.
+/// * otherwise (near extraordinary vertices, or at coarse levels where the metric changes
+///   across the pattern) the vertex charts of [`Sampler`], which march where no chart fits.
 ///
 /// `kind` = march (the coarsest level, 000 §4) always marches.
 ///
-/// Measured against [`Sampler`] on the same patterns in `docs/multiscale.md`.
+/// `pts` is scratch space (K² positions). Measured against [`Sampler`] on the same
+/// patterns in `docs/multiscale.md`.
 #[allow(clippy::too_many_arguments)]
 pub fn pattern(
+    geo: &LevelGeometry,
+    sampler: &Sampler<'_>,
+    t: usize,
+    delta: f64,
+    k: usize,
+    kind: SamplerKind,
+    tol: f64,
+    locs: &mut [Option<DomainLocation>],
+    scratch: &mut PatternScratch,
+    st: &mut PatternStats,
+) {
+    if kind == SamplerKind::Chart {
+        if let Some(p) = parameter_pattern(
+            geo,
+            sampler.surface(),
+            t,
+            delta,
+            k,
+            tol,
+            locs,
+            &mut scratch.pts,
+        ) {
+            if p.error <= tol {
+                if p.inside {
+                    st.in_domain += 1;
+                } else {
+                    st.regular_chart += 1;
+                }
+                st.missing += p.missing;
+                return;
+            }
+            st.rejected += 1;
+        }
+        // The anchor (centre texel) of t's 3x3 block: its sampler pattern, moved to t.
+        let r = geo.r;
+        let li = t % (r * r);
+        let (x, y) = (li % r, li / r);
+        let (ax, ay) = ((3 * (x / 3) + 1).min(r - 1), (3 * (y / 3) + 1).min(r - 1));
+        let a = t - li + ay * r + ax;
+        let kk = k * k;
+        let slot = x / 3;
+        let slots = r.div_ceil(3);
+        if scratch.anchor_of.len() != slots || scratch.anchor_k != kk {
+            scratch.anchor_of = vec![usize::MAX; slots];
+            scratch.anchors = vec![None; slots * kk];
+            scratch.anchor_k = kk;
+        }
+        if scratch.anchor_of[slot] != a {
+            let dst = &mut scratch.anchors[slot * kk..(slot + 1) * kk];
+            sample(geo, sampler, a, delta, k, kind, &mut scratch.buf, dst, st);
+            scratch.anchor_of[slot] = a;
+        }
+        let src = &scratch.anchors[slot * kk..(slot + 1) * kk];
+        if a == t {
+            locs[..kk].copy_from_slice(src);
+            return;
+        }
+        if shift_pattern(geo, sampler.surface(), a, t, src, locs) {
+            locs[kk / 2] = Some(geo.location(t));
+            st.shifted += 1;
+            return;
+        }
+    }
+    sample(geo, sampler, t, delta, k, kind, &mut scratch.buf, locs, st);
+}
+
+/// Working buffers of [`pattern`] (one per task; no allocation per texel).
+#[derive(Default)]
+pub struct PatternScratch {
+    buf: Vec<Option<DomainLocation>>,
+    pts: Vec<Vec3>,
+    /// Sampler patterns of the anchors of the current block row, by block column.
+    anchors: Vec<Option<DomainLocation>>,
+    anchor_of: Vec<usize>,
+    anchor_k: usize,
+}
+
+/// The sampler's pattern at texel `t` in our row order.
+#[allow(clippy::too_many_arguments)]
+fn sample(
     geo: &LevelGeometry,
     sampler: &Sampler<'_>,
     t: usize,
@@ -254,59 +370,6 @@ pub fn pattern(
 ) {
     let h = (k / 2) as i64;
     let centre = geo.location(t);
-    let [w1u, w1v, w2u, w2v] = geo.axes[t];
-    let reach = h as f64 * delta;
-    let (eu, ev) = (
-        reach * (w1u.abs() + w2u.abs()),
-        reach * (w1v.abs() + w2v.abs()),
-    );
-    let finite = eu.is_finite() && ev.is_finite();
-    let (lo_u, hi_u) = (centre.u - eu < 0.0, centre.u + eu > 1.0);
-    let (lo_v, hi_v) = (centre.v - ev < 0.0, centre.v + ev > 1.0);
-    let inside = !(lo_u || hi_u || lo_v || hi_v);
-    // Crossing patterns: only from domains whose four corners are all regular, and
-    // reaching at most half a domain beyond their own, so that every face they touch
-    // shares a regular corner with it (see the measurements in docs/multiscale.md: near
-    // an extraordinary vertex the parameterisation bends too fast for a first-order
-    // pattern).
-    let near = finite
-        && eu <= 0.5
-        && ev <= 0.5
-        && geo.regular_corners[centre.domain.idx()].iter().all(|&r| r);
-    // First-order patterns are exact where the metric is constant; a relative metric
-    // change m per texel step bends spacings at the pattern's rim by about m·(reach in
-    // texels)/2. Beyond BEND_TOLERANCE the accurate sampler takes over.
-    let reach_texels = eu.max(ev) * geo.r as f64;
-    let straight = (geo.bend[t] as f64) * reach_texels * 0.5 <= BEND_TOLERANCE;
-    if finite && straight && kind == SamplerKind::Chart && (inside || near) {
-        if inside {
-            st.in_domain += 1;
-        } else {
-            st.regular_chart += 1;
-        }
-        for dy in -h..=h {
-            for dx in -h..=h {
-                let (a, b) = (dx as f64 * delta, -dy as f64 * delta);
-                let (du, dv) = (a * w1u + b * w2u, a * w1v + b * w2v);
-                let (u, v) = (centre.u + du, centre.v + dv);
-                let i = ((dy + h) as usize) * k + (dx + h) as usize;
-                locs[i] = if (0.0..=1.0).contains(&u) && (0.0..=1.0).contains(&v) {
-                    Some(DomainLocation {
-                        domain: centre.domain,
-                        u,
-                        v,
-                    })
-                } else {
-                    let l = sampler.surface().walk(centre, du, dv);
-                    if l.is_none() {
-                        st.missing += 1;
-                    }
-                    l
-                };
-            }
-        }
-        return;
-    }
     buf.resize(k * k, None);
     let info = sampler.sample_with_frame(centre, &geo.frames[t], delta, k, kind, buf);
     match kind {
@@ -322,15 +385,209 @@ pub fn pattern(
     }
 }
 
+/// Moves the pattern `src` of texel `a` to texel `t` of the same domain (at most one
+/// texel away in u and v): every sample moves by the chord τ = P(t) − P(a), expressed in
+/// the frame of the texel under the sample and mapped to its domain's parameter by that
+/// texel's axes (walking across edges where it leaves the domain). First order in τ: the
+/// spacing of the pattern is kept, its samples are off by ~½|Γ|·|τ|², a small fraction of
+/// a texel. False when a sample sits on a texel with degenerate axes.
+pub fn shift_pattern(
+    geo: &LevelGeometry,
+    surface: &Surface,
+    a: usize,
+    t: usize,
+    src: &[Option<DomainLocation>],
+    locs: &mut [Option<DomainLocation>],
+) -> bool {
+    let tau = (geo.pos[t] - geo.pos[a]).as_dvec3();
+    let r = geo.r;
+    let rf = r as f64;
+    for (o, s) in locs.iter_mut().zip(src) {
+        let Some(l) = *s else {
+            *o = None;
+            continue;
+        };
+        let x = ((l.u * rf) as usize).min(r - 1);
+        let y = ((l.v * rf) as usize).min(r - 1);
+        let q = geo.layout.texel_index(l.domain, x, y);
+        let f = &geo.frames[q];
+        let (a1, a2) = (tau.dot(f.v1), tau.dot(f.v2));
+        let [w1u, w1v, w2u, w2v] = geo.axes[q];
+        let (du, dv) = (a1 * w1u + a2 * w2u, a1 * w1v + a2 * w2v);
+        if !(du.is_finite() && dv.is_finite()) {
+            return false;
+        }
+        let (u, v) = (l.u + du, l.v + dv);
+        *o = if (0.0..=1.0).contains(&u) && (0.0..=1.0).contains(&v) {
+            Some(DomainLocation {
+                domain: l.domain,
+                u,
+                v,
+            })
+        } else {
+            surface.walk(l, du, dv)
+        };
+    }
+    true
+}
+
+/// What [`parameter_pattern`] found.
+#[derive(Clone, Copy, Debug)]
+pub struct ParameterPattern {
+    /// Inside the texel's own domain.
+    pub inside: bool,
+    /// Samples off an open surface.
+    pub missing: u64,
+    /// Largest |d/δ − 1| over adjacent samples (rows and columns) on the level's texel
+    /// positions; infinite for a flipped cell, or as soon as it exceeds the `tol` asked for.
+    pub error: f64,
+}
+
+/// The parameter-space pattern of [`pattern`] in `locs` (and the samples' positions in
+/// `pts`), or `None` where it does not apply (degenerate axes, more than half a domain
+/// beyond the texel's, around an extraordinary corner). The check stops early once the
+/// error exceeds `tol`.
+#[allow(clippy::too_many_arguments)]
+pub fn parameter_pattern(
+    geo: &LevelGeometry,
+    surface: &Surface,
+    t: usize,
+    delta: f64,
+    k: usize,
+    tol: f64,
+    locs: &mut [Option<DomainLocation>],
+    pts: &mut Vec<Vec3>,
+) -> Option<ParameterPattern> {
+    let h = (k / 2) as i64;
+    let centre = geo.location(t);
+    let [w1u, w1v, w2u, w2v] = geo.axes[t];
+    if !(w1u.is_finite() && w1v.is_finite() && w2u.is_finite() && w2v.is_finite()) {
+        return None;
+    }
+    let g = geo.christoffel[t].map(|x| x as f64);
+    // Offsets first: extent and corners.
+    let (mut lo_u, mut hi_u, mut lo_v, mut hi_v) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+    let corners = &geo.regular_corners[centre.domain.idx()];
+    for dy in -h..=h {
+        for dx in -h..=h {
+            let (a, b) = (dx as f64 * delta, -dy as f64 * delta);
+            let (qu, qv) = (a * w1u + b * w2u, a * w1v + b * w2v);
+            let du = qu - 0.5 * (g[0] * qu * qu + 2.0 * g[1] * qu * qv + g[2] * qv * qv);
+            let dv = qv - 0.5 * (g[3] * qu * qu + 2.0 * g[4] * qu * qv + g[5] * qv * qv);
+            let (u, v) = (centre.u + du, centre.v + dv);
+            // Around a corner: only a regular one.
+            let (out_u, out_v) = (!(0.0..=1.0).contains(&u), !(0.0..=1.0).contains(&v));
+            if out_u && out_v {
+                let c = (u > 1.0) as usize + 2 * (v > 1.0) as usize;
+                if !corners[c] {
+                    return None;
+                }
+            }
+            lo_u = lo_u.min(u);
+            hi_u = hi_u.max(u);
+            lo_v = lo_v.min(v);
+            hi_v = hi_v.max(v);
+            let i = ((dy + h) as usize) * k + (dx + h) as usize;
+            locs[i] = Some(DomainLocation {
+                domain: centre.domain,
+                u: du,
+                v: dv,
+            });
+        }
+    }
+    if !(lo_u.is_finite() && hi_u.is_finite() && lo_v.is_finite() && hi_v.is_finite())
+        || lo_u < -0.5
+        || lo_v < -0.5
+        || hi_u > 1.5
+        || hi_v > 1.5
+    {
+        return None;
+    }
+    let inside = lo_u >= 0.0 && lo_v >= 0.0 && hi_u <= 1.0 && hi_v <= 1.0;
+    // Locations (offsets so far) and positions.
+    pts.resize(k * k, Vec3::NAN);
+    let mut missing = 0u64;
+    for (l, p) in locs[..k * k].iter_mut().zip(pts.iter_mut()) {
+        let off = l.expect("set above");
+        let (u, v) = (centre.u + off.u, centre.v + off.v);
+        *l = if (0.0..=1.0).contains(&u) && (0.0..=1.0).contains(&v) {
+            Some(DomainLocation {
+                domain: centre.domain,
+                u,
+                v,
+            })
+        } else {
+            surface.walk(centre, off.u, off.v)
+        };
+        *p = match *l {
+            Some(loc) => geo.position_at(loc),
+            None => {
+                missing += 1;
+                Vec3::NAN
+            }
+        };
+    }
+    let error = spacing_error(pts, k, delta, geo.frames[t].n.as_vec3(), tol);
+    Some(ParameterPattern {
+        inside,
+        missing,
+        error,
+    })
+}
+
+/// Largest |d/δ − 1| over adjacent samples (rows and columns; missing samples, NaN,
+/// skipped); infinite when a cell is flipped against `n` or once the error exceeds `tol`.
+pub fn spacing_error(pts: &[Vec3], k: usize, delta: f64, n: Vec3, tol: f64) -> f64 {
+    let inv = 1.0 / delta as f32;
+    let mut worst = 0.0f32;
+    let tol = tol as f32;
+    let mut rel = |a: Vec3, b: Vec3| {
+        let e = ((b - a).length() * inv - 1.0).abs();
+        if e > worst {
+            worst = e;
+        }
+        worst <= tol
+    };
+    for m in 0..k {
+        for l in 0..k {
+            let p = pts[m * k + l];
+            if p.is_nan() {
+                continue;
+            }
+            if l > 0 && !pts[m * k + l - 1].is_nan() && !rel(pts[m * k + l - 1], p) {
+                return f64::INFINITY;
+            }
+            if m > 0 && !pts[(m - 1) * k + l].is_nan() && !rel(pts[(m - 1) * k + l], p) {
+                return f64::INFINITY;
+            }
+            if l > 0 && m > 0 {
+                // Rows run along −v2: (right × up)·n > 0 for an unflipped cell.
+                let a = pts[m * k + l - 1];
+                let (b, c) = (p, pts[(m - 1) * k + l - 1]);
+                if (b - a).cross(c - a).dot(n) <= 0.0 {
+                    return f64::INFINITY;
+                }
+            }
+        }
+    }
+    worst as f64
+}
+
 /// Read access to a level's texel values while some domain is being rewritten: texels of
-/// `own` (a domain's range) come from its private copy, all others from the shared state
-/// as it was when the current wave started. This is what makes parallel waves give the
-/// same result for any thread count: no domain ever reads another's in-progress texels.
+/// `own` (a domain's range) come from its private copy; texels of a domain listed in
+/// `finished` (the earlier domains of the schedule that conflict with this one, all done
+/// before it starts) from that domain's result; all others from `before`, the level's
+/// state before the pass (generated or not as `before_generated` says). No domain ever
+/// reads another's in-progress texels, and which domains it sees finished depends only on
+/// the schedule, so results are the same for any thread count and any timing.
 pub struct View<'a> {
     pub channels: usize,
-    pub values: &'a [f32],
-    /// `None`: everything is generated.
-    pub generated: Option<&'a [bool]>,
+    /// Texels per domain.
+    pub per_domain: usize,
+    pub before: &'a [f32],
+    pub before_generated: bool,
+    /// Per domain: its finished values, if this domain may read them (may be empty).
+    pub finished: &'a [Option<&'a [f32]>],
     pub own: Option<Own<'a>>,
 }
 
@@ -345,17 +602,32 @@ pub struct Own<'a> {
 }
 
 impl View<'_> {
+    /// Values of the domain holding texel `i` (all its texels), the index of `i` in them,
+    /// and whether they are generated (`None`: per texel, from `own.generated`).
+    #[inline]
+    fn domain_of(&self, i: usize) -> (&[f32], usize, Option<bool>) {
+        if let Some(o) = &self.own {
+            if i >= o.start && i < o.start + o.len {
+                let g = if o.all_generated { Some(true) } else { None };
+                return (o.values, i - o.start, g);
+            }
+        }
+        let e = i / self.per_domain;
+        match self.finished.get(e) {
+            Some(Some(v)) => (v, i - e * self.per_domain, Some(true)),
+            _ => (self.before, i, Some(self.before_generated)),
+        }
+    }
+
     #[inline]
     fn get(&self, i: usize) -> (&[f32], bool) {
         let c = self.channels;
-        if let Some(o) = &self.own {
-            if i >= o.start && i < o.start + o.len {
-                let j = i - o.start;
-                return (&o.values[j * c..(j + 1) * c], o.generated[j]);
-            }
-        }
-        let g = self.generated.is_none_or(|g| g[i]);
-        (&self.values[i * c..(i + 1) * c], g)
+        let (vals, j, g) = self.domain_of(i);
+        let g = match g {
+            Some(g) => g,
+            None => self.own.as_ref().expect("own texel").generated[j],
+        };
+        (&vals[j * c..(j + 1) * c], g)
     }
 
     /// [`Self::fetch`] at a domain point of maps laid out by `layout`. Points whose four
@@ -378,31 +650,21 @@ impl View<'_> {
                 ax * ay,
             ];
             let c = self.channels;
-            // All four texels are in one domain: one range check picks the storage, and
-            // with everything generated no per-texel checks are needed. Same arithmetic,
+            // All four texels are in one domain: one lookup picks the storage, and with
+            // everything there generated no per-texel checks are needed. Same arithmetic,
             // in the same order, as the general path below.
-            if self.generated.is_none() {
-                let own = self
-                    .own
-                    .as_ref()
-                    .filter(|o| base >= o.start && base + n + 1 < o.start + o.len);
-                let (vals, off) = match own {
-                    Some(o) if o.all_generated => (o.values, o.start),
-                    Some(_) => (&[][..], usize::MAX),
-                    None => (self.values, 0),
-                };
-                if off != usize::MAX {
-                    out[..c].fill(0.0);
-                    for k in 0..4 {
-                        if w[k] != 0.0 {
-                            let j = (idx[k] - off) * c;
-                            for (o, s) in out[..c].iter_mut().zip(&vals[j..j + c]) {
-                                *o += w[k] * s;
-                            }
+            if let (vals, j, Some(true)) = self.domain_of(base) {
+                let off = base - j;
+                out[..c].fill(0.0);
+                for k in 0..4 {
+                    if w[k] != 0.0 {
+                        let j = (idx[k] - off) * c;
+                        for (o, s) in out[..c].iter_mut().zip(&vals[j..j + c]) {
+                            *o += w[k] * s;
                         }
                     }
-                    return true;
                 }
+                return true;
             }
             let mut all = true;
             let mut best: Option<(usize, f32)> = None;

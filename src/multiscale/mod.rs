@@ -46,9 +46,11 @@ use crate::sampling::{Sampler, SamplerKind, SamplerStats};
 use crate::search::model::{ExampleModel, Method, ModelParams, Pass, Scratch};
 use crate::search::{hash, pick, Prepared, Query};
 use crate::synth::schedule::Schedule;
-use level::{nearest_texel, pattern, LevelGeometry, Own, PatternStats, View};
+use level::{nearest_texel, pattern, LevelGeometry, Own, PatternScratch, PatternStats, View};
 use rayon::prelude::*;
 use serde::Serialize;
+use std::sync::atomic::{AtomicUsize, Ordering::AcqRel};
+use std::sync::OnceLock;
 use std::time::Instant;
 use subdiv::{DomainLocation, Surface};
 
@@ -69,6 +71,8 @@ pub struct MultiscaleParams {
     /// Spacing tolerance of vertex-chart patterns ([`Sampler::with_tolerance`]); `None`
     /// accepts every pattern that fits a chart, as the paper does.
     pub sampler_tolerance: Option<f64>,
+    /// Spacing tolerance of the parameter-space patterns ([`level::pattern`]).
+    pub pattern_tolerance: f64,
 }
 
 impl Default for MultiscaleParams {
@@ -77,6 +81,7 @@ impl Default for MultiscaleParams {
             model: ModelParams::default(),
             max_levels: 0,
             sampler_tolerance: Some(crate::sampling::DEFAULT_TOLERANCE),
+            pattern_tolerance: level::PATTERN_TOLERANCE,
         }
     }
 }
@@ -213,8 +218,8 @@ struct Work {
     q: Query,
     prep: Prepared,
     seeds: Vec<u32>,
-    buf: Vec<Option<DomainLocation>>,
     locs: Vec<Option<DomainLocation>>,
+    pat: PatternScratch,
     val: Vec<f32>,
     pst: PatternStats,
     queries: u64,
@@ -230,12 +235,12 @@ impl Work {
             q: Query::new(shape),
             prep: Prepared::default(),
             seeds: Vec::new(),
-            buf: Vec::new(),
             locs: vec![
                 None;
                 81.max(shape.fine * shape.fine)
                     .max(shape.coarse * shape.coarse)
             ],
+            pat: PatternScratch::default(),
             val: vec![0.0; shape.channels],
             pst: PatternStats::default(),
             queries: 0,
@@ -254,6 +259,7 @@ struct Ctx<'a> {
     steps: Vec<f64>,
     kwindow: Option<usize>,
     channels: usize,
+    pattern_tolerance: f64,
 }
 
 impl Ctx<'_> {
@@ -345,9 +351,12 @@ pub fn run(
             _ => None,
         },
         channels: c,
+        pattern_tolerance: params.pattern_tolerance,
     };
     let adj = crate::texels::domain_edge_adjacency(surface);
-    let schedule = Schedule::plan(&adj, &conflicts(&adj));
+    let conflicts = conflicts(&adj);
+    let schedule = Schedule::plan(&adj, &conflicts);
+    let order = DomainOrder::new(&schedule, &conflicts);
     let faces = surface.num_domains();
     let total: u64 = res
         .iter()
@@ -382,7 +391,7 @@ pub fn run(
     let mut geo = LevelGeometry::new(surface, inputs.field, res[top], corners.clone());
     geometry_seconds += t0.elapsed().as_secs_f64();
     let t0 = Instant::now();
-    let mut state = coarsest(&ctx, top, &geo, &schedule, &mut stats);
+    let mut state = coarsest(&ctx, top, &geo, &order, &mut stats);
     search_seconds += t0.elapsed().as_secs_f64();
     done += geo.len() as u64;
     progress(done, total);
@@ -394,7 +403,7 @@ pub fn run(
         let (s1, cache) = pass_one(&ctx, i, &fine, &geo, &state, &mut stats);
         done += fine.len() as u64;
         progress(done, total);
-        let s2 = pass_two(&ctx, i, &fine, &schedule, s1, &cache, &mut stats);
+        let s2 = pass_two(&ctx, i, &fine, &order, s1, &cache, &mut stats);
         search_seconds += t0.elapsed().as_secs_f64();
         done += fine.len() as u64;
         progress(done, total);
@@ -528,93 +537,187 @@ struct DomainOut {
     work: Work,
 }
 
+/// The order domains are synthesized in and who waits for whom: a domain starts once every
+/// earlier domain of the sequential order it conflicts with ([`conflicts`]) is finished,
+/// and reads exactly those finished (everything else as it was before the pass; see
+/// [`View`]). That is the schedule's wave semantics without the barriers between waves:
+/// a thread that finishes a domain starts whichever domain that made ready, so uneven
+/// domains (the costly ones next to extraordinary vertices) and small waves no longer
+/// leave cores idle.
+pub(crate) struct DomainOrder {
+    /// Per domain, the earlier conflicting domains (readable when it runs).
+    earlier: Vec<Vec<u32>>,
+    /// Per domain, the later conflicting domains (waiting for it).
+    later: Vec<Vec<u32>>,
+    /// Domains in sequential order.
+    order: Vec<u32>,
+}
+
+impl DomainOrder {
+    fn new(schedule: &Schedule, conflicts: &[Vec<u32>]) -> Self {
+        let nd = conflicts.len();
+        let mut rank = vec![0usize; nd];
+        for (i, &d) in schedule.order.iter().enumerate() {
+            rank[d as usize] = i;
+        }
+        let split = |later: bool| -> Vec<Vec<u32>> {
+            (0..nd)
+                .map(|d| {
+                    conflicts[d]
+                        .iter()
+                        .copied()
+                        .filter(|&e| (rank[e as usize] > rank[d]) == later)
+                        .collect()
+                })
+                .collect()
+        };
+        Self {
+            earlier: split(false),
+            later: split(true),
+            order: schedule.order.clone(),
+        }
+    }
+
+    /// Runs `task(d, done)` for every domain as soon as its earlier conflicting domains are
+    /// finished (`done[e]` is set for those); returns the results per domain.
+    fn run<T: Send + Sync>(&self, task: &(dyn Fn(usize, &[OnceLock<T>]) -> T + Sync)) -> Vec<T> {
+        let nd = self.order.len();
+        let pending: Vec<AtomicUsize> = self
+            .earlier
+            .iter()
+            .map(|e| AtomicUsize::new(e.len()))
+            .collect();
+        let done: Vec<OnceLock<T>> = (0..nd).map(|_| OnceLock::new()).collect();
+        struct Run<'a, T> {
+            order: &'a DomainOrder,
+            pending: &'a [AtomicUsize],
+            done: &'a [OnceLock<T>],
+            task: &'a (dyn Fn(usize, &[OnceLock<T>]) -> T + Sync),
+        }
+        impl<'a, T: Send + Sync> Run<'a, T> {
+            fn start(&'a self, s: &rayon::Scope<'a>, d: usize) {
+                s.spawn(move |s| {
+                    let out = (self.task)(d, self.done);
+                    if self.done[d].set(out).is_err() {
+                        unreachable!("domain {d} ran twice");
+                    }
+                    for &e in &self.order.later[d] {
+                        if self.pending[e as usize].fetch_sub(1, AcqRel) == 1 {
+                            self.start(s, e as usize);
+                        }
+                    }
+                });
+            }
+        }
+        let r = Run {
+            order: self,
+            pending: &pending,
+            done: &done,
+            task,
+        };
+        rayon::scope(|s| {
+            for &d in &self.order {
+                if self.earlier[d as usize].is_empty() {
+                    r.start(s, d as usize);
+                }
+            }
+        });
+        done.into_iter()
+            .map(|c| c.into_inner().expect("every domain runs"))
+            .collect()
+    }
+
+    /// Per domain, the values a task for `d` may read (its earlier conflicting domains').
+    fn visible<'a>(&self, d: usize, done: &'a [OnceLock<DomainOut>]) -> Vec<Option<&'a [f32]>> {
+        let mut v = vec![None; done.len()];
+        for &e in &self.earlier[d] {
+            v[e as usize] = Some(done[e as usize].get().expect("finished").values.as_slice());
+        }
+        v
+    }
+}
+
 /// The coarsest level: marched neighbourhoods of generated texels, exhaustive search.
 fn coarsest(
     ctx: &Ctx<'_>,
     level: usize,
     geo: &LevelGeometry,
-    schedule: &Schedule,
+    order: &DomainOrder,
     stats: &mut Stats,
 ) -> State {
     let c = ctx.channels;
     let nn = geo.per_domain();
-    let mut values = vec![0.0f32; geo.len() * c];
-    let mut src = vec![0u32; geo.len()];
-    let mut generated = vec![false; geo.len()];
     let shape = ctx.model.shape(level, Pass::Coarsest);
     let k = shape.fine;
     let delta = ctx.steps[level];
-    for wave in &schedule.waves {
-        let outs: Vec<DomainOut> = wave
-            .par_iter()
-            .map(|&d| {
-                let d = d as usize;
-                let start = d * nn;
-                let mut w = Work::new(ctx.model, level, Pass::Coarsest);
-                let mut own_vals = vec![0.0f32; nn * c];
-                let mut own_gen = vec![false; nn];
-                let mut own_src = vec![0u32; nn];
-                for li in 0..nn {
-                    let t = start + li;
-                    pattern(
-                        geo,
-                        ctx.sampler,
-                        t,
-                        delta,
-                        k,
-                        SamplerKind::March,
-                        &mut w.buf,
-                        &mut w.locs,
-                        &mut w.pst,
-                    );
-                    let view = View {
-                        channels: c,
-                        values: &values,
-                        generated: Some(&generated),
-                        own: Some(Own {
-                            start,
-                            len: nn,
-                            values: &own_vals,
-                            generated: &own_gen,
-                            all_generated: false,
-                        }),
-                    };
-                    w.q.clear_all();
-                    for s in 0..k * k {
-                        if let Some(loc) = w.locs[s] {
-                            if view.fetch_at(&geo.layout, loc, &mut w.val) {
-                                w.q.set(s, &w.val);
-                            }
-                        }
+    let nothing = vec![0.0f32; geo.len() * c];
+    let outs = order.run(&|d, done| {
+        let start = d * nn;
+        let finished = order.visible(d, done);
+        let mut w = Work::new(ctx.model, level, Pass::Coarsest);
+        let mut own_vals = vec![0.0f32; nn * c];
+        let mut own_gen = vec![false; nn];
+        let mut own_src = vec![0u32; nn];
+        for li in 0..nn {
+            let t = start + li;
+            pattern(
+                geo,
+                ctx.sampler,
+                t,
+                delta,
+                k,
+                SamplerKind::March,
+                ctx.pattern_tolerance,
+                &mut w.locs,
+                &mut w.pat,
+                &mut w.pst,
+            );
+            let view = View {
+                channels: c,
+                per_domain: nn,
+                before: &nothing,
+                before_generated: false,
+                finished: &finished,
+                own: Some(Own {
+                    start,
+                    len: nn,
+                    values: &own_vals,
+                    generated: &own_gen,
+                    all_generated: false,
+                }),
+            };
+            w.q.clear_all();
+            for s in 0..k * k {
+                if let Some(loc) = w.locs[s] {
+                    if view.fetch_at(&geo.layout, loc, &mut w.val) {
+                        w.q.set(s, &w.val);
                     }
-                    let index = if w.q.present_count() == 0 {
-                        w.seeded += 1;
-                        (ctx.key(level, Pass::Coarsest, t) % ctx.model.candidates(level) as u64)
-                            as u32
-                    } else {
-                        w.seeds.clear();
-                        ctx.choose(level, Pass::Coarsest, t, &mut w)
-                    };
-                    own_vals[li * c..(li + 1) * c].copy_from_slice(ctx.value(level, index));
-                    own_src[li] = index;
-                    own_gen[li] = true;
                 }
-                DomainOut {
-                    values: own_vals,
-                    src: own_src,
-                    work: w,
-                }
-            })
-            .collect();
-        for (&d, o) in wave.iter().zip(outs) {
-            let start = d as usize * nn;
-            values[start * c..(start + nn) * c].copy_from_slice(&o.values);
-            src[start..start + nn].copy_from_slice(&o.src);
-            generated[start..start + nn]
-                .iter_mut()
-                .for_each(|g| *g = true);
-            absorb(stats, &o.work);
+            }
+            let index = if w.q.present_count() == 0 {
+                w.seeded += 1;
+                (ctx.key(level, Pass::Coarsest, t) % ctx.model.candidates(level) as u64) as u32
+            } else {
+                w.seeds.clear();
+                ctx.choose(level, Pass::Coarsest, t, &mut w)
+            };
+            own_vals[li * c..(li + 1) * c].copy_from_slice(ctx.value(level, index));
+            own_src[li] = index;
+            own_gen[li] = true;
         }
+        DomainOut {
+            values: own_vals,
+            src: own_src,
+            work: w,
+        }
+    });
+    let mut values = nothing;
+    let mut src = vec![0u32; geo.len()];
+    for (d, o) in outs.iter().enumerate() {
+        let start = d * nn;
+        values[start * c..(start + nn) * c].copy_from_slice(&o.values);
+        src[start..start + nn].copy_from_slice(&o.src);
+        absorb(stats, &o.work);
     }
     State { values, src }
 }
@@ -689,8 +792,10 @@ fn pass_one(
     let faces = fine.len() / nn;
     let view = View {
         channels: c,
-        values: &cstate.values,
-        generated: None,
+        per_domain: coarse.per_domain(),
+        before: &cstate.values,
+        before_generated: true,
+        finished: &[],
         own: None,
     };
     // Per domain: coarse-block values, their presence, chosen features, counters.
@@ -711,8 +816,9 @@ fn pass_one(
                     delta,
                     k,
                     SamplerKind::Chart,
-                    &mut w.buf,
+                    ctx.pattern_tolerance,
                     &mut w.locs,
+                    &mut w.pat,
                     &mut w.pst,
                 );
                 w.q.clear_all();
@@ -768,12 +874,12 @@ fn pass_one(
 }
 
 /// Pass 2: refine with the level's 9x9 block plus the cached coarser block; scan-line
-/// order inside each domain, domains in waves.
+/// order inside each domain, domains in the schedule's order ([`DomainOrder`]).
 fn pass_two(
     ctx: &Ctx<'_>,
     level: usize,
     geo: &LevelGeometry,
-    schedule: &Schedule,
+    order: &DomainOrder,
     mut state: State,
     cache: &CoarseCache,
     stats: &mut Stats,
@@ -786,102 +892,100 @@ fn pass_two(
     let nn = geo.per_domain();
     let delta = ctx.steps[level];
     let all_gen = vec![true; nn];
-    for wave in &schedule.waves {
-        let outs: Vec<DomainOut> = wave
-            .par_iter()
-            .map(|&d| {
-                let d = d as usize;
-                let start = d * nn;
-                let mut w = Work::new(ctx.model, level, Pass::Two);
-                let mut own_vals = state.values[start * c..(start + nn) * c].to_vec();
-                let mut own_src = state.src[start..start + nn].to_vec();
-                for li in 0..nn {
-                    let t = start + li;
-                    pattern(
-                        geo,
-                        ctx.sampler,
-                        t,
-                        delta,
-                        k,
-                        SamplerKind::Chart,
-                        &mut w.buf,
-                        &mut w.locs,
-                        &mut w.pst,
-                    );
-                    let view = View {
-                        channels: c,
-                        values: &state.values,
-                        generated: None,
-                        own: Some(Own {
-                            start,
-                            len: nn,
-                            values: &own_vals,
-                            generated: &all_gen,
-                            all_generated: true,
-                        }),
-                    };
-                    for s in 0..nf {
-                        match w.locs[s] {
-                            Some(loc) => {
-                                view.fetch_at(&geo.layout, loc, &mut w.val);
-                                w.q.set(s, &w.val);
-                            }
-                            None => w.q.clear(s),
-                        }
+    let before = &state;
+    let outs = order.run(&|d, done| {
+        let start = d * nn;
+        let finished = order.visible(d, done);
+        let mut w = Work::new(ctx.model, level, Pass::Two);
+        let mut own_vals = before.values[start * c..(start + nn) * c].to_vec();
+        let mut own_src = before.src[start..start + nn].to_vec();
+        for li in 0..nn {
+            let t = start + li;
+            pattern(
+                geo,
+                ctx.sampler,
+                t,
+                delta,
+                k,
+                SamplerKind::Chart,
+                ctx.pattern_tolerance,
+                &mut w.locs,
+                &mut w.pat,
+                &mut w.pst,
+            );
+            let view = View {
+                channels: c,
+                per_domain: nn,
+                before: &before.values,
+                before_generated: true,
+                finished: &finished,
+                own: Some(Own {
+                    start,
+                    len: nn,
+                    values: &own_vals,
+                    generated: &all_gen,
+                    all_generated: true,
+                }),
+            };
+            for s in 0..nf {
+                match w.locs[s] {
+                    Some(loc) => {
+                        view.fetch_at(&geo.layout, loc, &mut w.val);
+                        w.q.set(s, &w.val);
                     }
-                    for s in 0..ns {
-                        if cache.present[t * ns + s] {
-                            let o = (t * ns + s) * c;
-                            w.q.set(nf + s, &cache.values[o..o + c]);
+                    None => w.q.clear(s),
+                }
+            }
+            for s in 0..ns {
+                if cache.present[t * ns + s] {
+                    let o = (t * ns + s) * c;
+                    w.q.set(nf + s, &cache.values[o..o + c]);
+                } else {
+                    w.q.clear(nf + s);
+                }
+            }
+            w.seeds.clear();
+            if let Some(win) = ctx.kwindow {
+                let h = (k / 2) as i64;
+                let r = (win / 2) as i64;
+                for dy in -r..=r {
+                    for dx in -r..=r {
+                        let Some(loc) = w.locs[((dy + h) * k as i64 + dx + h) as usize] else {
+                            continue;
+                        };
+                        let Some(q) = nearest_texel(&geo.layout.taps(loc)) else {
+                            continue;
+                        };
+                        let e = q / nn;
+                        let sq = if e == d {
+                            own_src[q - start]
+                        } else if finished[e].is_some() {
+                            done[e].get().expect("finished").src[q - e * nn]
                         } else {
-                            w.q.clear(nf + s);
-                        }
+                            before.src[q]
+                        };
+                        let off = geo.offset_pixels(t, q, delta);
+                        let s = ctx.position(level, sq);
+                        w.seeds
+                            .push(ctx.model.nearest_index(level, s[0] - off[0], s[1] - off[1]));
                     }
-                    w.seeds.clear();
-                    if let Some(win) = ctx.kwindow {
-                        let h = (k / 2) as i64;
-                        let r = (win / 2) as i64;
-                        for dy in -r..=r {
-                            for dx in -r..=r {
-                                let Some(loc) = w.locs[((dy + h) * k as i64 + dx + h) as usize]
-                                else {
-                                    continue;
-                                };
-                                let Some(q) = nearest_texel(&geo.layout.taps(loc)) else {
-                                    continue;
-                                };
-                                let sq = if q >= start && q < start + nn {
-                                    own_src[q - start]
-                                } else {
-                                    state.src[q]
-                                };
-                                let e = geo.offset_pixels(t, q, delta);
-                                let s = ctx.position(level, sq);
-                                w.seeds.push(ctx.model.nearest_index(
-                                    level,
-                                    s[0] - e[0],
-                                    s[1] - e[1],
-                                ));
-                            }
-                        }
-                    }
-                    let index = ctx.choose(level, Pass::Two, t, &mut w);
-                    own_vals[li * c..(li + 1) * c].copy_from_slice(ctx.value(level, index));
-                    own_src[li] = index;
                 }
-                DomainOut {
-                    values: own_vals,
-                    src: own_src,
-                    work: w,
-                }
-            })
-            .collect();
-        for (&d, o) in wave.iter().zip(outs) {
-            let start = d as usize * nn;
-            state.values[start * c..(start + nn) * c].copy_from_slice(&o.values);
-            state.src[start..start + nn].copy_from_slice(&o.src);
-            absorb(stats, &o.work);
+            }
+            let index = ctx.choose(level, Pass::Two, t, &mut w);
+            own_vals[li * c..(li + 1) * c].copy_from_slice(ctx.value(level, index));
+            own_src[li] = index;
         }
+        DomainOut {
+            values: own_vals,
+            src: own_src,
+            work: w,
+        }
+    });
+    for (d, o) in outs.iter().enumerate() {
+        let start = d * nn;
+        state.values[start * c..(start + nn) * c].copy_from_slice(&o.values);
+        state.src[start..start + nn].copy_from_slice(&o.src);
+        absorb(stats, &o.work);
     }
     state
 }
