@@ -168,3 +168,31 @@ fn flat_grid_through_the_cli_matches_2d_patch_fidelity_with_default_handedness()
         );
     }
 }
+
+#[test]
+fn bench_multiscale_reports_both_searches() {
+    let o = Command::new(env!("CARGO_BIN_EXE_surfsynth"))
+        .args(["bench", "multiscale", "--domains", "8", "--resolution", "8"])
+        .args(["--example-size", "32"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let rows: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let rows = rows.as_array().unwrap();
+    assert_eq!(rows.len(), 2);
+    for (row, search) in rows.iter().zip(["kcoherence", "ann"]) {
+        assert_eq!(row["search"], search);
+        assert_eq!(row["example"], serde_json::json!([32, 32]));
+        let faces = row["faces"].as_u64().unwrap();
+        assert!(faces >= 8);
+        assert_eq!(row["texels"].as_u64().unwrap(), faces * 64);
+        assert!(row["total_seconds"].as_f64().unwrap() > 0.0);
+    }
+    // An example that cannot give the requested size is a clear error.
+    let o = Command::new(env!("CARGO_BIN_EXE_surfsynth"))
+        .args(["bench", "multiscale", "--example-size", "192"])
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("192x192"));
+}

@@ -21,6 +21,35 @@ pub enum BenchCommand {
     Exr(BenchExrArgs),
     /// Coherent synthesis on Spot: synthesis stage and whole run, texels/s and peak memory.
     Synth(BenchSynthArgs),
+    /// Multiscale synthesis: the paper's Torus rows (000 §6: 32-face torus, N = 60,
+    /// 115,200 texels) or any mesh; ANN and k-coherence side by side.
+    Multiscale(BenchMultiscaleArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct BenchMultiscaleArgs {
+    /// Mesh (default: the generated quad torus with --domains faces).
+    #[arg(long, value_name = "M.obj")]
+    pub mesh: Option<PathBuf>,
+    /// Faces of the generated torus.
+    #[arg(long, value_name = "D", default_value_t = 32)]
+    pub domains: usize,
+    /// Texels per side of every face map.
+    #[arg(long, value_name = "N", default_value_t = 60, value_parser = parse_resolution)]
+    pub resolution: usize,
+    /// Example (default: the bundled 128x128 gravel).
+    #[arg(long, value_name = "E.png")]
+    pub example: Option<PathBuf>,
+    /// Example side in pixels: the example is halved (Gaussian pyramid) while at least
+    /// twice this wide, then cropped to a square (the paper's rows: 64 and 192).
+    #[arg(long, value_name = "S", default_value_t = 64)]
+    pub example_size: usize,
+    /// Searches to measure (default: both).
+    #[arg(long, value_enum, value_delimiter = ',')]
+    pub search: Vec<super::synth::Search>,
+    /// Random seed.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
 }
 
 #[derive(Args, Debug)]
@@ -71,7 +100,67 @@ pub fn run(a: BenchArgs) -> anyhow::Result<()> {
         BenchCommand::Bake(b) => bake(b),
         BenchCommand::Exr(b) => exr(b),
         BenchCommand::Synth(b) => synth(b),
+        BenchCommand::Multiscale(b) => multiscale(b),
     }
+}
+
+fn multiscale(a: BenchMultiscaleArgs) -> anyhow::Result<()> {
+    use surfsynth::multiscale::{bench, MultiscaleParams};
+    if a.domains == 0 || a.domains > 10_000_000 {
+        anyhow::bail!("--domains {} must be between 1 and 10000000", a.domains);
+    }
+    let example = match &a.example {
+        Some(p) => surfsynth::example::Example::load(p)?,
+        None => {
+            // The bundled example, through a file like any other.
+            let dir =
+                std::env::temp_dir().join(format!("surfsynth-bench-ms-{}", std::process::id()));
+            prepare_out_dir(&dir)?;
+            let p = dir.join(surfsynth::demo::EXAMPLE_NAME);
+            let e = surfsynth::io::atomic::write_bytes_atomic(&p, surfsynth::demo::EXAMPLE_PNG)
+                .and_then(|_| surfsynth::example::Example::load(&p));
+            let _ = std::fs::remove_dir_all(&dir);
+            e?
+        }
+    };
+    let example = bench::square_example(&example, a.example_size)?;
+    let surface = match &a.mesh {
+        Some(p) => Some(surfsynth::bake::load_surface_for(p, a.resolution)?),
+        None => None,
+    };
+    let searches = if a.search.is_empty() {
+        vec![super::synth::Search::Kcoherence, super::synth::Search::Ann]
+    } else {
+        a.search
+    };
+    let mut rows = Vec::new();
+    for s in searches {
+        let mut params = MultiscaleParams::default();
+        params.model.method = match s {
+            super::synth::Search::Ann => surfsynth::synthesizer::Search::Ann,
+            super::synth::Search::Kcoherence => surfsynth::synthesizer::Search::KCoherence,
+        }
+        .method();
+        let r = match &surface {
+            Some(surface) => {
+                bench::bench_surface(surface, a.resolution, &example, &params, a.seed)?
+            }
+            None => bench::bench_torus(a.domains, a.resolution, &example, &params, a.seed)?,
+        };
+        eprintln!(
+            "{}: {} texels from {}x{} in {:.2} s wall, {} CPU-s ({:.0} texels/s)",
+            r.search,
+            r.texels,
+            r.example[0],
+            r.example[1],
+            r.total_seconds,
+            r.cpu_seconds.map_or("?".into(), |c| format!("{c:.2}")),
+            r.texels_per_second
+        );
+        rows.push(r);
+    }
+    println!("{}", serde_json::to_string_pretty(&rows)?);
+    Ok(())
 }
 
 fn synth(a: BenchSynthArgs) -> anyhow::Result<()> {

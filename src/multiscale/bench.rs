@@ -38,6 +38,31 @@ pub struct BenchResult {
     pub stats: Stats,
 }
 
+/// The example as the paper's rows use it: halved (Gaussian pyramid) while at least twice
+/// `size` wide, then cropped to a square of `size` pixels (colour only).
+pub fn square_example(example: &Example, size: usize) -> Result<Example> {
+    let mut img = crate::pyramid::Image::from_example(example);
+    while img.width >= 2 * size && img.height >= 2 * size {
+        img = img.downsample();
+    }
+    if size < 16 || img.width < size || img.height < size {
+        return Err(crate::Error::invalid(format!(
+            "cannot make a {size}x{size} example (at least 16) from {}x{} pixels",
+            example.width, example.height
+        )));
+    }
+    let c = img.channels;
+    let rgb = (0..size * size)
+        .map(|i| {
+            let p = img.pixel(i % size, i / size);
+            [p[0], p[1 % c], p[2 % c]]
+        })
+        .collect();
+    let mut e = Example::from_linear(size, size, rgb);
+    e.path = example.path.clone();
+    Ok(e)
+}
+
 /// Synthesizes `example` on the closed quad torus of [`crate::bench::torus_mesh`] with
 /// `min_domains` faces at resolution `n` and reports the figures.
 pub fn bench_torus(
