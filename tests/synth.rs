@@ -251,13 +251,16 @@ fn genus2_double_torus_meets_the_quality_bar() {
 #[test]
 fn curved_meshes_with_reptile_scales_meet_the_quality_bar() {
     // The hardest pair measured (docs/synthesis.md): large smooth structures, so every
-    // forced join between patches shows; without random candidates Blub reached 1.96. The
-    // seam ratio of one run varies with the seed (N = 32, seeds 1-5: Blub 0.70-1.97,
-    // double torus 1.02-1.41; at N = 16 the double torus' median is 1.3), so the bar is on
-    // the median of five seeds at N = 32, with a looser cap on every run; every run must
-    // keep coverage, scale and coherence.
+    // forced join between patches shows. With the breadth-first domain order single runs
+    // varied a lot (N = 32, seeds 1-8: Blub 0.70-1.97, double torus 1.02-1.41): fronts met
+    // in clusters of small, densely sampled domains. With the area-weighted order
+    // (seeds 1-16): Blub 0.42-0.77, double torus 0.77-1.02. Every run is held to 1.1,
+    // the median of five to 1.0, and every run keeps coverage, scale and coherence.
     let scales = shared("textures/krita_reptile_scales.png");
-    for mesh in ["meshes/blub_control_mesh.obj", "meshes/double_torus_genus2.obj"] {
+    for mesh in [
+        "meshes/blub_control_mesh.obj",
+        "meshes/double_torus_genus2.obj",
+    ] {
         let mut seams: Vec<f64> = (1..=5)
             .map(|seed| {
                 let r = Synthesizer::new(shared(mesh), &scales)
@@ -271,12 +274,12 @@ fn curved_meshes_with_reptile_scales_meet_the_quality_bar() {
                 assert!((m.scale_median - 1.0).abs() <= 0.05, "{what}");
                 assert!(m.scale_p10 >= 0.85 && m.scale_p90 <= 1.15, "{what}");
                 assert!(m.coherent_fraction >= 0.85, "{what}");
-                assert!(m.seam_ratio <= 2.0, "{what}");
+                assert!(m.seam_ratio <= 1.1, "{what}");
                 m.seam_ratio
             })
             .collect();
         seams.sort_by(f64::total_cmp);
-        assert!(seams[2] <= 1.2, "{mesh}: seam ratios {seams:.3?}");
+        assert!(seams[2] <= 1.0, "{mesh}: seam ratios {seams:.3?}");
     }
 }
 
@@ -609,5 +612,499 @@ fn explore_scales() {
                 println!("{mesh} {name} {orient:?}: seam {:.3} (seam {:.5} inner {:.5}) coh {:.3} stats {:?}", q.seam_ratio.unwrap(), q.seam_mean_sq.unwrap(), q.interior_mean_sq.unwrap(), q.coherent_fraction.unwrap(), r.report.stats);
             }
         }
+    }
+}
+
+// ---- Seam tail: measurement over seeds and a diagnostic of the worst seam pairs ----
+
+/// The mesh/example pairs whose worst seed the quality work targets (N = 32).
+const TAIL_SETS: [(&str, &str); 5] = [
+    (
+        "meshes/blub_control_mesh.obj",
+        "textures/krita_reptile_scales.png",
+    ),
+    (
+        "meshes/double_torus_genus2.obj",
+        "textures/krita_reptile_scales.png",
+    ),
+    ("meshes/spot_control_mesh.obj", "fixtures/gravel.png"),
+    ("meshes/spot_control_mesh.obj", "textures/skimage_brick.png"),
+    (
+        "meshes/cube_no_bottom.obj",
+        "textures/gimp_burlap_weave.png",
+    ),
+];
+
+fn tail_path(rel: &str) -> PathBuf {
+    match rel.strip_prefix("fixtures/") {
+        Some(f) => fixture(f),
+        None => shared(rel),
+    }
+}
+
+fn env_or<T: std::str::FromStr>(name: &str, default: T) -> T {
+    std::env::var(name)
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
+}
+
+/// Seam ratio (and the other measures) over TAIL_SEEDS seeds (default 8) from TAIL_FIRST
+/// (default 1), domain order TAIL_ORDER (breadth | area, default area) for every
+/// pair of [`TAIL_SETS`] whose mesh or example contains TAIL_FILTER (default all), N =
+/// TAIL_N (default 32): worst and median per pair.
+#[test]
+#[ignore = "measurement: seam ratio over seeds (slow)"]
+fn seam_tail() {
+    let seeds: u64 = env_or("TAIL_SEEDS", 8);
+    let first: u64 = env_or("TAIL_FIRST", 1);
+    let n: usize = env_or("TAIL_N", 32);
+    let filter = std::env::var("TAIL_FILTER").unwrap_or_default();
+    let hand = match std::env::var("TAIL_HAND").as_deref() {
+        Ok("outside") => surfsynth::synthesizer::Handedness::Outside,
+        _ => surfsynth::synthesizer::Handedness::Tiles,
+    };
+    let domain_order = match std::env::var("TAIL_ORDER").as_deref() {
+        Ok("breadth") => surfsynth::synth::coherent::DomainOrder::Breadth,
+        _ => surfsynth::synth::coherent::DomainOrder::Area,
+    };
+    for (mesh, ex) in TAIL_SETS {
+        if !(mesh.contains(&filter) || ex.contains(&filter)) {
+            continue;
+        }
+        let mut seams = Vec::new();
+        let (mut coh, mut p10, mut p90, mut secs) = (f64::INFINITY, f64::INFINITY, 0.0f64, 0.0);
+        let mut waves = 0;
+        for seed in first..first + seeds {
+            let r = Synthesizer::new(shared(mesh), tail_path(ex))
+                .resolution(n)
+                .seed(seed)
+                .handedness(hand)
+                .coherent_params(CoherentParams {
+                    domain_order,
+                    ..Default::default()
+                })
+                .run()
+                .unwrap();
+            waves = r.report.stats.waves;
+            let m = measure_result(&r);
+            assert_eq!(m.coverage, 1.0);
+            assert!((m.scale_median - 1.0).abs() <= 0.05, "{m:?}");
+            seams.push(m.seam_ratio);
+            coh = coh.min(m.coherent_fraction);
+            p10 = p10.min(m.scale_p10);
+            p90 = p90.max(m.scale_p90);
+            secs += r.report.seconds.synthesis;
+        }
+        let listed = seams.iter().map(|s| format!("{s:.2}")).collect::<Vec<_>>();
+        let mut sorted = seams.clone();
+        sorted.sort_by(f64::total_cmp);
+        let median = 0.5 * (sorted[(sorted.len() - 1) / 2] + sorted[sorted.len() / 2]);
+        println!(
+            "TAIL {mesh} + {ex} N={n}: worst {:.3} median {median:.3} [{}] min coherent {coh:.3} scale p10 {p10:.3} p90 {p90:.3} synth {:.2}s, {waves} waves",
+            sorted[sorted.len() - 1],
+            listed.join(" "),
+            secs / seeds as f64,
+        );
+    }
+}
+
+/// Lists the worst seam pairs of one run (DIAG_MESH, DIAG_EX relative to shared/data or
+/// fixtures/, DIAG_SEED, DIAG_N) and what they have in common: domains and their
+/// schedule, distance to extraordinary corners and to field singularities, how the texels
+/// were chosen, whether the source continues across the seam.
+#[test]
+#[ignore = "diagnostic: worst seam pairs of one run"]
+fn diagnose_seams() {
+    use surfsynth::field::OrientationField;
+    use surfsynth::synth::coherent::{self, Kind};
+    use surfsynth::synth::schedule::Schedule;
+    use surfsynth::texels::{corner_fan, domain_edge_adjacency, TexelGraph};
+    let mesh: String = env_or("DIAG_MESH", "meshes/blub_control_mesh.obj".to_string());
+    let ex: String = env_or("DIAG_EX", "textures/krita_reptile_scales.png".to_string());
+    let seed: u64 = env_or("DIAG_SEED", 5);
+    let n: usize = env_or("DIAG_N", 32);
+    let top: usize = env_or("DIAG_TOP", 25);
+    let r = Synthesizer::new(shared(&mesh), tail_path(&ex))
+        .resolution(n)
+        .seed(seed)
+        .run()
+        .unwrap();
+    let m = measure_result(&r);
+    println!(
+        "{mesh} + {ex} seed {seed} N={n}: {m:?} stats {:?}",
+        r.report.stats
+    );
+    let surface = &r.surface;
+    let geom = &r.geometry;
+    let nn = n * n;
+    let faces = geom.faces;
+    // The same coherent run again, for the per-texel kinds.
+    let field = OrientationField::compute(surface, &Orientation::Auto).unwrap();
+    let frames = surfsynth::synth::frames_f32(&field.texel_frames(surface, n));
+    let graph = TexelGraph::build(surface, geom);
+    // The schedule the run used (ranks and waves below).
+    let schedule = match CoherentParams::default().domain_order {
+        coherent::DomainOrder::Area => coherent::area_schedule(geom, &graph),
+        coherent::DomainOrder::Breadth => {
+            Schedule::plan(&domain_edge_adjacency(surface), &graph.domain_conflicts())
+        }
+    };
+    let flipped = r.example.flipped_rows();
+    let out = surfsynth::synth::run_coherent(
+        &flipped,
+        &Default::default(),
+        coherent::Inputs {
+            geometry: geom,
+            graph: &graph,
+            frames: &frames,
+            schedule: &schedule,
+            scale: r.report.scale,
+            seed,
+        },
+        &CoherentParams::default(),
+        &|_| {},
+    );
+    let (su, sv) = (
+        r.maps.channel("source.u").unwrap(),
+        r.maps.channel("source.v").unwrap(),
+    );
+    let hgt = r.example.height as f32;
+    for t in 0..faces * nn {
+        assert_eq!(out.source[t][0], su[t]);
+        assert_eq!(hgt - out.source[t][1], sv[t]);
+    }
+    let (cr, cg, cb) = (
+        r.maps.channel("R").unwrap(),
+        r.maps.channel("G").unwrap(),
+        r.maps.channel("B").unwrap(),
+    );
+    let col = |i: usize| [cr[i] as f64, cg[i] as f64, cb[i] as f64];
+    let d2 = |a: [f64; 3], b: [f64; 3]| (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>();
+    // Interior mean (as eval).
+    let (mut isum, mut icount) = (0.0, 0usize);
+    for d in 0..faces {
+        for y in 0..n {
+            for x in 0..n {
+                let a = d * nn + y * n + x;
+                if x + 1 < n {
+                    isum += d2(col(a), col(a + 1));
+                    icount += 1;
+                }
+                if y + 1 < n {
+                    isum += d2(col(a), col(a + n));
+                    icount += 1;
+                }
+            }
+        }
+    }
+    let imean = isum / icount as f64;
+    // Seam pairs (as eval): border texels of different domains 0.5h..1.25h apart.
+    let h = r.report.texel_spacing;
+    let border: Vec<usize> = (0..faces * nn)
+        .filter(|&i| {
+            let (x, y) = (i % n, (i / n) % n);
+            x == 0 || y == 0 || x + 1 == n || y + 1 == n
+        })
+        .collect();
+    let pts: Vec<[f64; 3]> = border
+        .iter()
+        .map(|&i| geom.pos[i].as_dvec3().to_array())
+        .collect();
+    let tree: kiddo::ImmutableKdTree<f64, 3> =
+        kiddo::ImmutableKdTree::new_from_slice(&pts).unwrap();
+    let mut pairs: Vec<(f64, usize, usize)> = Vec::new();
+    for (k, &a) in border.iter().enumerate() {
+        for nb in tree
+            .query(&pts[k])
+            .within::<kiddo::SquaredEuclidean<f64>>((1.25 * h).powi(2))
+            .unsorted()
+            .execute()
+        {
+            let j = nb.item as usize;
+            let b = border[j];
+            if j <= k || nb.distance < (0.5 * h).powi(2) || a / nn == b / nn {
+                continue;
+            }
+            pairs.push((d2(col(a), col(b)), a, b));
+        }
+    }
+    pairs.sort_by(|p, q| q.0.total_cmp(&p.0));
+    let ssum: f64 = pairs.iter().map(|p| p.0).sum();
+    println!(
+        "seam pairs {} ratio {:.3}; h {h:.5}",
+        pairs.len(),
+        ssum / pairs.len() as f64 / imean
+    );
+    for frac in [0.001, 0.01, 0.05] {
+        let k = ((pairs.len() as f64 * frac).ceil() as usize).max(1);
+        let s: f64 = pairs[..k].iter().map(|p| p.0).sum();
+        println!(
+            "  top {:.1}% ({k} pairs) hold {:.1}% of the seam sum; without them the ratio is {:.3}",
+            frac * 100.0,
+            100.0 * s / ssum,
+            (ssum - s) / (pairs.len() - k) as f64 / imean
+        );
+    }
+    // Per domain: rank in the sequential order, wave, valence of each corner.
+    let mut rank = vec![0usize; faces];
+    for (i, &d) in schedule.order.iter().enumerate() {
+        rank[d as usize] = i;
+    }
+    let mut wave = vec![0usize; faces];
+    for (w, ds) in schedule.waves.iter().enumerate() {
+        for &d in ds {
+            wave[d as usize] = w;
+        }
+    }
+    let valence: Vec<[usize; 4]> = (0..faces)
+        .map(|d| std::array::from_fn(|c| corner_fan(surface, d, c).len() + 1))
+        .collect();
+    let corner_xy = |c: usize| -> (usize, usize) {
+        match c {
+            0 => (0, 0),
+            1 => (n - 1, 0),
+            2 => (n - 1, n - 1),
+            _ => (0, n - 1),
+        }
+    };
+    // Chebyshev distance (texels) to the nearest corner of valence != 4.
+    let ev_dist = |t: usize| -> usize {
+        let (d, x, y) = (t / nn, t % n, (t / n) % n);
+        (0..4)
+            .filter(|&c| valence[d][c] != 4)
+            .map(|c| {
+                let (cx, cy) = corner_xy(c);
+                x.abs_diff(cx).max(y.abs_diff(cy))
+            })
+            .min()
+            .unwrap_or(usize::MAX)
+    };
+    let sing: Vec<glam::DVec3> = field.singularities().iter().map(|s| s.position).collect();
+    println!("singularities: {}", sing.len());
+    let sing_dist = |t: usize| -> f64 {
+        let p = geom.pos[t].as_dvec3();
+        sing.iter()
+            .map(|s| s.distance(p) / h)
+            .fold(f64::INFINITY, f64::min)
+    };
+    // Sides of domain d touching domains earlier in the order (at its synthesis time).
+    let mut buf = Vec::new();
+    let sides_done: Vec<usize> = (0..faces)
+        .map(|d| {
+            (0..4)
+                .filter(|&s| {
+                    (0..n).any(|i| {
+                        let (x, y) = match s {
+                            0 => (i, 0),
+                            1 => (n - 1, i),
+                            2 => (i, n - 1),
+                            _ => (0, i),
+                        };
+                        buf.clear();
+                        graph.neighbours(d * nn + y * n + x, &mut buf);
+                        buf.iter().any(|&j| {
+                            let e = j as usize / nn;
+                            e != d && rank[e] < rank[d]
+                        })
+                    })
+                })
+                .count()
+        })
+        .collect();
+    let src = |t: usize| out.source[t];
+    let sdist = |a: usize, b: usize| {
+        let (p, q) = (src(a), src(b));
+        (p[0] - q[0]).hypot(p[1] - q[1])
+    };
+    // Whether a texel continues a patch of one of its in-domain 4-neighbours.
+    let inner_coherent = |t: usize| -> bool {
+        let (x, y) = (t % n, (t / n) % n);
+        let mut v = Vec::new();
+        if x > 0 {
+            v.push(t - 1);
+        }
+        if x + 1 < n {
+            v.push(t + 1);
+        }
+        if y > 0 {
+            v.push(t - n);
+        }
+        if y + 1 < n {
+            v.push(t + n);
+        }
+        v.into_iter().any(|u| sdist(t, u) <= 4.0)
+    };
+    let kind_name = |k: u8| match k {
+        0 => "seeded",
+        1 => "cont",
+        2 => "random",
+        _ => "restart",
+    };
+    println!("worst pairs: dC2/interior | later texel (domain x,y rank wave sidesdone kind) | earlier | evdist singdist/h | src dist across | later coherent inside");
+    for &(c, a, b) in pairs.iter().take(top) {
+        let (late, early) = if rank[a / nn] > rank[b / nn] {
+            (a, b)
+        } else {
+            (b, a)
+        };
+        let desc = |t: usize| {
+            let d = t / nn;
+            format!(
+                "d{d} ({},{}) r{} w{} s{} {} v{:?}",
+                t % n,
+                (t / n) % n,
+                rank[d],
+                wave[d],
+                sides_done[d],
+                kind_name(out.kind[t]),
+                valence[d]
+            )
+        };
+        println!(
+            "{:7.1} | {} | {} | ev {} sing {:.1} | {:.1} | {}",
+            c / imean,
+            desc(late),
+            desc(early),
+            ev_dist(late).min(ev_dist(early)),
+            sing_dist(late).min(sing_dist(early)),
+            sdist(a, b),
+            inner_coherent(late)
+        );
+    }
+    // Texel spacing per domain (median of its adjacent pairs) relative to h.
+    let spacing: Vec<f64> = (0..faces)
+        .map(|d| {
+            let mut v: Vec<f64> = (0..n * (n - 1))
+                .map(|i| {
+                    let (x, y) = (i % (n - 1), i / (n - 1));
+                    geom.pos[d * nn + y * n + x].distance(geom.pos[d * nn + y * n + x + 1]) as f64
+                })
+                .collect();
+            v.sort_by(f64::total_cmp);
+            v[v.len() / 2] / h
+        })
+        .collect();
+    println!("seam sum and pairs by the denser side's spacing/h:");
+    for (lo, hi) in [
+        (0.0, 0.3),
+        (0.3, 0.5),
+        (0.5, 0.7),
+        (0.7, 0.9),
+        (0.9, 1.1),
+        (1.1, 9.0),
+    ] {
+        let sel: Vec<_> = pairs
+            .iter()
+            .filter(|p| {
+                let s = spacing[p.1 / nn].min(spacing[p.2 / nn]);
+                s >= lo && s < hi
+            })
+            .collect();
+        let s: f64 = sel.iter().map(|p| p.0).sum();
+        println!(
+            "  [{lo:.1},{hi:.1}): {:.1}% of pairs, {:.1}% of the sum, mean {:.2}x interior",
+            100.0 * sel.len() as f64 / pairs.len() as f64,
+            100.0 * s / ssum,
+            s / sel.len().max(1) as f64 / imean
+        );
+    }
+    let mut by_dom: std::collections::BTreeMap<(usize, usize), (f64, usize)> = Default::default();
+    for p in &pairs {
+        let k = ((p.1 / nn).min(p.2 / nn), (p.1 / nn).max(p.2 / nn));
+        let e = by_dom.entry(k).or_default();
+        e.0 += p.0;
+        e.1 += 1;
+    }
+    let mut by_dom: Vec<_> = by_dom.into_iter().collect();
+    by_dom.sort_by(|a, b| b.1 .0.total_cmp(&a.1 .0));
+    println!("domain pairs holding most of the seam sum:");
+    for ((a, b), (s, c)) in by_dom.iter().take(12) {
+        println!(
+            "  d{a}-d{b}: {:.1}% of the sum, {c} pairs, mean {:.1}x; spacing {:.2} {:.2}; ranks {} {}",
+            100.0 * s / ssum,
+            s / *c as f64 / imean,
+            spacing[*a],
+            spacing[*b],
+            rank[*a],
+            rank[*b]
+        );
+    }
+    // The worst pair's later texel: its neighbours and what they were copied from.
+    if let Some(&(_, a, b)) = pairs.first() {
+        let (late, early) = if rank[a / nn] > rank[b / nn] {
+            (a, b)
+        } else {
+            (b, a)
+        };
+        let p = geom.pos[late];
+        let [v1, v2] = frames[late];
+        let inv = 1.0 / r.report.scale as f32;
+        println!(
+            "worst later texel d{} ({},{}) src {:?}; early d{} ({},{}) src {:?} at {:.2}h",
+            late / nn,
+            late % n,
+            (late / n) % n,
+            src(late),
+            early / nn,
+            early % n,
+            (early / n) % n,
+            src(early),
+            geom.pos[early].distance(p) as f64 / h
+        );
+        buf.clear();
+        graph.neighbours(late, &mut buf);
+        for &j in &buf {
+            let j = j as usize;
+            let dp = geom.pos[j] - p;
+            let e = [dp.dot(v1) * inv, -dp.dot(v2) * inv];
+            let s = src(j);
+            println!(
+                "  nb d{} ({},{}) r{} |dp|/h {:.2} e ({:.2},{:.2}) src ({:.1},{:.1}) cand ({:.1},{:.1}) {} frame dot {:.3}",
+                j / nn,
+                j % n,
+                (j / n) % n,
+                rank[j / nn],
+                dp.length() as f64 / h,
+                e[0],
+                e[1],
+                s[0],
+                s[1],
+                s[0] - e[0],
+                s[1] - e[1],
+                kind_name(out.kind[j]),
+                frames[j][0].dot(v1)
+            );
+        }
+    }
+    // Aggregates: top 1% vs all pairs.
+    let k1 = (pairs.len() / 100).max(1);
+    for (label, set) in [("top 1%", &pairs[..k1]), ("all", &pairs[..])] {
+        let cnt = set.len() as f64;
+        let frac = |f: &dyn Fn(&(f64, usize, usize)) -> bool| {
+            100.0 * set.iter().filter(|p| f(p)).count() as f64 / cnt
+        };
+        let late = |p: &(f64, usize, usize)| {
+            if rank[p.1 / nn] > rank[p.2 / nn] {
+                p.1
+            } else {
+                p.2
+            }
+        };
+        println!(
+            "{label}: ev<=2 {:.0}% ev<=4 {:.0}% sing<=3h {:.0}% | later kind cont {:.0}% random {:.0}% restart {:.0}% | later inner-coherent {:.0}% | coherent across {:.0}% | later sides done 1:{:.0}% 2:{:.0}% 3+:{:.0}% | same wave-gap 1 {:.0}%",
+            frac(&|p| ev_dist(p.1).min(ev_dist(p.2)) <= 2),
+            frac(&|p| ev_dist(p.1).min(ev_dist(p.2)) <= 4),
+            frac(&|p| sing_dist(p.1).min(sing_dist(p.2)) <= 3.0),
+            frac(&|p| out.kind[late(p)] == Kind::Continuation as u8),
+            frac(&|p| out.kind[late(p)] == Kind::RandomWin as u8),
+            frac(&|p| out.kind[late(p)] == Kind::Restart as u8),
+            frac(&|p| inner_coherent(late(p))),
+            frac(&|p| sdist(p.1, p.2) <= 4.0),
+            frac(&|p| sides_done[late(p) / nn] == 1),
+            frac(&|p| sides_done[late(p) / nn] == 2),
+            frac(&|p| sides_done[late(p) / nn] >= 3),
+            frac(&|p| wave[late(p) / nn] - wave[(p.1 + p.2 - late(p)) / nn] == 1),
+        );
     }
 }

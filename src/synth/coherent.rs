@@ -65,6 +65,20 @@ pub struct CoherentParams {
     pub merge_radius: f32,
     /// Texel order inside a domain.
     pub order: Order,
+    /// Order of the domains.
+    pub domain_order: DomainOrder,
+}
+
+/// Order of the domains (see [`super::schedule`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum DomainOrder {
+    /// The paper's breadth-first order over edge adjacency ([`Inputs::schedule`]).
+    Breadth,
+    /// A flood by surface area ([`Schedule::plan_weighted`] with each domain's area, over
+    /// the domains' texel-graph relations): small, densely sampled domains are crossed by
+    /// the first front that reaches them instead of becoming the place where fronts meet.
+    Area,
 }
 
 /// Texel order inside a domain.
@@ -85,6 +99,7 @@ impl Default for CoherentParams {
             restart_candidates: 16,
             merge_radius: 0.5,
             order: Order::Front,
+            domain_order: DomainOrder::Area,
         }
     }
 }
@@ -136,7 +151,23 @@ impl Stats {
 #[derive(Clone, Debug)]
 pub struct Output {
     pub source: Vec<[f32; 2]>,
+    /// How each texel was chosen ([`Kind`] as u8, global texel order), for diagnostics.
+    pub kind: Vec<u8>,
     pub stats: Stats,
+}
+
+/// How a texel's source was chosen (stored as u8 in [`Output::kind`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u8)]
+pub enum Kind {
+    /// No synthesized neighbour: a random position.
+    Seeded = 0,
+    /// A continuation of a neighbour's patch.
+    Continuation = 1,
+    /// A random candidate beat every continuation.
+    RandomWin = 2,
+    /// No valid continuation: the best random restart.
+    Restart = 3,
 }
 
 /// splitmix64's finaliser: a good 64-bit mix, used as a counter-based generator.
@@ -171,6 +202,7 @@ struct Ctx<'a, const K: usize> {
 
 struct DomainOut<const K: usize> {
     src: Vec<[f32; 2]>,
+    kind: Vec<u8>,
     feat: Vec<[f32; K]>,
     stats: Stats,
 }
@@ -200,14 +232,21 @@ pub fn run<const K: usize>(
         hi_y: features.height as f32 - 0.5,
     };
     let mut src = vec![[0.0f32; 2]; total];
+    let mut kind = vec![0u8; total];
     let mut feat = vec![[0.0f32; K]; total];
     let mut done = vec![false; faces];
-    let mut stats = Stats {
-        waves: inputs.schedule.waves.len() as u64,
-        ..Stats::default()
-    };
+    let mut stats = Stats::default();
     let mut finished = 0;
-    for wave in &inputs.schedule.waves {
+    let by_area;
+    let schedule = match params.domain_order {
+        DomainOrder::Breadth => inputs.schedule,
+        DomainOrder::Area => {
+            by_area = area_schedule(inputs.geometry, inputs.graph);
+            &by_area
+        }
+    };
+    stats.waves = schedule.waves.len() as u64;
+    for wave in &schedule.waves {
         let results: Vec<DomainOut<K>> = wave
             .par_iter()
             .map(|&d| synth_domain(&ctx, &src, &feat, &done, d as usize))
@@ -215,6 +254,7 @@ pub fn run<const K: usize>(
         for (&d, r) in wave.iter().zip(results) {
             let d = d as usize;
             src[d * nn..(d + 1) * nn].copy_from_slice(&r.src);
+            kind[d * nn..(d + 1) * nn].copy_from_slice(&r.kind);
             feat[d * nn..(d + 1) * nn].copy_from_slice(&r.feat);
             done[d] = true;
             stats.add(&r.stats);
@@ -222,7 +262,50 @@ pub fn run<const K: usize>(
         finished += wave.len();
         progress(finished);
     }
-    Output { source: src, stats }
+    Output {
+        source: src,
+        kind,
+        stats,
+    }
+}
+
+/// Texel area of every domain: the square of its median distance between adjacent texel
+/// centres (BRIEF's h, per domain), i.e. the domain's area per texel under uniform
+/// sampling; 0 for N = 1.
+pub fn domain_texel_areas(geom: &TexelGeometry) -> Vec<f64> {
+    let n = geom.resolution;
+    let nn = n * n;
+    (0..geom.faces)
+        .into_par_iter()
+        .map(|d| {
+            let p = &geom.pos[d * nn..(d + 1) * nn];
+            let mut v: Vec<f32> = Vec::with_capacity(2 * n * n);
+            for y in 0..n {
+                for x in 0..n {
+                    let i = y * n + x;
+                    if x + 1 < n {
+                        v.push(p[i].distance(p[i + 1]));
+                    }
+                    if y + 1 < n {
+                        v.push(p[i].distance(p[i + n]));
+                    }
+                }
+            }
+            if v.is_empty() {
+                return 0.0;
+            }
+            let mid = v.len() / 2;
+            let (_, m, _) = v.select_nth_unstable_by(mid, f32::total_cmp);
+            (*m as f64).powi(2)
+        })
+        .collect()
+}
+
+/// The area-weighted schedule ([`DomainOrder::Area`]): the flood runs over the domains'
+/// conflict relation (domains sharing an edge or a corner read each other's texels).
+pub fn area_schedule(geom: &TexelGeometry, graph: &TexelGraph) -> Schedule {
+    let conflicts = graph.domain_conflicts();
+    Schedule::plan_weighted(&conflicts, &conflicts, &domain_texel_areas(geom))
 }
 
 /// The scan order of a domain: local texel indices (y*N + x) in synthesis order.
@@ -370,6 +453,7 @@ fn synth_domain<const K: usize>(
     let geom = c.inp.geometry;
     let mut out = DomainOut {
         src: vec![[0.0f32; 2]; nn],
+        kind: vec![0u8; nn],
         feat: vec![[0.0f32; K]; nn],
         stats: Stats::default(),
     };
@@ -430,8 +514,10 @@ fn synth_domain<const K: usize>(
         }
         out.stats.texels += 1;
         out.stats.neighbours += es.len() as u64;
+        let mut k = Kind::Continuation;
         let chosen = if es.is_empty() {
             out.stats.seeded += 1;
+            k = Kind::Seeded;
             random_pos(t, 0)
         } else {
             let coherent = cands.len();
@@ -461,12 +547,16 @@ fn synth_domain<const K: usize>(
                     bi = ci;
                 }
             }
-            if coherent > 0 && bi >= coherent {
+            if coherent == 0 {
+                k = Kind::Restart;
+            } else if bi >= coherent {
                 out.stats.random_wins += 1;
+                k = Kind::RandomWin;
             }
             cands[bi]
         };
         out.src[li] = chosen;
+        out.kind[li] = k as u8;
         out.feat[li] = c.feat.sample(chosen[0], chosen[1]);
         done[li] = true;
     }

@@ -85,31 +85,117 @@ impl Schedule {
             }
         }
         // As-early-as-possible waves for that order.
-        let mut rank = vec![0u32; nd];
-        for (i, &d) in order.iter().enumerate() {
-            rank[d as usize] = i as u32;
-        }
-        let mut wave = vec![0u32; nd];
-        let mut waves: Vec<Vec<u32>> = Vec::new();
-        for &d in &order {
-            let w = conflicts[d as usize]
-                .iter()
-                .filter(|&&e| rank[e as usize] < rank[d as usize])
-                .map(|&e| wave[e as usize] + 1)
-                .max()
-                .unwrap_or(0);
-            wave[d as usize] = w;
-            if waves.len() <= w as usize {
-                waves.resize(w as usize + 1, Vec::new());
-            }
-            waves[w as usize].push(d);
-        }
+        let waves = waves_for(&order, conflicts);
         Self {
             waves,
             order,
             layers: by_layer.len(),
         }
     }
+}
+
+impl Schedule {
+    /// The order by *surface area* instead of by domain count: a Dijkstra flood over
+    /// `adjacency` where entering domain d costs `cost[d]` (its area), starting in every
+    /// connected component at its cheapest domain (lowest index on ties), with the
+    /// as-early-as-possible waves of [`Schedule::plan`] for that order (so the result is
+    /// still exactly the sequential one for any number of threads).
+    ///
+    /// Why: where two independently grown patches meet there is a junction, and a junction
+    /// shows (and weighs in the seam measure) in proportion to how densely it is sampled.
+    /// Breadth-first over domains advances one domain per step whatever its size, so a
+    /// cluster of small, densely sampled domains (an n-gon's sub-faces, small faces at an
+    /// extraordinary vertex) is reached by several fronts at once and becomes their
+    /// meeting place. Advancing by area, the first front to touch a small cluster crosses
+    /// it at once, and fronts meet in large, coarsely sampled domains.
+    ///
+    /// `layers` is the depth (in domains) of the flood's tree.
+    pub fn plan_weighted(adjacency: &[Vec<u32>], conflicts: &[Vec<u32>], cost: &[f64]) -> Self {
+        use std::cmp::{Ordering, Reverse};
+        use std::collections::BinaryHeap;
+        let nd = adjacency.len();
+        assert_eq!(conflicts.len(), nd);
+        assert_eq!(cost.len(), nd);
+        /// Heap key: distance, then domain index (a total order, so the flood is
+        /// deterministic on ties).
+        #[derive(PartialEq)]
+        struct Key(f64, u32);
+        impl Eq for Key {}
+        impl PartialOrd for Key {
+            fn partial_cmp(&self, o: &Self) -> Option<Ordering> {
+                Some(self.cmp(o))
+            }
+        }
+        impl Ord for Key {
+            fn cmp(&self, o: &Self) -> Ordering {
+                self.0.total_cmp(&o.0).then(self.1.cmp(&o.1))
+            }
+        }
+        let mut roots: Vec<usize> = (0..nd).collect();
+        roots.sort_by(|&a, &b| cost[a].total_cmp(&cost[b]).then(a.cmp(&b)));
+        let mut dist = vec![f64::INFINITY; nd];
+        let mut depth = vec![0u32; nd];
+        let mut done = vec![false; nd];
+        let mut order = Vec::with_capacity(nd);
+        let mut heap = BinaryHeap::new();
+        for root in roots {
+            if done[root] {
+                continue;
+            }
+            dist[root] = 0.0;
+            heap.push(Reverse(Key(0.0, root as u32)));
+            while let Some(Reverse(Key(dd, d))) = heap.pop() {
+                let d = d as usize;
+                if done[d] {
+                    continue;
+                }
+                done[d] = true;
+                order.push(d as u32);
+                for &e in &adjacency[d] {
+                    let e = e as usize;
+                    let de = dd + cost[e];
+                    if !done[e] && de < dist[e] {
+                        dist[e] = de;
+                        depth[e] = depth[d] + 1;
+                        heap.push(Reverse(Key(de, e as u32)));
+                    }
+                }
+            }
+        }
+        let layers = depth.iter().max().map_or(0, |&m| m as usize + 1);
+        let waves = waves_for(&order, conflicts);
+        Self {
+            waves,
+            order,
+            layers,
+        }
+    }
+}
+
+/// As-early-as-possible waves for a sequential `order`: wave(d) = 1 + max wave of the
+/// earlier domains d conflicts with.
+fn waves_for(order: &[u32], conflicts: &[Vec<u32>]) -> Vec<Vec<u32>> {
+    let nd = conflicts.len();
+    let mut rank = vec![0u32; nd];
+    for (i, &d) in order.iter().enumerate() {
+        rank[d as usize] = i as u32;
+    }
+    let mut wave = vec![0u32; nd];
+    let mut waves: Vec<Vec<u32>> = Vec::new();
+    for &d in order {
+        let w = conflicts[d as usize]
+            .iter()
+            .filter(|&&e| rank[e as usize] < rank[d as usize])
+            .map(|&e| wave[e as usize] + 1)
+            .max()
+            .unwrap_or(0);
+        wave[d as usize] = w;
+        if waves.len() <= w as usize {
+            waves.resize(w as usize + 1, Vec::new());
+        }
+        waves[w as usize].push(d);
+    }
+    waves
 }
 
 #[cfg(test)]
@@ -171,5 +257,53 @@ mod tests {
         let s = Schedule::plan(&adj, &adj);
         assert_eq!(s.waves[0], vec![0, 5]);
         assert_eq!(s.layers, 3);
+    }
+
+    #[test]
+    fn weighted_flood_crosses_a_cheap_cluster_before_fronts_meet_there() {
+        // A ring of 8 (each domain conflicting with its two neighbours), all of cost 1
+        // except the root 0 and a cheap pair {3, 4}. Breadth-first, 4 is the last domain,
+        // reached by the fronts through 3 and 5 at once; by area, the front through 3
+        // crosses the pair before 5 is done.
+        let adj = ring(8);
+        let mut cost = vec![1.0; 8];
+        cost[0] = 0.001;
+        cost[3] = 0.01;
+        cost[4] = 0.01;
+        let bfs = Schedule::plan(&adj, &adj);
+        assert_eq!(*bfs.order.last().unwrap(), 4);
+        let s = Schedule::plan_weighted(&adj, &adj, &cost);
+        assert_eq!(s.order[0], 0);
+        let pos = |d: u32| s.order.iter().position(|&x| x == d).unwrap();
+        assert!(pos(3) < pos(4) && pos(4) < pos(5));
+        // Waves: every domain once, conflicting domains in different waves, earlier in
+        // the order => earlier wave.
+        let mut seen: Vec<u32> = s.waves.concat();
+        seen.sort_unstable();
+        assert_eq!(seen, (0..8).collect::<Vec<_>>());
+        let mut wave_of = [0usize; 8];
+        for (w, ds) in s.waves.iter().enumerate() {
+            for &d in ds {
+                wave_of[d as usize] = w;
+            }
+        }
+        for d in 0..8u32 {
+            for &e in &adj[d as usize] {
+                assert_eq!(pos(d) < pos(e), wave_of[d as usize] < wave_of[e as usize]);
+            }
+        }
+        // Unit costs: the breadth-first layers again, from the lowest domain.
+        let u = Schedule::plan_weighted(&adj, &adj, &[1.0; 8]);
+        assert_eq!(u.order[0], 0);
+        assert_eq!(u.layers, 5);
+        // Every component starts at its cheapest domain.
+        let mut two = ring(4);
+        two.extend(
+            ring(4)
+                .into_iter()
+                .map(|v| v.into_iter().map(|e| e + 4).collect()),
+        );
+        let s = Schedule::plan_weighted(&two, &two, &[1.0, 1.0, 0.5, 1.0, 1.0, 0.2, 1.0, 1.0]);
+        assert_eq!(s.waves[0], vec![5, 2]);
     }
 }
