@@ -8,6 +8,9 @@
 //! greedily coloured so that no two of one colour *conflict* (one lists texels of the other
 //! as neighbours, [`crate::texels::TexelGraph::domain_conflicts`]); the sequential order is
 //! layer by layer, colour by colour, discovery order inside a colour.
+//! [`Schedule::plan_weighted`] is the coherent synthesizer's default instead: a flood by
+//! surface area, so that small, densely sampled domains do not become the place where
+//! fronts meet (docs/synthesis.md, "Domain order").
 //!
 //! **Waves**: a domain only reads texels of the domains it conflicts with. So a domain can
 //! start as soon as every *earlier* conflicting domain is finished, and running the
