@@ -517,7 +517,16 @@ impl Synthesizer {
         progress(Stage::Graph, 0, 1);
         let t0 = Instant::now();
         let graph = TexelGraph::build(&surface, &geometry);
-        let schedule = Schedule::plan(&domain_edge_adjacency(&surface), &graph.domain_conflicts());
+        // The domain order: the coherent method's (area-weighted by default), else the
+        // paper's breadth-first plan (reported; multiscale plans its own from it).
+        let schedule = match self.method {
+            Method::Coherent => {
+                coherent::schedule_for(self.params.domain_order, &surface, &geometry, &graph)
+            }
+            Method::Multiscale => {
+                Schedule::plan(&domain_edge_adjacency(&surface), &graph.domain_conflicts())
+            }
+        };
         let spacing = geometry.median_spacing(&surface);
         let (scale, scale_source) = match self.scale {
             Some(s) => (s, "given"),

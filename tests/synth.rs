@@ -744,12 +744,12 @@ fn diagnose_seams() {
     let frames = surfsynth::synth::frames_f32(&field.texel_frames(surface, n));
     let graph = TexelGraph::build(surface, geom);
     // The schedule the run used (ranks and waves below).
-    let schedule = match CoherentParams::default().domain_order {
-        coherent::DomainOrder::Area => coherent::area_schedule(geom, &graph),
-        coherent::DomainOrder::Breadth => {
-            Schedule::plan(&domain_edge_adjacency(surface), &graph.domain_conflicts())
-        }
-    };
+    let schedule = coherent::schedule_for(
+        CoherentParams::default().domain_order,
+        surface,
+        geom,
+        &graph,
+    );
     let flipped = r.example.flipped_rows();
     let out = surfsynth::synth::run_coherent(
         &flipped,

@@ -73,7 +73,7 @@ pub struct CoherentParams {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum DomainOrder {
-    /// The paper's breadth-first order over edge adjacency ([`Inputs::schedule`]).
+    /// The paper's breadth-first order over edge adjacency.
     Breadth,
     /// A flood by surface area ([`Schedule::plan_weighted`] with each domain's area, over
     /// the domains' texel-graph relations): small, densely sampled domains are crossed by
@@ -111,6 +111,7 @@ pub struct Inputs<'a> {
     pub graph: &'a TexelGraph,
     /// (v1, v2) per texel (global texel order).
     pub frames: &'a [[Vec3; 2]],
+    /// The domain order: [`schedule_for`] the run's [`CoherentParams::domain_order`].
     pub schedule: &'a Schedule,
     /// Surface length per example pixel.
     pub scale: f64,
@@ -237,14 +238,7 @@ pub fn run<const K: usize>(
     let mut done = vec![false; faces];
     let mut stats = Stats::default();
     let mut finished = 0;
-    let by_area;
-    let schedule = match params.domain_order {
-        DomainOrder::Breadth => inputs.schedule,
-        DomainOrder::Area => {
-            by_area = area_schedule(inputs.geometry, inputs.graph);
-            &by_area
-        }
-    };
+    let schedule = inputs.schedule;
     stats.waves = schedule.waves.len() as u64;
     for wave in &schedule.waves {
         let results: Vec<DomainOut<K>> = wave
@@ -299,6 +293,24 @@ pub fn domain_texel_areas(geom: &TexelGeometry) -> Vec<f64> {
             (*m as f64).powi(2)
         })
         .collect()
+}
+
+/// The schedule of `order` (what [`Inputs::schedule`] must be for that order):
+/// [`DomainOrder::Breadth`] is the paper's breadth-first plan over edge adjacency,
+/// [`DomainOrder::Area`] the area-weighted flood ([`area_schedule`]).
+pub fn schedule_for(
+    order: DomainOrder,
+    surface: &subdiv::Surface,
+    geom: &TexelGeometry,
+    graph: &TexelGraph,
+) -> Schedule {
+    match order {
+        DomainOrder::Breadth => Schedule::plan(
+            &crate::texels::domain_edge_adjacency(surface),
+            &graph.domain_conflicts(),
+        ),
+        DomainOrder::Area => area_schedule(geom, graph),
+    }
 }
 
 /// The area-weighted schedule ([`DomainOrder::Area`]): the flood runs over the domains'
