@@ -718,8 +718,7 @@ fn seam_tail() {
 fn diagnose_seams() {
     use surfsynth::field::OrientationField;
     use surfsynth::synth::coherent::{self, Kind};
-    use surfsynth::synth::schedule::Schedule;
-    use surfsynth::texels::{corner_fan, domain_edge_adjacency, TexelGraph};
+    use surfsynth::texels::{corner_fan, TexelGraph};
     let mesh: String = env_or("DIAG_MESH", "meshes/blub_control_mesh.obj".to_string());
     let ex: String = env_or("DIAG_EX", "textures/krita_reptile_scales.png".to_string());
     let seed: u64 = env_or("DIAG_SEED", 5);
