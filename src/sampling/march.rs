@@ -18,7 +18,7 @@
 //! - degenerate triangles cannot produce NaN: lengths are floored before dividing.
 
 use glam::{DVec2, DVec3};
-use subdiv::{DomainLocation, FaceId, LimitMesh, Surface};
+use subdiv::{BaseLocation, DomainLocation, FaceId, LimitMesh, Surface};
 
 /// Safety cap on edge crossings of one path.
 pub const MAX_CROSSINGS: usize = 1 << 16;
@@ -57,6 +57,23 @@ pub struct MarchMesh {
     geo: Vec<TriGeo>,
     /// Per triangle and local edge: (neighbour triangle << 2) | its local edge, or NONE.
     adj: Vec<[u32; 3]>,
+    /// Per triangle: within [`EXACT_RINGS`] rings of an extraordinary vertex, where the
+    /// polyhedral mesh is a poor stand-in for the limit surface (its cone angles there
+    /// deflect straightest paths by up to the vertex's angle deficit, a few degrees).
+    near_extraordinary: Vec<bool>,
+}
+
+/// Rings of level faces around an extraordinary vertex in which paths continue on the
+/// exact limit surface instead of the mesh (see docs/sampling.md).
+pub const EXACT_RINGS: u32 = 3;
+
+/// A path that entered the neighbourhood of an extraordinary vertex: where, in which
+/// direction (2D, in the triangle's frame) and how much length was left.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Entered {
+    pub at: TriPoint,
+    pub dir: DVec2,
+    pub rest: f64,
 }
 
 /// Result of one path.
@@ -121,7 +138,51 @@ impl MarchMesh {
                 }
             }
         }
-        MarchMesh { geo, adj }
+        // Vertex ring distance to the nearest extraordinary vertex (face-connected rings).
+        let nv = m.num_vertices();
+        let mut dist = vec![u32::MAX; nv];
+        for (v, d) in dist.iter_mut().enumerate() {
+            if !m.is_regular_vertex(subdiv::VertexId::from_idx(v)) {
+                *d = 0;
+            }
+        }
+        for _ in 0..EXACT_RINGS {
+            for f in 0..nf {
+                let vs = m.face_vertices(FaceId::from_idx(f));
+                let d = vs
+                    .iter()
+                    .map(|&v| dist[v as usize])
+                    .min()
+                    .unwrap_or(u32::MAX);
+                if d < u32::MAX {
+                    for &v in vs {
+                        dist[v as usize] = dist[v as usize].min(d + 1);
+                    }
+                }
+            }
+        }
+        let mut near_extraordinary = Vec::with_capacity(2 * nf);
+        for f in 0..nf {
+            let vs = m.face_vertices(FaceId::from_idx(f));
+            let near = vs.iter().any(|&v| dist[v as usize] < EXACT_RINGS);
+            near_extraordinary.extend([near, near]);
+        }
+        MarchMesh {
+            geo,
+            adj,
+            near_extraordinary,
+        }
+    }
+
+    /// Whether `tri` is near an extraordinary vertex (see [`EXACT_RINGS`]).
+    pub fn near_extraordinary(&self, tri: u32) -> bool {
+        self.near_extraordinary[tri as usize]
+    }
+
+    /// 3D direction of a 2D direction in `tri`'s frame.
+    pub fn to_3d(&self, tri: u32, d: DVec2) -> DVec3 {
+        let g = &self.geo[tri as usize];
+        g.ex * d.x + g.ey * d.y
     }
 
     /// The triangle point of a level-face point (kept strictly inside its triangle).
@@ -176,14 +237,48 @@ impl MarchMesh {
     /// Walks from `start` along the 2D direction `dir` (unit, in the start triangle's frame)
     /// for `length`.
     pub fn walk(&self, start: TriPoint, dir: DVec2, length: f64) -> PathEnd {
+        match self.walk_impl(start, dir, length, false) {
+            Ok(end) => end,
+            Err(e) => PathEnd::At(e.at),
+        }
+    }
+
+    /// As [`Self::walk`], but stops as soon as the path is in a triangle near an
+    /// extraordinary vertex (including the start triangle): `Err(Entered)`.
+    pub fn walk_until_extraordinary(
+        &self,
+        start: TriPoint,
+        dir: DVec2,
+        length: f64,
+    ) -> Result<PathEnd, Entered> {
+        self.walk_impl(start, dir, length, true)
+    }
+
+    fn walk_impl(
+        &self,
+        start: TriPoint,
+        dir: DVec2,
+        length: f64,
+        stop: bool,
+    ) -> Result<PathEnd, Entered> {
         let mut tri = start.tri as usize;
         let mut b = start.bary;
         let mut d = dir;
         let mut rest = length;
         if rest.is_nan() || rest <= 0.0 || !d.is_finite() {
-            return PathEnd::At(start);
+            return Ok(PathEnd::At(start));
         }
         for _ in 0..MAX_CROSSINGS {
+            if stop && self.near_extraordinary[tri] {
+                return Err(Entered {
+                    at: TriPoint {
+                        tri: tri as u32,
+                        bary: clean(b),
+                    },
+                    dir: d,
+                    rest,
+                });
+            }
             let g = &self.geo[tri];
             // Barycentric rate of change per unit length along d.
             let db2 = d.y / g.y2;
@@ -204,10 +299,10 @@ impl MarchMesh {
                 for c in 0..3 {
                     b[c] += db[c] * rest;
                 }
-                return PathEnd::At(TriPoint {
+                return Ok(PathEnd::At(TriPoint {
                     tri: tri as u32,
                     bary: clean(b),
-                });
+                }));
             }
             rest -= lambda;
             for c in 0..3 {
@@ -221,7 +316,7 @@ impl MarchMesh {
             let a = (bj1 / (bj + bj1).max(1e-300)).clamp(VERTEX_EPS, 1.0 - VERTEX_EPS);
             let link = self.adj[tri][j];
             if link == NONE {
-                return PathEnd::Boundary;
+                return Ok(PathEnd::Boundary);
             }
             let (ntri, nj) = ((link >> 2) as usize, (link & 3) as usize);
             // Direction relative to the edge: along (α) and across (β, negative: leaving).
@@ -236,10 +331,10 @@ impl MarchMesh {
             b = nb;
             tri = ntri;
         }
-        PathEnd::Stalled(TriPoint {
+        Ok(PathEnd::Stalled(TriPoint {
             tri: tri as u32,
             bary: clean(b),
-        })
+        }))
     }
 
     /// 3D point of a triangle point on the piecewise-linear mesh.
@@ -260,6 +355,12 @@ impl MarchMesh {
     /// is far from affine across one face (up to 30% of a face at level 5), while the mesh
     /// itself is within a hair of the surface.
     pub fn to_domain(&self, surface: &Surface, lm: &LimitMesh, p: TriPoint) -> DomainLocation {
+        let loc = self.to_base(surface, lm, p);
+        surface.base_to_domain(loc.quad, loc.s, loc.t)
+    }
+
+    /// [`Self::to_domain`] as a base-quad point.
+    pub fn to_base(&self, surface: &Surface, lm: &LimitMesh, p: TriPoint) -> BaseLocation {
         let (f, s, t) = self.face_point(p);
         let mut loc = lm.to_base(f, s, t);
         let target = self.position(lm, p);
@@ -290,7 +391,7 @@ impl MarchMesh {
                 break;
             }
         }
-        surface.base_to_domain(loc.quad, loc.s, loc.t)
+        loc
     }
 }
 

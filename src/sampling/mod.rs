@@ -20,6 +20,7 @@
 
 pub mod bench;
 pub mod chart;
+pub mod geodesic;
 pub mod march;
 
 use crate::field::{Frame, OrientationField};
@@ -33,6 +34,10 @@ use subdiv::{BaseLocation, Charts, DomainLocation, Surface, VertexId};
 /// Default relative spacing tolerance of accepted chart patterns (4%: inside the 5% that
 /// issue 3 asks of every pattern, with room for the 3D-vs-surface distance difference).
 pub const DEFAULT_TOLERANCE: f64 = 0.04;
+
+/// Longest integration step (in δ) of marching paths on the exact limit surface next to
+/// extraordinary vertices.
+const EXACT_STEP: f64 = 0.5;
 
 /// Which sampler to use.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -167,7 +172,7 @@ impl<'a> Sampler<'a> {
         self
     }
 
-    /// How closely chart patterns follow geodesics (default [`PatternOrder::Cubic`];
+    /// How closely chart patterns follow geodesics (default [`PatternOrder::Geodesic`];
     /// [`PatternOrder::Linear`] is the paper's step 3 as printed).
     pub fn with_order(mut self, order: PatternOrder) -> Self {
         self.order = order;
@@ -192,6 +197,15 @@ impl<'a> Sampler<'a> {
     pub fn frame(&self, centre: DomainLocation) -> Frame {
         self.field
             .frame(self.surface, centre.domain, centre.u, centre.v)
+    }
+
+    /// The frame [`Self::sample`] orients the pattern of `centre` by (at an extraordinary
+    /// corner, the limit of the frames of nearby points).
+    pub fn pattern_frame(&self, centre: DomainLocation) -> Frame {
+        let loc = regular_point(self.surface.base_location(centre));
+        let e = self.surface.eval_base(loc.quad, loc.s, loc.t);
+        self.field
+            .frame_at(self.surface.base_location(centre), e.n, e.du)
     }
 
     /// The K×K neighbourhood of `centre` at step `delta` (see the module doc), oriented by
@@ -323,6 +337,10 @@ impl<'a> Sampler<'a> {
         }
         let a1 = mm.to_local(p0.tri, n, frame.v1);
         let a2 = mm.to_local(p0.tri, n, frame.v2);
+        // Next to an extraordinary vertex the paths follow geodesics of the exact limit
+        // surface (march::EXACT_RINGS); from a centre there, from the start.
+        let exact_start = mm.near_extraordinary(p0.tri);
+        let max_step = delta * EXACT_STEP;
         let h = (k / 2) as i64;
         let mut stalled = 0;
         for m in -h..=h {
@@ -332,9 +350,35 @@ impl<'a> Sampler<'a> {
                     out[i] = Some(centre);
                     continue;
                 }
+                if exact_start {
+                    let v = (frame.v1 * l as f64 + frame.v2 * m as f64) * delta;
+                    let vt = v - n * n.dot(v);
+                    let vt = vt * (v.length() / vt.length().max(1e-300));
+                    if let Some(b) = geodesic::geodesic_end(self.surface, loc, vt, max_step) {
+                        out[i] = Some(self.surface.base_to_domain(b.quad, b.s, b.t));
+                        continue;
+                    }
+                }
                 let dir = a1 * l as f64 + a2 * m as f64;
                 let len = dir.length();
-                out[i] = match mm.walk(p0, dir / len, len * delta) {
+                let end = match mm.walk_until_extraordinary(p0, dir / len, len * delta) {
+                    Ok(end) => end,
+                    Err(e) => {
+                        let b = mm.to_base(self.surface, lm, e.at);
+                        let eb = self.surface.eval_base(b.quad, b.s, b.t);
+                        let d = mm.to_3d(e.at.tri, e.dir);
+                        let d = (d - eb.n * eb.n.dot(d)).normalize_or_zero() * e.rest;
+                        match geodesic::geodesic_end(self.surface, b, d, max_step) {
+                            Some(b) => {
+                                out[i] = Some(self.surface.base_to_domain(b.quad, b.s, b.t));
+                                continue;
+                            }
+                            // Off the surface or a failed projection: the mesh path decides.
+                            None => mm.walk(e.at, e.dir, e.rest),
+                        }
+                    }
+                };
+                out[i] = match end {
                     PathEnd::At(p) => Some(mm.to_domain(self.surface, lm, p)),
                     PathEnd::Boundary => None,
                     PathEnd::Stalled(p) => {
