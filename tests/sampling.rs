@@ -217,26 +217,44 @@ fn survey(s: &Surface, sam: &Sampler, k: usize, texels: f64, max_bend: f64) -> M
     rep
 }
 
-/// Issue 3's numbers on five meshes. Every pattern: no flipped cell, centre axes 90° ± 3°.
-/// Adjacent distances δ ± 5%: for all pairs on the cube and torus, for ≥ 99% of pairs on
-/// Spot, the double torus and the boundary meshes (their worst pairs are next to
-/// extraordinary vertices whose curvature is unbounded; the worst is bounded too).
-/// Chart and marching samples agree within 3% of δ for 5×5 patterns at one texel step on
-/// the cube and torus.
+/// Issue 3's numbers on five meshes (plus catmark_edgecorner). Every pattern of both
+/// samplers: no flipped cell, centre axes 90° ± 3°, every adjacent pair δ ± 5% (the worst
+/// is asserted per mesh, a little above what was measured). Chart and marching samples
+/// agree within 3% of δ for 5×5 patterns at one texel step on the cube, the torus and the
+/// open cube; elsewhere the chart sampler's geodesics drift from the exact ones next to
+/// extraordinary vertices (tests/sampling_truth.rs measures both against the exact
+/// exponential map) and the bound is the measured one.
 #[test]
 fn samplers_produce_square_fold_free_grids_on_five_meshes() {
-    for (rel, strict) in [
-        ("opensubdiv-reference/catmark_cube.obj", true),
-        ("opensubdiv-reference/catmark_torus.obj", true),
-        ("opensubdiv-reference/spot_control_mesh.obj", false),
-        ("meshes/double_torus_genus2.obj", false),
-        ("meshes/cube_no_bottom.obj", false),
-        ("opensubdiv-reference/catmark_edgecorner.obj", false),
+    // (mesh, worst spacing of either sampler, chart-vs-march bounds for K5 δ1, K5 δ2, K9 δ1)
+    for (rel, spacing, agree) in [
+        (
+            "opensubdiv-reference/catmark_cube.obj",
+            0.03,
+            [0.03, 0.03, 0.04],
+        ),
+        (
+            "opensubdiv-reference/catmark_torus.obj",
+            0.02,
+            [0.03, 0.03, 0.03],
+        ),
+        (
+            "opensubdiv-reference/spot_control_mesh.obj",
+            0.045,
+            [0.08, 0.10, 0.14],
+        ),
+        ("meshes/double_torus_genus2.obj", 0.045, [0.08, 0.10, 0.14]),
+        ("meshes/cube_no_bottom.obj", 0.04, [0.03, 0.12, 0.23]),
+        (
+            "opensubdiv-reference/catmark_edgecorner.obj",
+            0.04,
+            [0.04, 0.08, 0.15],
+        ),
     ] {
         let s = load(rel);
         let f = OrientationField::compute(&s, &Orientation::Auto).unwrap();
         let sam = Sampler::new(&s, &f);
-        for (k, t) in [(5, 1.0), (5, 2.0), (9, 1.0)] {
+        for (ci, (k, t)) in [(5, 1.0), (5, 2.0), (9, 1.0)].into_iter().enumerate() {
             let r = survey(&s, &sam, k, t, 20.0);
             println!(
                 "{rel} K{k} δ={t}: chart max {:.4} over5 {}/{} axes {:.3}° folds {} | march max {:.4} over5 {}/{} axes {:.3}° folds {} | agree {:.4}δ | chart-sampled {} fallbacks {} | not judged (bend > 20°) {}/{}",
@@ -252,29 +270,18 @@ fn samplers_produce_square_fold_free_grids_on_five_meshes() {
                     "{rel}: only {} patterns judged",
                     st.patterns
                 );
-                if strict && k == 5 {
-                    assert!(
-                        st.spacing <= 0.05,
-                        "{rel} K{k} δ={t} {name}: {}",
-                        st.spacing
-                    );
-                } else {
-                    assert!(
-                        st.over5 * 100 <= st.pairs,
-                        "{rel} K{k} δ={t} {name}: {} of {} pairs off by > 5%",
-                        st.over5,
-                        st.pairs
-                    );
-                    assert!(
-                        st.spacing <= 0.15,
-                        "{rel} K{k} δ={t} {name}: {}",
-                        st.spacing
-                    );
-                }
+                assert_eq!(st.over5, 0, "{rel} K{k} δ={t} {name}: pairs off by > 5%");
+                assert!(
+                    st.spacing <= spacing,
+                    "{rel} K{k} δ={t} {name}: {}",
+                    st.spacing
+                );
             }
-            if strict && k == 5 && t == 1.0 {
-                assert!(r.agree <= 0.03, "{rel}: chart vs march {}δ", r.agree);
-            }
+            assert!(
+                r.agree <= agree[ci],
+                "{rel} K{k} δ={t}: chart vs march {}δ",
+                r.agree
+            );
         }
     }
 }
