@@ -174,9 +174,11 @@ pub fn plan_levels(
     };
     let mut res = Vec::new();
     for j in j0..ex_levels {
-        let r = (n as f64 * spacing / (scale * (1u64 << j) as f64)).round() as usize;
-        let r = r.max(1);
-        if !res.is_empty() && r < MIN_RESOLUTION {
+        // The exact size, not the rounded one, decides: N = 12 would otherwise get a 1.5
+        // texel level rounded up to 2 (a third too many texels for the example's pixels).
+        let exact = n as f64 * spacing / (scale * (1u64 << j) as f64);
+        let r = (exact.round() as usize).max(1);
+        if !res.is_empty() && exact < MIN_RESOLUTION as f64 {
             break;
         }
         res.push(r);
@@ -1008,6 +1010,8 @@ mod tests {
         assert_eq!(plan(256, 32, 0.01, 0.0025, 0), (2, vec![32, 16, 8]));
         // Small maps stop at 2x2 texels; max_levels caps.
         assert_eq!(plan(512, 16, 0.01, 0.01, 0), (0, vec![16, 8, 4, 2]));
+        // The exact size decides: N = 12 stops at 3, not at 1.5 rounded up to 2.
+        assert_eq!(plan(128, 12, 0.01, 0.01, 0), (0, vec![12, 6, 3]));
         assert_eq!(plan(512, 64, 0.01, 0.01, 2), (0, vec![64, 32]));
         assert!(plan_levels(64, 64, 8, 0.0, 0.01, 0).is_err());
     }
