@@ -15,7 +15,7 @@
 //! neighbourhoods marched on the surface (000 §4.1; patterns do not fit charts at coarse
 //! levels); exhaustive search under the Gaussian-weighted l2 over the generated samples,
 //! fetched with the paper's rule (bilinear when all four texels are generated, the nearest
-//! generated one when some are, skipped when none are).
+//! one when some are and it is, skipped otherwise: [`level::nearest_is_generated`]).
 //!
 //! **Finer levels**, two passes: pass 1 matches the 5x5 block of the coarser level only
 //! (every texel independent); pass 2 refines with the 9x9 block of the level plus the same
