@@ -156,10 +156,10 @@ fn flat_grid_through_the_cli_matches_2d_patch_fidelity_with_default_handedness()
         let tiles = pf(method, "tiles");
         let outside = pf(method, "outside");
         eprintln!("{method}: patch fidelity tiles {tiles:.3}, outside {outside:.3}, 2D {pf2:.3}");
-        // Issue 5 asks for 1.1x; through the CLI with 24-texel domains it is 1.2-1.35x
-        // (0.95-1.09x with 72-texel domains): open, see docs/multiscale.md.
+        // Issue 5's bar (1.1x). Measured 0.282 vs 2D 0.273 (1.2-1.35x before the coarsest
+        // level's fetch rule was fixed; docs/multiscale.md, "Small domains").
         if method == "multiscale" {
-            assert!(tiles <= 1.4 * pf2, "{method}: {tiles:.3} vs 2D {pf2:.3}");
+            assert!(tiles <= 1.1 * pf2, "{method}: {tiles:.3} vs 2D {pf2:.3}");
         }
         // gravel is lit from one side: its mirror image matches clearly worse.
         assert!(
