@@ -22,36 +22,46 @@ fn multiscale_runs_from_the_cli() {
     }
     let mesh = dir.path().join("grid.obj");
     std::fs::write(&mesh, obj).unwrap();
-    let out = dir.path().join("out");
     let example = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/gravel.png");
-    let status = Command::new(env!("CARGO_BIN_EXE_surfsynth"))
-        .args(["synth", "--mesh"])
-        .arg(&mesh)
-        .args([
-            "--example",
-            example,
-            "--method",
-            "multiscale",
-            "--resolution",
-            "16",
-            "--out",
-        ])
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert!(
-        status.status.success(),
-        "{}",
-        String::from_utf8_lossy(&status.stderr)
-    );
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
-    assert_eq!(report["method"], "multiscale");
-    assert!(report["multiscale"].is_object());
-    let q = surfsynth::eval::evaluate(&out, None).unwrap();
-    assert_eq!(q.coverage, 1.0);
-    let seam = q.seam_ratio.unwrap();
-    assert!(seam <= 1.15, "seam ratio {seam}");
+    // Single seeds range 0.90-1.20 here (seeds 0-7, before and after the coarsest-level
+    // fetch fix alike: means 1.05 and 1.05), so the bound applies to the mean of 8 seeds.
+    let mut seams = Vec::new();
+    for seed in 0..8 {
+        let out = dir.path().join(format!("out{seed}"));
+        let status = Command::new(env!("CARGO_BIN_EXE_surfsynth"))
+            .args(["synth", "--mesh"])
+            .arg(&mesh)
+            .args([
+                "--example",
+                example,
+                "--method",
+                "multiscale",
+                "--resolution",
+                "16",
+                "--seed",
+                &seed.to_string(),
+                "--out",
+            ])
+            .arg(&out)
+            .output()
+            .unwrap();
+        assert!(
+            status.status.success(),
+            "{}",
+            String::from_utf8_lossy(&status.stderr)
+        );
+        let report: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap())
+                .unwrap();
+        assert_eq!(report["method"], "multiscale");
+        assert!(report["multiscale"].is_object());
+        let q = surfsynth::eval::evaluate(&out, None).unwrap();
+        assert_eq!(q.coverage, 1.0);
+        seams.push(q.seam_ratio.unwrap());
+    }
+    let mean = seams.iter().sum::<f64>() / seams.len() as f64;
+    eprintln!("seam ratios {seams:.3?}, mean {mean:.3}");
+    assert!(mean <= 1.15, "seam ratios {seams:?}");
 }
 
 #[test]
