@@ -29,7 +29,7 @@ use serde::Serialize;
 pub enum Method {
     /// Ying et al. 2001 §5: single pass, continues coherent patches (Ashikhmin).
     Coherent,
-    /// Ying et al. 2001 §4: multiscale (Wei-Levoy); not available yet.
+    /// Ying et al. 2001 §4: multiscale (Wei-Levoy), with k-coherence or ANN search.
     Multiscale,
 }
 
