@@ -220,10 +220,13 @@ fn survey(s: &Surface, sam: &Sampler, k: usize, texels: f64, max_bend: f64) -> M
 /// Issue 3's numbers on five meshes (plus catmark_edgecorner). Every pattern of both
 /// samplers: no flipped cell, centre axes 90° ± 3°, every adjacent pair δ ± 5% (the worst
 /// is asserted per mesh, a little above what was measured). Chart and marching samples
-/// agree within 3% of δ for 5×5 patterns at one texel step on the cube, the torus and the
-/// open cube; elsewhere the chart sampler's geodesics drift from the exact ones next to
-/// extraordinary vertices (tests/sampling_truth.rs measures both against the exact
-/// exponential map) and the bound is the measured one.
+/// agree within 3% of δ on the cube, the torus, the open cube and catmark_edgecorner, and
+/// on the double torus for 5×5 patterns: patterns that reach an extraordinary vertex or an
+/// open boundary are marched ([`surfsynth::sampling::EXTRAORDINARY_MARGIN`]). On Spot
+/// (3.3% at K 5, 6.6% at K 9) and the double torus at K 9 (4.9%) the chart sampler's 5×5
+/// Christoffel grid still drifts from the exact geodesics where the surface bends fast
+/// (tests/sampling_truth.rs measures both against the exact exponential map); the bound
+/// is the measured one.
 #[test]
 fn samplers_produce_square_fold_free_grids_on_five_meshes() {
     // (mesh, worst spacing of either sampler, chart-vs-march bounds for K5 δ1, K5 δ2, K9 δ1)
@@ -231,24 +234,24 @@ fn samplers_produce_square_fold_free_grids_on_five_meshes() {
         (
             "opensubdiv-reference/catmark_cube.obj",
             0.03,
-            [0.03, 0.03, 0.04],
+            [0.01, 0.01, 0.025],
         ),
         (
             "opensubdiv-reference/catmark_torus.obj",
             0.02,
-            [0.03, 0.03, 0.03],
+            [0.01, 0.01, 0.015],
         ),
         (
             "opensubdiv-reference/spot_control_mesh.obj",
             0.045,
-            [0.08, 0.10, 0.14],
+            [0.04, 0.04, 0.08],
         ),
-        ("meshes/double_torus_genus2.obj", 0.045, [0.08, 0.10, 0.14]),
-        ("meshes/cube_no_bottom.obj", 0.04, [0.03, 0.12, 0.23]),
+        ("meshes/double_torus_genus2.obj", 0.045, [0.015, 0.03, 0.06]),
+        ("meshes/cube_no_bottom.obj", 0.04, [0.01, 0.01, 0.02]),
         (
             "opensubdiv-reference/catmark_edgecorner.obj",
             0.04,
-            [0.04, 0.08, 0.15],
+            [0.01, 0.01, 0.01],
         ),
     ] {
         let s = load(rel);

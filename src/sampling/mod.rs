@@ -131,7 +131,17 @@ pub struct Sampler<'a> {
     counters: Counters,
     order: PatternOrder,
     tolerance: Option<f64>,
+    /// Limit positions of the extraordinary vertices of the field's limit mesh (built with
+    /// the marching mesh, on first use).
+    extraordinary: OnceLock<Option<kiddo::ImmutableKdTree<f64, 3>>>,
 }
+
+/// Chart patterns whose reach comes within this many steps δ (beyond the pattern's
+/// corner, h·√2·δ) of an extraordinary vertex are marched instead: the chart's Christoffel
+/// symbols are sampled on a 5×5 grid and blow up at the vertex, so chart patterns there
+/// drift 5–22% of δ from the exact exponential map, while marching follows it to ~2%
+/// (docs/sampling.md).
+pub const EXTRAORDINARY_MARGIN: f64 = 2.0;
 
 /// Base point used for derivatives: a corner (a possible extraordinary vertex, where Df and
 /// DΦ are singular) is moved 1e-7 inside; the chart map g = f∘Φ⁻¹ is C¹ there, so the
@@ -161,6 +171,36 @@ impl<'a> Sampler<'a> {
             counters: Counters::default(),
             order: PatternOrder::default(),
             tolerance: Some(DEFAULT_TOLERANCE),
+            extraordinary: OnceLock::new(),
+        }
+    }
+
+    /// Whether an extraordinary vertex lies within `radius` of `p`.
+    fn near_extraordinary(&self, p: DVec3, radius: f64) -> bool {
+        let tree = self.extraordinary.get_or_init(|| {
+            let lm = self.field.limit_mesh();
+            let pts: Vec<[f64; 3]> = (0..lm.mesh.num_vertices())
+                .filter(|&v| {
+                    let v = VertexId::from_idx(v);
+                    !lm.mesh.is_regular_vertex(v) || lm.mesh.is_boundary_vertex(v)
+                })
+                .map(|v| lm.position[v].to_array())
+                .collect();
+            if pts.is_empty() {
+                None
+            } else {
+                kiddo::ImmutableKdTree::new_from_slice(&pts).ok()
+            }
+        });
+        match tree {
+            None => false,
+            Some(t) => {
+                t.query(&p.to_array())
+                    .nearest_one::<kiddo::SquaredEuclidean<f64>>()
+                    .execute()
+                    .distance
+                    <= radius * radius
+            }
         }
     }
 
@@ -269,7 +309,13 @@ impl<'a> Sampler<'a> {
             fallback: false,
             missing: 0,
         };
-        if kind == SamplerKind::Chart {
+        let h = (k / 2) as f64;
+        let reach = (h * std::f64::consts::SQRT_2 + EXTRAORDINARY_MARGIN) * delta;
+        if kind == SamplerKind::Chart && self.near_extraordinary(e.p, reach) {
+            c.chart_requests.fetch_add(1, Relaxed);
+            c.fallbacks.fetch_add(1, Relaxed);
+            info.fallback = true;
+        } else if kind == SamplerKind::Chart {
             c.chart_requests.fetch_add(1, Relaxed);
             match chart::sample_pattern(
                 self.surface,
