@@ -282,7 +282,7 @@ pub enum PatternOrder {
     /// Plus the third-order term.
     Cubic,
     /// The geodesics themselves: integrated in chart coordinates (RK4) with Christoffel
-    /// symbols from a 5×5 grid of chart points over the pattern (default; patterns up to
+    /// symbols from a 7×7 or 9×9 grid of chart points over the pattern (default; patterns up to
     /// [`MAX_ODE_K`], larger ones and grids that leave the chart use the cubic terms).
     #[default]
     Geodesic,
@@ -291,8 +291,9 @@ pub enum PatternOrder {
 /// Largest K for [`PatternOrder::Geodesic`] (the pattern's chart points are kept on the
 /// stack).
 pub const MAX_ODE_K: usize = 15;
-/// Grid nodes per side for the Christoffel symbols of [`PatternOrder::Geodesic`].
-const NODES: usize = 5;
+/// Most grid nodes per side for the Christoffel symbols of [`PatternOrder::Geodesic`]
+/// (see [`grid_nodes`]).
+const NODES: usize = 9;
 
 /// Christoffel symbols of the surface in *pattern* coordinates z = (l, m) (chart point
 /// y = y0 + l·T1 + m·T2) on a NODES×NODES grid over [−h, h]², bilinearly interpolated:
@@ -454,11 +455,16 @@ impl ChristoffelGrid {
     }
 }
 
-/// Grid nodes per side for a pattern of half-width `h` (a 3×3 grid for 5×5 patterns was
-/// tried: a third of the cost, but 9% of δ from the reference next to open boundaries,
-/// where only part of the grid is on the surface).
-fn grid_nodes(_h: i64) -> usize {
-    NODES
+/// Grid nodes per side for a pattern of half-width `h`: 7 up to 7×7 patterns, 9 above
+/// (one node per sample step for 9×9). Measured against the exact map on Spot: 5 nodes
+/// left 7% of δ at K = 9 and 0.7% at K = 5, 9 and 7 nodes 1.8% and 0.3%, at about 30%
+/// lower rates (a 3×3 grid for 5×5 patterns was 9% of δ off next to open boundaries).
+fn grid_nodes(h: i64) -> usize {
+    if h >= 4 {
+        NODES
+    } else {
+        7
+    }
 }
 
 fn gcd(a: u64, b: u64) -> u64 {

@@ -138,7 +138,7 @@ pub struct Sampler<'a> {
 
 /// Chart patterns whose reach comes within this many steps δ (beyond the pattern's
 /// corner, h·√2·δ) of an extraordinary vertex are marched instead: the chart's Christoffel
-/// symbols are sampled on a 5×5 grid and blow up at the vertex, so chart patterns there
+/// symbols are sampled on a grid and blow up at the vertex, so chart patterns there
 /// drift 5–22% of δ from the exact exponential map, while marching follows it to ~2%
 /// (docs/sampling.md).
 pub const EXTRAORDINARY_MARGIN: f64 = 2.0;
