@@ -533,6 +533,22 @@ fn splitmix(state: &mut u64) -> u64 {
     z ^ (z >> 31)
 }
 
+/// Patch fidelity of a square 2D image (e.g. a [`crate::synth2d`] result, the reference
+/// issue 5 compares flat-grid results with), measured exactly as for face maps: the image
+/// is one domain. Its first three channels are R, G, B.
+pub fn image_patch_fidelity(image: &crate::pyramid::Image, ex: &Example) -> Option<f64> {
+    if image.width != image.height || image.channels < 3 {
+        return None;
+    }
+    let mut maps = FaceMaps::new(1, image.width, &["R", "G", "B"]);
+    for c in 0..3 {
+        for (i, v) in maps.channels[c].1.iter_mut().enumerate() {
+            *v = image.data[i * image.channels + c];
+        }
+    }
+    patch_fidelity(&maps, ex)
+}
+
 /// Patch fidelity (see [`Quality::patch_fidelity`]); `None` when the maps have no 7x7
 /// window (N < 7) or the example is smaller than 7x7.
 fn patch_fidelity(colour: &FaceMaps, ex: &Example) -> Option<f64> {

@@ -70,7 +70,7 @@ const MULTISCALE_PIXEL_PER_CHANNEL: u64 = 950;
 const DISPLACE_VERTEX: u64 = 320;
 
 /// Vertices of displaced.obj: the limit mesh at the level with >= N segments per domain
-/// side ([`crate::multiscale::displace::level_for_texels`]): base quads x (2^(level-1))².
+/// side ([`crate::io::displace::level_for_texels`]): base quads x (2^(level-1))².
 /// With n-gon sub-faces (a sub-face is one base quad) quad domains get twice N per side.
 pub fn displaced_vertices(size: &MeshSize, n: usize) -> u64 {
     let all_quads = size.base_quads == 4 * size.domains;
@@ -533,7 +533,7 @@ mod tests {
         for (control, n) in [(grid(4), 8), (grid(4), 5), (spot, 4)] {
             let size = MeshSize::of(&control);
             let surface = subdiv::Surface::new(control);
-            let level = crate::multiscale::displace::level_for_texels(&surface, n);
+            let level = crate::io::displace::level_for_texels(&surface, n);
             let quads = surface.limit_mesh(level).mesh.num_faces() as u64;
             assert_eq!(displaced_vertices(&size, n), quads, "n = {n}");
         }

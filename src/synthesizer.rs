@@ -721,12 +721,7 @@ impl SynthResult {
                 d.join(crate::io::atlas::ATLAS_NAME),
             ];
             if let Some(amount) = self.displace {
-                match crate::multiscale::displace::write_displaced(
-                    d,
-                    &self.surface,
-                    &self.maps,
-                    amount,
-                ) {
+                match crate::io::displace::write_displaced(d, &self.surface, &self.maps, amount) {
                     Ok(p) => written.push(p),
                     Err(e) => {
                         for p in &written {

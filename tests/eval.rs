@@ -10,22 +10,7 @@ use surfsynth::eval::{evaluate, evaluate_with, EvalOptions, Quality};
 use surfsynth::io::exr::{write_face_maps, FaceMaps};
 
 fn grid_surface(k: usize) -> Surface {
-    let mut pos = Vec::new();
-    for y in 0..=k {
-        for x in 0..=k {
-            pos.push(DVec3::new(x as f64, y as f64, 0.0));
-        }
-    }
-    let w = (k + 1) as u32;
-    let mut faces = Vec::new();
-    for y in 0..k as u32 {
-        for x in 0..k as u32 {
-            let i = y * w + x;
-            faces.push(vec![i, i + 1, i + 1 + w, i + w]);
-        }
-    }
-    let refs: Vec<&[u32]> = faces.iter().map(|f| f.as_slice()).collect();
-    Surface::new(ControlMesh::from_faces(pos, &refs).unwrap())
+    Surface::new(ControlMesh::grid(k))
 }
 
 /// geometry.exr maps (P, N at texel centres) of a surface.

@@ -41,22 +41,7 @@ fn texture(name: &str, size: usize) -> Example {
 
 /// A flat k x k grid of unit quads in the z = 0 plane.
 fn flat_grid(k: usize) -> Surface {
-    let mut pos = Vec::new();
-    for y in 0..=k {
-        for x in 0..=k {
-            pos.push(glam::DVec3::new(x as f64, y as f64, 0.0));
-        }
-    }
-    let w = (k + 1) as u32;
-    let mut faces = Vec::new();
-    for y in 0..k as u32 {
-        for x in 0..k as u32 {
-            let i = y * w + x;
-            faces.push(vec![i, i + 1, i + 1 + w, i + w]);
-        }
-    }
-    let refs: Vec<&[u32]> = faces.iter().map(|f| f.as_slice()).collect();
-    Surface::new(subdiv::ControlMesh::from_faces(pos, &refs).unwrap())
+    Surface::new(subdiv::ControlMesh::grid(k))
 }
 
 struct Run {
@@ -111,18 +96,6 @@ fn quality(r: &Run, example: Option<&Example>) -> surfsynth::eval::Quality {
     surfsynth::eval::evaluate_maps(&r.maps, &r.geometry, Some(r.scale), example).unwrap()
 }
 
-/// The example upside down. Both synthesizers put image rows along −v2 (so the texture is
-/// not mirrored when seen from outside); on a flat grid with v1 = +x that is −v, while
-/// `eval` reads tiles with rows along +v. Its patch fidelity therefore sees the texture
-/// mirrored, and a fair comparison uses the mirrored example.
-fn flipped(ex: &Example) -> Example {
-    let (w, h) = (ex.width, ex.height);
-    let rgb = (0..w * h)
-        .map(|i| ex.rgb[(h - 1 - i / w) * w + i % w])
-        .collect();
-    Example::from_linear(w, h, rgb)
-}
-
 #[test]
 fn flat_grid_matches_2d_multiscale_patch_fidelity() {
     let ex = texture("etr_gravel.png", 64);
@@ -136,25 +109,13 @@ fn flat_grid_matches_2d_multiscale_patch_fidelity() {
         1.0,
         &Orientation::Axis(glam::DVec3::X),
     );
-    let q = quality(&r, Some(&flipped(&ex)));
+    // multiscale::run lays image rows along −v2 (the builder's Handedness::Outside frame),
+    // so the tiles are the example's mirror image: compare them with it upside down.
+    let q = quality(&r, Some(&ex.flipped_rows()));
     let as_stored = quality(&r, Some(&ex)).patch_fidelity.unwrap();
     // The 2D reference at the same size, same example, search and seed, measured by the
     // same evaluator (one domain holding the whole picture).
-    let mut p2 = surfsynth::synth2d::Params2d::new(k * n, k * n);
-    p2.seed = 3;
-    let o = surfsynth::synth2d::synthesize(&Image::from_example(&ex), &p2).unwrap();
-    let mut m2 = FaceMaps::new(1, k * n, &["R", "G", "B"]);
-    for c in 0..3 {
-        let ch = m2.channels[c].1.as_mut_slice();
-        for (i, v) in ch.iter_mut().enumerate() {
-            *v = o.image.data[i * 3 + c];
-        }
-    }
-    let g2 = FaceMaps::new(1, k * n, &["P.X", "P.Y", "P.Z", "N.X", "N.Y", "N.Z"]);
-    let pf2 = surfsynth::eval::evaluate_maps(&m2, &g2, None, Some(&ex))
-        .unwrap()
-        .patch_fidelity
-        .unwrap();
+    let pf2 = patch_fidelity_2d(&ex, k * n, 3);
     let pf = q.patch_fidelity.unwrap();
     let s = q.scale_fidelity.unwrap();
     eprintln!(
@@ -191,17 +152,7 @@ fn patch_fidelity_2d(ex: &Example, size: usize, seed: u64) -> f64 {
     let mut p2 = surfsynth::synth2d::Params2d::new(size, size);
     p2.seed = seed;
     let o = surfsynth::synth2d::synthesize(&Image::from_example(ex), &p2).unwrap();
-    let mut m2 = FaceMaps::new(1, size, &["R", "G", "B"]);
-    for c in 0..3 {
-        for (i, v) in m2.channels[c].1.iter_mut().enumerate() {
-            *v = o.image.data[i * o.image.channels + c];
-        }
-    }
-    let g2 = FaceMaps::new(1, size, &["P.X", "P.Y", "P.Z", "N.X", "N.Y", "N.Z"]);
-    surfsynth::eval::evaluate_maps(&m2, &g2, None, Some(ex))
-        .unwrap()
-        .patch_fidelity
-        .unwrap()
+    surfsynth::eval::image_patch_fidelity(&o.image, ex).unwrap()
 }
 
 #[test]
@@ -213,7 +164,7 @@ fn small_domains_match_2d_patch_fidelity() {
     // ratios were 1.15 (K = 6) and 1.26 (K = 12) over 8 seeds; docs/multiscale.md.
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/gravel.png");
     let ex = Example::load(path).unwrap();
-    let mirrored = flipped(&ex);
+    let mirrored = ex.flipped_rows();
     const SEEDS: u64 = 8;
     let seeds = 1..=SEEDS;
     let pf2 = seeds
@@ -408,8 +359,8 @@ fn alpha_and_height_are_synthesized_jointly_and_displace_the_surface() {
     // Displacement: z = amount · (height − 0.5) along the +z normal, one shared vertex per
     // surface point (no cracks).
     let amount = 0.25;
-    let mesh = multiscale::displace::displaced_mesh(&surface, &r.maps, amount).unwrap();
-    let level = multiscale::displace::level_for_texels(&surface, n);
+    let mesh = surfsynth::io::displace::displaced_mesh(&surface, &r.maps, amount).unwrap();
+    let level = surfsynth::io::displace::level_for_texels(&surface, n);
     assert_eq!(level, 4); // 16 segments per quad domain side
     let side = k * (1 << level) + 1;
     assert_eq!(mesh.positions.len(), side * side);
@@ -444,7 +395,7 @@ fn alpha_and_height_are_synthesized_jointly_and_displace_the_surface() {
         1.0,
         &Orientation::Axis(glam::DVec3::X),
     );
-    let e = multiscale::displace::displaced_mesh(&surface, &plain.maps, 0.1)
+    let e = surfsynth::io::displace::displaced_mesh(&surface, &plain.maps, 0.1)
         .unwrap_err()
         .to_string();
     assert!(e.contains("height") && !e.contains('\n'), "{e}");

@@ -48,22 +48,7 @@ fn measure_result(r: &SynthResult) -> Measures {
 
 /// A flat k x k grid of unit quads in the z = 0 plane.
 fn flat_grid(k: usize) -> subdiv::Surface {
-    let mut pos = Vec::new();
-    for y in 0..=k {
-        for x in 0..=k {
-            pos.push(glam::DVec3::new(x as f64, y as f64, 0.0));
-        }
-    }
-    let w = (k + 1) as u32;
-    let mut faces = Vec::new();
-    for y in 0..k as u32 {
-        for x in 0..k as u32 {
-            let i = y * w + x;
-            faces.push(vec![i, i + 1, i + 1 + w, i + w]);
-        }
-    }
-    let refs: Vec<&[u32]> = faces.iter().map(|f| f.as_slice()).collect();
-    subdiv::Surface::new(subdiv::ControlMesh::from_faces(pos, &refs).unwrap())
+    subdiv::Surface::new(subdiv::ControlMesh::grid(k))
 }
 
 /// The maps of a flat grid laid out as one picture (domain (x, y) of the grid at tile

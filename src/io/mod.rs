@@ -1,6 +1,8 @@
 //! File input and output: face-map EXR files ([`exr`]) and atomic writes ([`atomic`]).
-//! Other writers (atlas, OBJ) live beside them and go through [`atomic`] too.
+//! Other writers (atlas, OBJ, the displaced OBJ of shape synthesis) live beside them and
+//! go through [`atomic`] too.
 
 pub mod atlas;
 pub mod atomic;
+pub mod displace;
 pub mod exr;

@@ -35,7 +35,6 @@
 //! bit-identical for any thread count.
 
 pub mod bench;
-pub mod displace;
 pub mod level;
 
 use crate::error::{Error, Result};
@@ -278,6 +277,31 @@ impl Ctx<'_> {
         w.queries += 1;
         w.candidates += n as u64;
         pick(w.scratch.top.as_slice(), self.key(level, pass, t)).index
+    }
+
+    /// The K×K pattern of texel `t` of `geo` at step `delta` into `w.locs`
+    /// ([`level::pattern`] with this run's sampler and tolerance and `w`'s scratch).
+    fn pattern(
+        &self,
+        geo: &LevelGeometry,
+        t: usize,
+        delta: f64,
+        k: usize,
+        kind: SamplerKind,
+        w: &mut Work,
+    ) {
+        pattern(
+            geo,
+            self.sampler,
+            t,
+            delta,
+            k,
+            kind,
+            self.pattern_tolerance,
+            &mut w.locs,
+            &mut w.pat,
+            &mut w.pst,
+        );
     }
 
     /// The example value (weighted channels) of feature `index` at `level`.
@@ -662,18 +686,7 @@ fn coarsest(
         let mut own_src = vec![0u32; nn];
         for li in 0..nn {
             let t = start + li;
-            pattern(
-                geo,
-                ctx.sampler,
-                t,
-                delta,
-                k,
-                SamplerKind::March,
-                ctx.pattern_tolerance,
-                &mut w.locs,
-                &mut w.pat,
-                &mut w.pst,
-            );
+            ctx.pattern(geo, t, delta, k, SamplerKind::March, &mut w);
             let view = View {
                 channels: c,
                 per_domain: nn,
@@ -811,18 +824,7 @@ fn pass_one(
             let mut src = vec![0u32; nn];
             for li in 0..nn {
                 let t = d * nn + li;
-                pattern(
-                    fine,
-                    ctx.sampler,
-                    t,
-                    delta,
-                    k,
-                    SamplerKind::Chart,
-                    ctx.pattern_tolerance,
-                    &mut w.locs,
-                    &mut w.pat,
-                    &mut w.pst,
-                );
+                ctx.pattern(fine, t, delta, k, SamplerKind::Chart, &mut w);
                 w.q.clear_all();
                 for s in 0..ns {
                     if let Some(loc) = w.locs[s] {
@@ -903,18 +905,7 @@ fn pass_two(
         let mut own_src = before.src[start..start + nn].to_vec();
         for li in 0..nn {
             let t = start + li;
-            pattern(
-                geo,
-                ctx.sampler,
-                t,
-                delta,
-                k,
-                SamplerKind::Chart,
-                ctx.pattern_tolerance,
-                &mut w.locs,
-                &mut w.pat,
-                &mut w.pst,
-            );
+            ctx.pattern(geo, t, delta, k, SamplerKind::Chart, &mut w);
             let view = View {
                 channels: c,
                 per_domain: nn,

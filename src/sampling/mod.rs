@@ -131,16 +131,16 @@ pub struct Sampler<'a> {
     counters: Counters,
     order: PatternOrder,
     tolerance: Option<f64>,
-    /// Limit positions of the extraordinary vertices of the field's limit mesh (built with
-    /// the marching mesh, on first use).
-    extraordinary: OnceLock<Option<kiddo::ImmutableKdTree<f64, 3>>>,
+    /// Limit positions of the extraordinary and open-boundary vertices of the field's limit
+    /// mesh, where chart patterns are marched instead (built on first use).
+    irregular: OnceLock<Option<kiddo::ImmutableKdTree<f64, 3>>>,
 }
 
 /// Chart patterns whose reach comes within this many steps δ (beyond the pattern's
-/// corner, h·√2·δ) of an extraordinary vertex are marched instead: the chart's Christoffel
-/// symbols are sampled on a grid and blow up at the vertex, so chart patterns there
-/// drift 5–22% of δ from the exact exponential map, while marching follows it to ~2%
-/// (docs/sampling.md).
+/// corner, h·√2·δ) of an extraordinary or open-boundary vertex are marched instead: the
+/// chart's Christoffel symbols are singular at an extraordinary vertex and the grid is cut
+/// by an open boundary, so chart patterns there drifted 5–22% of δ from the exact
+/// exponential map, while marching follows it to ~2% (docs/sampling.md).
 pub const EXTRAORDINARY_MARGIN: f64 = 2.0;
 
 /// Base point used for derivatives: a corner (a possible extraordinary vertex, where Df and
@@ -171,13 +171,13 @@ impl<'a> Sampler<'a> {
             counters: Counters::default(),
             order: PatternOrder::default(),
             tolerance: Some(DEFAULT_TOLERANCE),
-            extraordinary: OnceLock::new(),
+            irregular: OnceLock::new(),
         }
     }
 
-    /// Whether an extraordinary vertex lies within `radius` of `p`.
-    fn near_extraordinary(&self, p: DVec3, radius: f64) -> bool {
-        let tree = self.extraordinary.get_or_init(|| {
+    /// Whether an extraordinary or open-boundary vertex lies within `radius` of `p`.
+    fn near_irregular_vertex(&self, p: DVec3, radius: f64) -> bool {
+        let tree = self.irregular.get_or_init(|| {
             let lm = self.field.limit_mesh();
             let pts: Vec<[f64; 3]> = (0..lm.mesh.num_vertices())
                 .filter(|&v| {
@@ -309,28 +309,29 @@ impl<'a> Sampler<'a> {
             fallback: false,
             missing: 0,
         };
-        let h = (k / 2) as f64;
-        let reach = (h * std::f64::consts::SQRT_2 + EXTRAORDINARY_MARGIN) * delta;
-        if kind == SamplerKind::Chart && self.near_extraordinary(e.p, reach) {
+        if kind == SamplerKind::Chart {
             c.chart_requests.fetch_add(1, Relaxed);
-            c.fallbacks.fetch_add(1, Relaxed);
-            info.fallback = true;
-        } else if kind == SamplerKind::Chart {
-            c.chart_requests.fetch_add(1, Relaxed);
-            match chart::sample_pattern(
-                self.surface,
-                &self.charts,
-                centre,
-                reg,
-                e.du,
-                e.dv,
-                frame,
-                delta,
-                k,
-                self.order,
-                self.tolerance,
-                out,
-            ) {
+            let h = (k / 2) as f64;
+            let reach = (h * std::f64::consts::SQRT_2 + EXTRAORDINARY_MARGIN) * delta;
+            let chart = if self.near_irregular_vertex(e.p, reach) {
+                None
+            } else {
+                chart::sample_pattern(
+                    self.surface,
+                    &self.charts,
+                    centre,
+                    reg,
+                    e.du,
+                    e.dv,
+                    frame,
+                    delta,
+                    k,
+                    self.order,
+                    self.tolerance,
+                    out,
+                )
+            };
+            match chart {
                 Some(v) => info.method = Method::Chart(v),
                 None => {
                     c.fallbacks.fetch_add(1, Relaxed);
