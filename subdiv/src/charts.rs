@@ -41,6 +41,16 @@ pub struct ChartPoint {
     pub jacobian: DMat2,
 }
 
+/// A warm start for [`VertexChart::phi_inv_hinted`]: an earlier solution in the chart's
+/// net (sector, corner-frame parameter, chart point, inverse differential).
+#[derive(Clone, Copy, Debug)]
+pub struct ChartHint {
+    sector: usize,
+    p: DVec2,
+    y: DVec2,
+    inv_jac: DMat2,
+}
+
 /// The planar net of one chart kind, with its sector angle.
 #[derive(Debug)]
 struct ChartNet {
@@ -48,6 +58,11 @@ struct ChartNet {
     sectors: usize,
     alpha: f64,
     boundary: bool,
+    /// Φ is the rotation R_j of the corner-frame parameter on sector j (the regular interior
+    /// net: its inner patches are uniform bicubic B-splines of a square grid, which
+    /// reproduce linear functions). Evaluated in closed form: most charts of a typical mesh
+    /// are regular, and Φ, Φ⁻¹ dominate chart sampling's cost otherwise.
+    affine: bool,
 }
 
 /// The chart of one vertex: the base quads around it, counter-clockwise.
@@ -147,44 +162,134 @@ impl VertexChart {
         let c = self.sectors[j].1 as usize;
         let (a, b) = to_child(c, loc.s, loc.t);
         let (a, b) = (0.5 * a, 0.5 * b);
-        let e = self.net().surface.eval(DomainId(j as u32), a, b);
-        // d(corner frame)/d(s,t) is the child rotation, halved.
-        let r = mul_child(c, &[[0.5, 0.0], [0.0, 0.5]]);
-        let da = DVec2::new(e.du.x, e.du.y);
-        let db = DVec2::new(e.dv.x, e.dv.y);
-        let ds = da * r[0][0] + db * r[1][0];
-        let dt = da * r[0][1] + db * r[1][1];
+        let (y, jac) = self.net().eval(j, DVec2::new(a, b));
         Some(ChartPoint {
-            y: DVec2::new(e.p.x, e.p.y),
-            jacobian: DMat2::from_cols(ds, dt),
+            y,
+            jacobian: base_jacobian(c, jac),
         })
+    }
+
+    /// Φ⁻¹ with Φ and DΦ at the point found (saves the caller a [`Self::phi`]; DΦ is the
+    /// one of Newton's last iterate, within ~1e-6 of the point).
+    pub fn phi_inv_point(&self, y: DVec2) -> Option<(BaseLocation, ChartPoint)> {
+        let (loc, j, _, jac) = self.locate(y, None)?;
+        let c = self.sectors[j].1 as usize;
+        Some((
+            loc,
+            ChartPoint {
+                y,
+                jacobian: base_jacobian(c, jac),
+            },
+        ))
+    }
+
+    /// As [`Self::phi_inv_point`], with Newton's method started from `hint` (the
+    /// solution of a nearby earlier call, updated here on success) instead of the polar
+    /// guess: next to an earlier point one or two iterations suffice. The result is the same
+    /// to ~1e-12 either way (Φ is injective; Newton stops after a step below 1e-6, which
+    /// leaves an error of its square).
+    pub fn phi_inv_hinted(
+        &self,
+        y: DVec2,
+        hint: &mut Option<ChartHint>,
+    ) -> Option<(BaseLocation, ChartPoint)> {
+        let start = hint.map(|h| (h.sector, h.p + h.inv_jac * (y - h.y)));
+        let found = match self.locate(y, start) {
+            None if start.is_some() => self.locate(y, None),
+            r => r,
+        };
+        let (loc, j, p, jac) = found?;
+        if !self.net().affine {
+            let det = jac.determinant();
+            *hint = (det.abs() > 1e-300 && det.is_finite()).then(|| ChartHint {
+                sector: j,
+                p,
+                y,
+                inv_jac: jac.inverse(),
+            });
+        }
+        let c = self.sectors[j].1 as usize;
+        Some((
+            loc,
+            ChartPoint {
+                y,
+                jacobian: base_jacobian(c, jac),
+            },
+        ))
     }
 
     /// Φ⁻¹: the base point mapped to `y`, or `None` if `y` is outside the chart's image
     /// (beyond its 1-ring of quads, or across an open boundary).
     pub fn phi_inv(&self, y: DVec2) -> Option<BaseLocation> {
+        self.locate(y, None).map(|(loc, ..)| loc)
+    }
+
+    /// Φ⁻¹(y): the base point, the sector it lies in, its corner-frame parameter there and
+    /// the corner-frame differential of Φ_j at it. Newton's method starts from `start`
+    /// (sector, parameter) when given, else from the polar guess.
+    fn locate(
+        &self,
+        y: DVec2,
+        start: Option<(usize, DVec2)>,
+    ) -> Option<(BaseLocation, usize, DVec2, DMat2)> {
         let net = self.net();
         let r = y.length();
         if r > 2.0 * std::f64::consts::SQRT_2 {
             return None;
         }
-        let mut theta = y.y.atan2(y.x);
-        if theta < 0.0 && !net.boundary {
-            theta += 2.0 * PI;
+        if net.affine {
+            // Sector by quadrant (half-open, as the angle rule below), then R_j⁻¹.
+            let j = if y.x > 0.0 && y.y >= 0.0 {
+                0
+            } else if y.x <= 0.0 && y.y > 0.0 {
+                1
+            } else if y.x < 0.0 && y.y <= 0.0 {
+                2
+            } else if y.x >= 0.0 && y.y < 0.0 {
+                3
+            } else {
+                0
+            };
+            let rot = rotation(j);
+            let p = rot.transpose() * y;
+            if p.x > 1.0 + 1e-12 || p.y > 1.0 + 1e-12 {
+                return None;
+            }
+            let (qa, qb) = (p.x.clamp(0.0, 1.0), p.y.clamp(0.0, 1.0));
+            let (quad, c) = self.sectors[j];
+            let (s, t) = from_child(c as usize, 2.0 * qa, 2.0 * qb);
+            return Some((BaseLocation { quad, s, t }, j, DVec2::new(qa, qb), rot));
         }
-        let span = net.alpha * net.sectors as f64;
-        if net.boundary && (theta < -1e-12 || theta > span + 1e-12) {
-            // Below the boundary line of a half-star (or outside a corner's quadrant).
-            if r > 1e-12 {
+        let theta = || {
+            let theta = y.y.atan2(y.x);
+            if theta < 0.0 && !net.boundary {
+                theta + 2.0 * PI
+            } else {
+                theta
+            }
+        };
+        if net.boundary {
+            let (theta, span) = (theta(), net.alpha * net.sectors as f64);
+            if (theta < -1e-12 || theta > span + 1e-12) && r > 1e-12 {
+                // Below the boundary line of a half-star (or outside a corner's quadrant).
                 return None;
             }
         }
-        let mut j = ((theta.max(0.0) / net.alpha) as usize).min(net.sectors - 1);
-        let phi = (theta - j as f64 * net.alpha) / net.alpha * FRAC_PI_2;
-        let mut guess = DVec2::new(r * phi.cos(), r * phi.sin()).clamp(DVec2::ZERO, DVec2::ONE);
+        let (mut j, mut guess) = match start {
+            Some((j, p)) if j < net.sectors && p.is_finite() => {
+                (j, p.clamp(DVec2::splat(-0.5), DVec2::splat(1.5)))
+            }
+            _ => {
+                let theta = theta();
+                let j = ((theta.max(0.0) / net.alpha) as usize).min(net.sectors - 1);
+                let phi = (theta - j as f64 * net.alpha) / net.alpha * FRAC_PI_2;
+                let g = DVec2::new(r * phi.cos(), r * phi.sin()).clamp(DVec2::ZERO, DVec2::ONE);
+                (j, g)
+            }
+        };
         let tol = 1e-12;
         for _attempt in 0..net.sectors + 1 {
-            let (p, converged) = net.newton(j, y, guess);
+            let (p, converged, jac) = net.newton(j, y, guess);
             let out_lo_t = p.y < -tol;
             let out_lo_s = p.x < -tol;
             if converged && !out_lo_t && !out_lo_s {
@@ -194,7 +299,7 @@ impl VertexChart {
                 let (qa, qb) = (p.x.clamp(0.0, 1.0), p.y.clamp(0.0, 1.0));
                 let (quad, c) = self.sectors[j];
                 let (s, t) = from_child(c as usize, 2.0 * qa, 2.0 * qb);
-                return Some(BaseLocation { quad, s, t });
+                return Some((BaseLocation { quad, s, t }, j, DVec2::new(qa, qb), jac));
             }
             // Edge t=0 of sector j is edge s=0 of sector j-1; edge s=0 is t=0 of j+1.
             let k = net.sectors;
@@ -214,6 +319,26 @@ impl VertexChart {
         }
         None
     }
+}
+
+/// Rotation by j·π/2 (sector j of the regular net).
+#[inline]
+fn rotation(j: usize) -> DMat2 {
+    match j & 3 {
+        0 => DMat2::IDENTITY,
+        1 => DMat2::from_cols(DVec2::Y, -DVec2::X),
+        2 => -DMat2::IDENTITY,
+        _ => DMat2::from_cols(-DVec2::Y, DVec2::X),
+    }
+}
+
+/// DΦ with respect to the base quad's own (s, t) from the corner-frame differential `jac`
+/// (corner frame = the child rotation of corner `c`, halved).
+#[inline]
+fn base_jacobian(c: usize, jac: DMat2) -> DMat2 {
+    let r = mul_child(c, &[[0.5, 0.0], [0.0, 0.5]]);
+    let (da, db) = (jac.col(0), jac.col(1));
+    DMat2::from_cols(da * r[0][0] + db * r[1][0], da * r[0][1] + db * r[1][1])
 }
 
 impl ChartNet {
@@ -266,23 +391,23 @@ impl ChartNet {
             sectors: k,
             alpha,
             boundary,
+            affine: !boundary && k == 4,
         }
     }
 
     /// Solves Φ_j(p) = y for p (corner-frame parameter of sector j) by Newton's method,
     /// allowing p to leave [0,1]^2 slightly so the caller can tell which neighbour to try.
-    fn newton(&self, j: usize, y: DVec2, mut p: DVec2) -> (DVec2, bool) {
+    fn newton(&self, j: usize, y: DVec2, mut p: DVec2) -> (DVec2, bool, DMat2) {
+        let mut jac;
         for _ in 0..40 {
-            let e = self
-                .surface
-                .eval(DomainId(j as u32), p.x.clamp(0.0, 1.0), p.y.clamp(0.0, 1.0));
-            // Outside [0,1]^2 extrapolate linearly from the clamped point.
             let q = p.clamp(DVec2::ZERO, DVec2::ONE);
-            let jac = DMat2::from_cols(DVec2::new(e.du.x, e.du.y), DVec2::new(e.dv.x, e.dv.y));
-            let val = DVec2::new(e.p.x, e.p.y) + jac * (p - q);
+            let (yq, jq) = self.eval(j, q);
+            jac = jq;
+            // Outside [0,1]^2 extrapolate linearly from the clamped point.
+            let val = yq + jac * (p - q);
             let r = y - val;
             if r.length() < 1e-14 {
-                return (p, true);
+                return (p, true, jac);
             }
             let det = jac.determinant();
             if det.abs() < 1e-300 || !det.is_finite() {
@@ -293,19 +418,32 @@ impl ChartNet {
             let step = jac.inverse() * r;
             p += step;
             if !p.is_finite() {
-                return (q, false);
+                return (q, false, jac);
             }
             // Keep far excursions bounded: beyond this the point is in another sector.
             p = p.clamp(DVec2::splat(-0.5), DVec2::splat(1.5));
-            if step.length() < 1e-15 {
-                return (p, true);
+            // Quadratic convergence: after a step this short the error is ~1e-12.
+            if step.length() < 1e-6 {
+                return (p, true, jac);
             }
         }
-        let e = self
-            .surface
-            .eval(DomainId(j as u32), p.x.clamp(0.0, 1.0), p.y.clamp(0.0, 1.0));
+        let (yp, jac) = self.eval(j, p.clamp(DVec2::ZERO, DVec2::ONE));
         let inside = (0.0..=1.0).contains(&p.x) && (0.0..=1.0).contains(&p.y);
-        (p, inside && (DVec2::new(e.p.x, e.p.y) - y).length() < 1e-9)
+        (p, inside && (yp - y).length() < 1e-9, jac)
+    }
+
+    /// Φ_j and its differential at corner-frame parameter `p` ∈ [0, 1]² of sector j.
+    #[inline]
+    fn eval(&self, j: usize, p: DVec2) -> (DVec2, DMat2) {
+        if self.affine {
+            let r = rotation(j);
+            return (r * p, r);
+        }
+        let e = self.surface.eval(DomainId(j as u32), p.x, p.y);
+        (
+            DVec2::new(e.p.x, e.p.y),
+            DMat2::from_cols(DVec2::new(e.du.x, e.du.y), DVec2::new(e.dv.x, e.dv.y)),
+        )
     }
 }
 
@@ -320,6 +458,94 @@ mod tests {
             let e = net.surface.eval(DomainId(0), a, b);
             assert!((e.p - DVec3::new(a, b, 0.0)).length() < 1e-14, "{}", e.p);
             assert!((e.du - DVec3::X).length() < 1e-13 && (e.dv - DVec3::Y).length() < 1e-13);
+        }
+    }
+
+    /// The closed form used for regular interior charts is the net's own limit map, and
+    /// Newton's Φ⁻¹ on the net agrees with it.
+    #[test]
+    fn affine_regular_net_matches_its_subdivision_surface() {
+        let net = ChartNet::new(false, 4);
+        assert!(net.affine);
+        let mut newton = ChartNet::new(false, 4);
+        newton.affine = false;
+        for j in 0..4 {
+            for (a, b) in [(0.0, 0.0), (0.1, 0.2), (0.5, 0.5), (0.9, 0.3), (1.0, 1.0)] {
+                let p = DVec2::new(a, b);
+                let (y, jac) = net.eval(j, p);
+                let (y2, jac2) = newton.eval(j, p);
+                assert!((y - y2).length() < 1e-13, "sector {j} {p}: {y} vs {y2}");
+                let d = jac - jac2;
+                assert!(
+                    d.col(0).length() + d.col(1).length() < 1e-12,
+                    "sector {j} {p}"
+                );
+            }
+        }
+        let chart = |net: ChartNet| VertexChart {
+            net: Arc::new(ChartNetHandle(net)),
+            sectors: (0..4).map(|j| (BaseQuadId(j), (j % 4) as u8)).collect(),
+        };
+        let (fast, slow) = (chart(net), chart(newton));
+        for i in 0..400 {
+            let t = i as f64 * 0.7391;
+            let r = 3.0 * ((i * 37 % 101) as f64 / 100.0);
+            let y = DVec2::new(r * t.cos(), r * t.sin());
+            match (fast.phi_inv_point(y), slow.phi_inv_point(y)) {
+                (None, None) => {}
+                // On a sector edge either side is right: compare the chart points.
+                (Some((a, _)), Some((b, _))) if a.quad != b.quad => {
+                    let (pa, pb) = (fast.phi(a).unwrap().y, slow.phi(b).unwrap().y);
+                    assert!(
+                        (pa - y).length() < 1e-12 && (pb - y).length() < 1e-12,
+                        "{y}"
+                    );
+                }
+                (Some((a, ca)), Some((b, cb))) => {
+                    assert!((a.s - b.s).abs() + (a.t - b.t).abs() < 1e-11, "{y}");
+                    let d = ca.jacobian - cb.jacobian;
+                    assert!(d.col(0).length() + d.col(1).length() < 1e-6, "{y}");
+                }
+                (a, b) => panic!("{y}: {a:?} vs {b:?}"),
+            }
+        }
+    }
+
+    /// Warm-started Φ⁻¹ finds the same points as the cold one, along a path through all
+    /// sectors and out of the chart and back, for irregular and boundary nets.
+    #[test]
+    fn hinted_inverse_matches_the_cold_one() {
+        for (boundary, k) in [(false, 3), (false, 5), (false, 7), (true, 1), (true, 3)] {
+            let chart = VertexChart {
+                net: Arc::new(ChartNetHandle(ChartNet::new(boundary, k))),
+                sectors: (0..k)
+                    .map(|j| (BaseQuadId(j as u32), (j % 4) as u8))
+                    .collect(),
+            };
+            let mut hint = None;
+            let mut found = 0;
+            for i in 0..2000 {
+                let t = i as f64 * 0.0123;
+                let r = 1.2 + 0.9 * (t * 1.7).sin();
+                let y = DVec2::new(r * t.cos(), r * t.sin());
+                let cold = chart.phi_inv_point(y);
+                let warm = chart.phi_inv_hinted(y, &mut hint);
+                match (cold, warm) {
+                    (None, None) => {}
+                    (Some((a, ca)), Some((b, cb))) => {
+                        found += 1;
+                        let (pa, pb) = (chart.phi(a).unwrap().y, chart.phi(b).unwrap().y);
+                        assert!((pa - y).length() < 1e-10 && (pb - y).length() < 1e-10);
+                        if a.quad == b.quad {
+                            assert!((a.s - b.s).abs() + (a.t - b.t).abs() < 1e-10, "{y}");
+                            let d = ca.jacobian - cb.jacobian;
+                            assert!(d.col(0).length() + d.col(1).length() < 1e-5, "{y}");
+                        }
+                    }
+                    (a, b) => panic!("boundary={boundary} k={k} {y}: {a:?} vs {b:?}"),
+                }
+            }
+            assert!(found > 100, "boundary={boundary} k={k}: {found}");
         }
     }
 

@@ -23,7 +23,7 @@ pub mod surface;
 pub mod topology;
 
 pub use adjacency::BaseLocation;
-pub use charts::{ChartPoint, Charts, VertexChart};
+pub use charts::{ChartHint, ChartPoint, Charts, VertexChart};
 pub use domains::{Domain, DomainLocation};
 pub use error::MeshError;
 pub use ids::{BaseQuadId, DomainId, FaceId, VertexId};
