@@ -175,8 +175,8 @@ impl<'a> Sampler<'a> {
         }
     }
 
-    /// Whether an extraordinary or open-boundary vertex lies within `radius` of `p`.
-    fn near_irregular_vertex(&self, p: DVec3, radius: f64) -> bool {
+    /// Distance from `p` to the nearest extraordinary or open-boundary vertex (∞ if none).
+    fn irregular_vertex_distance(&self, p: DVec3) -> f64 {
         let tree = self.irregular.get_or_init(|| {
             let lm = self.field.limit_mesh();
             let pts: Vec<[f64; 3]> = (0..lm.mesh.num_vertices())
@@ -193,14 +193,13 @@ impl<'a> Sampler<'a> {
             }
         });
         match tree {
-            None => false,
-            Some(t) => {
-                t.query(&p.to_array())
-                    .nearest_one::<kiddo::SquaredEuclidean<f64>>()
-                    .execute()
-                    .distance
-                    <= radius * radius
-            }
+            None => f64::INFINITY,
+            Some(t) => t
+                .query(&p.to_array())
+                .nearest_one::<kiddo::SquaredEuclidean<f64>>()
+                .execute()
+                .distance
+                .sqrt(),
         }
     }
 
@@ -313,7 +312,7 @@ impl<'a> Sampler<'a> {
             c.chart_requests.fetch_add(1, Relaxed);
             let h = (k / 2) as f64;
             let reach = (h * std::f64::consts::SQRT_2 + EXTRAORDINARY_MARGIN) * delta;
-            let chart = if self.near_irregular_vertex(e.p, reach) {
+            let chart = if self.irregular_vertex_distance(e.p) <= reach {
                 None
             } else {
                 chart::sample_pattern(
