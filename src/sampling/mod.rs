@@ -406,9 +406,11 @@ impl<'a> Sampler<'a> {
                         continue;
                     }
                 }
-                let dir = a1 * l as f64 + a2 * m as f64;
-                let len = dir.length();
-                let end = match mm.walk_until_extraordinary(p0, dir / len, len * delta) {
+                // a1, a2 are not unit (moved along n into the triangle's plane): the
+                // direction is theirs, the length the tangent vector's.
+                let dir = (a1 * l as f64 + a2 * m as f64).normalize();
+                let len = (frame.v1 * l as f64 + frame.v2 * m as f64).length();
+                let end = match mm.walk_until_extraordinary(p0, dir, len * delta) {
                     Ok(end) => end,
                     Err(e) => {
                         let b = mm.to_base(self.surface, lm, e.at);
