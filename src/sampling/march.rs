@@ -264,7 +264,7 @@ impl MarchMesh {
     /// for `length`.
     pub fn walk(&self, start: TriPoint, dir: DVec2, length: f64) -> PathEnd {
         match self.walk_impl(start, dir, length, false) {
-            Ok(end) => end,
+            Ok((end, _)) => end,
             Err(e) => PathEnd::At(e.at),
         }
     }
@@ -277,6 +277,18 @@ impl MarchMesh {
         dir: DVec2,
         length: f64,
     ) -> Result<PathEnd, Entered> {
+        self.walk_impl(start, dir, length, true).map(|(end, _)| end)
+    }
+
+    /// As [`Self::walk_until_extraordinary`], also returning the direction at the end (in
+    /// the end triangle's frame), so that a path can be continued where it ended: walking
+    /// on from an `At` end with that direction is the same path as one longer walk.
+    pub fn walk_on(
+        &self,
+        start: TriPoint,
+        dir: DVec2,
+        length: f64,
+    ) -> Result<(PathEnd, DVec2), Entered> {
         self.walk_impl(start, dir, length, true)
     }
 
@@ -286,13 +298,13 @@ impl MarchMesh {
         dir: DVec2,
         length: f64,
         stop: bool,
-    ) -> Result<PathEnd, Entered> {
+    ) -> Result<(PathEnd, DVec2), Entered> {
         let mut tri = start.tri as usize;
         let mut b = start.bary;
         let mut d = dir;
         let mut rest = length;
         if rest.is_nan() || rest <= 0.0 || !d.is_finite() {
-            return Ok(PathEnd::At(start));
+            return Ok((PathEnd::At(start), d));
         }
         for _ in 0..MAX_CROSSINGS {
             if stop && self.near_extraordinary[tri] {
@@ -325,10 +337,13 @@ impl MarchMesh {
                 for c in 0..3 {
                     b[c] += db[c] * rest;
                 }
-                return Ok(PathEnd::At(TriPoint {
-                    tri: tri as u32,
-                    bary: clean(b),
-                }));
+                return Ok((
+                    PathEnd::At(TriPoint {
+                        tri: tri as u32,
+                        bary: clean(b),
+                    }),
+                    d,
+                ));
             }
             rest -= lambda;
             for c in 0..3 {
@@ -342,7 +357,7 @@ impl MarchMesh {
             let a = (bj1 / (bj + bj1).max(1e-300)).clamp(VERTEX_EPS, 1.0 - VERTEX_EPS);
             let link = self.adj[tri][j];
             if link == NONE {
-                return Ok(PathEnd::Boundary);
+                return Ok((PathEnd::Boundary, d));
             }
             let (ntri, nj) = ((link >> 2) as usize, (link & 3) as usize);
             // Direction relative to the edge: along (α) and across (β, negative: leaving).
@@ -376,10 +391,13 @@ impl MarchMesh {
             b = nb;
             tri = ntri;
         }
-        Ok(PathEnd::Stalled(TriPoint {
-            tri: tri as u32,
-            bary: clean(b),
-        }))
+        Ok((
+            PathEnd::Stalled(TriPoint {
+                tri: tri as u32,
+                bary: clean(b),
+            }),
+            d,
+        ))
     }
 
     /// 3D point of a triangle point on the piecewise-linear mesh.
