@@ -234,7 +234,9 @@ fn pm_or(p: &[Option<DVec3>]) -> Vec<Option<DVec3>> {
 #[ignore]
 fn diagnose_centres() {
     let spec = std::env::var("DIAG").unwrap_or_default();
-    // DIAG="mesh:domain:u:v:k:t;..."
+    // DIAG="mesh:domain:u:v:k:t;..."; the pattern's rim only, every sample with DIAG_ALL set
+    // (an error constant along each ray is a start-direction error, one growing along it is
+    // picked up on the way)
     for item in spec.split(';').filter(|s| !s.is_empty()) {
         let f: Vec<&str> = item.split(':').collect();
         let s = load(f[0]);
@@ -280,7 +282,7 @@ fn diagnose_centres() {
         };
         for i in 0..k * k {
             let (l, m) = ((i % k) as i64 - h, (i / k) as i64 - h);
-            if l.abs().max(m.abs()) != h {
+            if l.abs().max(m.abs()) != h && std::env::var_os("DIAG_ALL").is_none() {
                 continue;
             }
             let (Some((_, pg)), Some((_, pg2))) = (g[i], g2[i]) else {
@@ -334,17 +336,20 @@ fn bench_table() {
 }
 
 /// Both samplers against the exact exponential map on a sample of centres (random points
-/// and extraordinary corners): marching within 3% of δ everywhere, chart sampling within
-/// 3% too (cube, torus 0.2%, Spot 0.3% at K 5 and 1.8% at K 9: patterns reaching
+/// and extraordinary corners): marching within 0.3% of δ on the cube and the torus and
+/// 0.8% on Spot (it was 1.3% and 2.8% with exact unfolding at edges), chart sampling within
+/// 3% (cube, torus 0.2%, Spot 0.3% at K 5 and 1.8% at K 9: patterns reaching
 /// extraordinary vertices are marched, and the Christoffel grid has 7 or 9 nodes per
 /// side); the exact grid is
 /// square to ~2% (Spot, 9×9, no bend filter here).
 #[test]
 fn samplers_follow_the_exact_exponential_map() {
-    for (rel, chart_bound) in [
-        ("opensubdiv-reference/catmark_cube.obj", 0.03),
-        ("opensubdiv-reference/catmark_torus.obj", 0.03),
-        ("opensubdiv-reference/spot_control_mesh.obj", 0.03),
+    // (mesh, chart bound, march bound; march measured 0.11/0.21%, 0.09/0.18%, 0.37/0.73%
+    // for K 5/9)
+    for (rel, chart_bound, march_bound) in [
+        ("opensubdiv-reference/catmark_cube.obj", 0.03, 0.003),
+        ("opensubdiv-reference/catmark_torus.obj", 0.03, 0.003),
+        ("opensubdiv-reference/spot_control_mesh.obj", 0.03, 0.009),
     ] {
         let s = load(rel);
         let f = OrientationField::compute(&s, &Orientation::Auto).unwrap();
@@ -377,7 +382,7 @@ fn samplers_follow_the_exact_exponential_map() {
             println!("{rel} K{k}: chart-truth {ec:.4}δ march-truth {em:.4}δ truth spacing {st:.4} reference 16 vs 8 substeps {conv:.1e}δ");
             assert!(conv < 0.04, "{rel} K{k}: reference not converged ({conv}δ)");
             assert!(st < 0.025, "{rel} K{k}: exact grid spacing {st}");
-            assert!(em < 0.03, "{rel} K{k}: march vs truth {em}δ");
+            assert!(em < march_bound, "{rel} K{k}: march vs truth {em}δ");
             assert!(ec < chart_bound, "{rel} K{k}: chart vs truth {ec}δ");
         }
     }

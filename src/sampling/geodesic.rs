@@ -110,34 +110,47 @@ pub fn geodesic(
     out: &mut Vec<Option<GeodesicPoint>>,
 ) {
     out.clear();
-    let mut loc = start;
-    let e0 = surface.eval_base(loc.quad, loc.s, loc.t);
-    let mut p = e0.p;
-    let mut n = e0.n;
-    let mut v = v - n * n.dot(v);
-    let dt = 1.0 / substeps as f64;
-    let mut alive = true;
+    let e0 = surface.eval_base(start.quad, start.s, start.t);
+    let mut state = Some(State {
+        loc: start,
+        p: e0.p,
+        n: e0.n,
+        v: v - e0.n * e0.n.dot(v),
+    });
     for _ in 0..segments {
-        if alive {
-            for _ in 0..substeps {
-                let (a, b) = plane_axes(n);
-                let x = p + v * dt;
-                match project_along(surface, loc, x, a, b, tol) {
-                    Some((nl, e)) => {
-                        let vh = (e.p - p) / dt;
-                        v = vh - e.n * e.n.dot(vh);
-                        loc = nl;
-                        p = e.p;
-                        n = e.n;
-                    }
-                    None => {
-                        alive = false;
-                        break;
-                    }
-                }
-            }
+        state = state.and_then(|st| st.advance(surface, substeps, tol));
+        out.push(state.map(|st| GeodesicPoint {
+            loc: st.loc,
+            p: st.p,
+        }));
+    }
+}
+
+/// RATTLE state: point (base location, position, normal) and tangent velocity.
+#[derive(Clone, Copy)]
+struct State {
+    loc: BaseLocation,
+    p: DVec3,
+    n: DVec3,
+    v: DVec3,
+}
+
+impl State {
+    /// `substeps` RATTLE steps of 1/substeps of the velocity each; `None` past an open
+    /// boundary or if a projection fails.
+    fn advance(mut self, surface: &Surface, substeps: usize, tol: f64) -> Option<State> {
+        let dt = 1.0 / substeps as f64;
+        for _ in 0..substeps {
+            let (a, b) = plane_axes(self.n);
+            let x = self.p + self.v * dt;
+            let (nl, e) = project_along(surface, self.loc, x, a, b, tol)?;
+            let vh = (e.p - self.p) / dt;
+            self.v = vh - e.n * e.n.dot(vh);
+            self.loc = nl;
+            self.p = e.p;
+            self.n = e.n;
         }
-        out.push(alive.then_some(GeodesicPoint { loc, p }));
+        Some(self)
     }
 }
 
@@ -155,10 +168,15 @@ pub fn geodesic_end(
         return None;
     }
     let steps = ((len / max_step).ceil() as usize).clamp(1, 1 << 16);
-    let mut out = Vec::with_capacity(1);
     let tol = 1e-10 * len.max(1e-300);
-    geodesic(surface, start, v, 1, steps, tol, &mut out);
-    out[0].map(|g| g.loc)
+    let e0 = surface.eval_base(start.quad, start.s, start.t);
+    let st = State {
+        loc: start,
+        p: e0.p,
+        n: e0.n,
+        v: v - e0.n * e0.n.dot(v),
+    };
+    st.advance(surface, steps, tol).map(|st| st.loc)
 }
 
 /// The reference pattern: `out[(m+h)·K + (l+h)]` = exp_x(δ·(l·v1 + m·v2)) (3D position and
@@ -217,7 +235,8 @@ pub fn exp_pattern(
     diff
 }
 
-fn gcd(a: u64, b: u64) -> u64 {
+/// Greatest common divisor (gcd(0, 0) = 0).
+pub fn gcd(a: u64, b: u64) -> u64 {
     if b == 0 {
         a
     } else {

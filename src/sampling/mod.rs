@@ -388,50 +388,96 @@ impl<'a> Sampler<'a> {
         let exact_start = mm.near_extraordinary(p0.tri);
         let max_step = delta * EXACT_STEP;
         let h = (k / 2) as i64;
+        let idx = |l: i64, m: i64| ((m + h) as usize) * k + (l + h) as usize;
+        out[idx(0, 0)] = Some(centre);
         let mut stalled = 0;
-        for m in -h..=h {
-            for l in -h..=h {
-                let i = ((m + h) as usize) * k + (l + h) as usize;
-                if l == 0 && m == 0 {
-                    out[i] = Some(centre);
-                    continue;
-                }
-                if exact_start {
+        // A mesh path's end as a domain point (stalled paths are counted).
+        let mut finish = |end: PathEnd| match end {
+            PathEnd::At(p) => Some(mm.to_domain(self.surface, lm, p)),
+            PathEnd::Boundary => None,
+            PathEnd::Stalled(p) => {
+                stalled += 1;
+                Some(mm.to_domain(self.surface, lm, p))
+            }
+        };
+        if exact_start {
+            for m in -h..=h {
+                for l in -h..=h {
+                    if l == 0 && m == 0 {
+                        continue;
+                    }
                     let v = (frame.v1 * l as f64 + frame.v2 * m as f64) * delta;
                     let vt = v - n * n.dot(v);
                     let vt = vt * (v.length() / vt.length().max(1e-300));
-                    if let Some(b) = geodesic::geodesic_end(self.surface, loc, vt, max_step) {
-                        out[i] = Some(self.surface.base_to_domain(b.quad, b.s, b.t));
+                    out[idx(l, m)] = match geodesic::geodesic_end(self.surface, loc, vt, max_step) {
+                        Some(b) => Some(self.surface.base_to_domain(b.quad, b.s, b.t)),
+                        // Off the surface or a failed projection: the mesh path decides.
+                        None => {
+                            let dir = (a1 * l as f64 + a2 * m as f64).normalize();
+                            finish(mm.walk(p0, dir, v.length()))
+                        }
+                    };
+                }
+            }
+            return stalled;
+        }
+        // One path per primitive direction (l0, m0) (gcd 1); its multiples (j·l0, j·m0) are
+        // read off along the way (the same paths as one walk per sample, ~25% less walking
+        // at K = 9).
+        for m0 in -h..=h {
+            for l0 in -h..=h {
+                if geodesic::gcd(l0.unsigned_abs(), m0.unsigned_abs()) != 1 {
+                    continue;
+                }
+                let reps = h / l0.abs().max(m0.abs());
+                // a1, a2 are not unit (moved along n into the triangle's plane): the
+                // direction is theirs, the length the tangent vector's.
+                let dir = (a1 * l0 as f64 + a2 * m0 as f64).normalize();
+                let step = (frame.v1 * l0 as f64 + frame.v2 * m0 as f64).length() * delta;
+                let (mut at, mut d) = (p0, dir);
+                // Where the path entered the neighbourhood of an extraordinary vertex:
+                // (entry, base point there, unit 3D tangent, length left to the sample).
+                let mut entry: Option<(march::Entered, BaseLocation, DVec3, f64)> = None;
+                let mut done: Option<PathEnd> = None;
+                for j in 1..=reps {
+                    let i = idx(l0 * j, m0 * j);
+                    if let Some(end) = done {
+                        out[i] = finish(end);
                         continue;
                     }
-                }
-                let dir = a1 * l as f64 + a2 * m as f64;
-                let len = dir.length();
-                let end = match mm.walk_until_extraordinary(p0, dir / len, len * delta) {
-                    Ok(end) => end,
-                    Err(e) => {
-                        let b = mm.to_base(self.surface, lm, e.at);
-                        let eb = self.surface.eval_base(b.quad, b.s, b.t);
-                        let d = mm.to_3d(e.at.tri, e.dir);
-                        let d = (d - eb.n * eb.n.dot(d)).normalize_or_zero() * e.rest;
-                        match geodesic::geodesic_end(self.surface, b, d, max_step) {
-                            Some(b) => {
-                                out[i] = Some(self.surface.base_to_domain(b.quad, b.s, b.t));
+                    if entry.is_none() {
+                        match mm.walk_on(at, d, step) {
+                            Ok((PathEnd::At(p), dp)) => {
+                                (at, d) = (p, dp);
+                                out[i] = finish(PathEnd::At(p));
                                 continue;
                             }
-                            // Off the surface or a failed projection: the mesh path decides.
-                            None => mm.walk(e.at, e.dir, e.rest),
+                            Ok((end, _)) => {
+                                done = Some(end);
+                                out[i] = finish(end);
+                                continue;
+                            }
+                            Err(e) => {
+                                let b = mm.to_base(self.surface, lm, e.at);
+                                let eb = self.surface.eval_base(b.quad, b.s, b.t);
+                                let t = mm.to_3d(e.at.tri, e.dir);
+                                let t = (t - eb.n * eb.n.dot(t)).normalize_or_zero();
+                                entry = Some((e, b, t, e.rest));
+                            }
                         }
+                    } else if let Some(en) = entry.as_mut() {
+                        en.3 += step;
                     }
-                };
-                out[i] = match end {
-                    PathEnd::At(p) => Some(mm.to_domain(self.surface, lm, p)),
-                    PathEnd::Boundary => None,
-                    PathEnd::Stalled(p) => {
-                        stalled += 1;
-                        Some(mm.to_domain(self.surface, lm, p))
-                    }
-                };
+                    // Next to an extraordinary vertex: on along the exact limit surface.
+                    let Some((e, b, t, rest)) = entry else {
+                        continue;
+                    };
+                    out[i] = match geodesic::geodesic_end(self.surface, b, t * rest, max_step) {
+                        Some(b) => Some(self.surface.base_to_domain(b.quad, b.s, b.t)),
+                        // Off the surface or a failed projection: the mesh path decides.
+                        None => finish(mm.walk(e.at, e.dir, rest)),
+                    };
+                }
             }
         }
         stalled
