@@ -220,39 +220,39 @@ fn survey(s: &Surface, sam: &Sampler, k: usize, texels: f64, max_bend: f64) -> M
 /// Issue 3's numbers on five meshes (plus catmark_edgecorner). Every pattern of both
 /// samplers: no flipped cell, centre axes 90° ± 3°, every adjacent pair δ ± 5% (the worst
 /// is asserted per mesh, a little above what was measured). Chart and marching samples
-/// agree within 2.4% of δ everywhere (0.4% on the cube, 1.7% on Spot at K 9, 2.4% on the
+/// agree within 2.5% of δ everywhere (1.2% on the cube, 1.7% on Spot at K 9, 2.5% on the
 /// double torus at K 9, where chart sampling's own distance to the exact map dominates;
 /// marching is within 0.8% of it, tests/sampling_truth.rs): patterns that reach an
 /// extraordinary vertex or an open boundary are marched
 /// ([`surfsynth::sampling::EXTRAORDINARY_MARGIN`]), and the chart's Christoffel grid has
-/// as many nodes as the pattern has samples per side (up to 9).
+/// 5 nodes per side where that is within ~0.2% of δ of the geodesics, else 9.
 #[test]
 fn samplers_produce_square_fold_free_grids_on_five_meshes() {
     // (mesh, worst spacing of either sampler, chart-vs-march bounds for K5 δ1, K5 δ2, K9 δ1;
-    // measured: cube 0.15/0.32/0.44%, torus 0.14/0.12/0.21%, Spot 1.14/1.36/1.71%, double
-    // torus 0.48/1.53/2.39%, cube_no_bottom 0.16/0.35/0.43%, edgecorner 0.02/0.02/0.03%)
+    // measured: cube 0.20/0.58/1.15%, torus 0.16/0.16/0.31%, Spot 0.90/1.32/1.70%, double
+    // torus 0.53/0.76/2.45%, cube_no_bottom 0.18/0.72/0.76%, edgecorner 0.02/0.04/0.08%)
     for (rel, spacing, agree) in [
         (
             "opensubdiv-reference/catmark_cube.obj",
             0.03,
-            [0.003, 0.005, 0.006],
+            [0.003, 0.008, 0.015],
         ),
         (
             "opensubdiv-reference/catmark_torus.obj",
             0.02,
-            [0.003, 0.003, 0.004],
+            [0.003, 0.003, 0.005],
         ),
         (
             "opensubdiv-reference/spot_control_mesh.obj",
             0.045,
-            [0.015, 0.017, 0.021],
+            [0.012, 0.016, 0.021],
         ),
         (
             "meshes/double_torus_genus2.obj",
             0.045,
-            [0.007, 0.018, 0.027],
+            [0.007, 0.010, 0.028],
         ),
-        ("meshes/cube_no_bottom.obj", 0.04, [0.003, 0.005, 0.006]),
+        ("meshes/cube_no_bottom.obj", 0.04, [0.003, 0.009, 0.010]),
         (
             "opensubdiv-reference/catmark_edgecorner.obj",
             0.04,
