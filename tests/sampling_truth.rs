@@ -324,8 +324,20 @@ fn bench_table() {
         let f = OrientationField::compute(&s, &Orientation::Auto).unwrap();
         for (k, t) in [(5usize, 1.0), (9, 1.0), (9, 2.0)] {
             for r in surfsynth::sampling::bench::bench_sampling(&s, &f, 32, t, k, 4000) {
+                let split = match (
+                    r.chart_sampled_samples_per_second,
+                    r.marched_samples_per_second,
+                ) {
+                    (Some(c), Some(m)) => format!(
+                        " (chart-sampled patterns {:.2} M, marched {:.2} M)",
+                        c / 1e6,
+                        m / 1e6
+                    ),
+                    (Some(c), None) => format!(" (chart-sampled patterns {:.2} M)", c / 1e6),
+                    _ => String::new(),
+                };
                 println!(
-                    "{rel} K{k} δ={t} {}: {:.2} M samples/s, fallback {:.1}%",
+                    "{rel} K{k} δ={t} {}: {:.2} M samples/s{split}, fallback {:.1}%",
                     r.sampler,
                     r.samples_per_second / 1e6,
                     r.fallback_rate * 100.0

@@ -24,6 +24,28 @@ pub enum BenchCommand {
     /// Multiscale synthesis: the paper's Torus rows (000 §6: 32-face torus, N = 60,
     /// 115,200 texels) or any mesh; ANN and k-coherence side by side.
     Multiscale(BenchMultiscaleArgs),
+    /// Neighbourhood sampling (000 §4): chart sampling and marching, samples/s on one
+    /// thread, K×K patterns at texel centres spread over the surface.
+    Sampling(BenchSamplingArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct BenchSamplingArgs {
+    /// Mesh (default: the bundled fixtures/spot_control_mesh.obj).
+    #[arg(long, value_name = "M.obj")]
+    pub mesh: Option<PathBuf>,
+    /// Pattern sizes K (odd).
+    #[arg(long, value_name = "K", value_delimiter = ',', default_values_t = [5usize, 9])]
+    pub size: Vec<usize>,
+    /// Steps δ, in median texel spacings at --resolution.
+    #[arg(long, value_name = "T", value_delimiter = ',', default_values_t = [1.0f64])]
+    pub step: Vec<f64>,
+    /// Texels per side of every face map (sets the texel spacing δ is measured in).
+    #[arg(long, value_name = "N", default_value_t = 32, value_parser = parse_resolution)]
+    pub resolution: usize,
+    /// Patterns per measurement.
+    #[arg(long, value_name = "P", default_value_t = 4000)]
+    pub patterns: usize,
 }
 
 #[derive(Args, Debug)]
@@ -101,7 +123,46 @@ pub fn run(a: BenchArgs) -> anyhow::Result<()> {
         BenchCommand::Exr(b) => exr(b),
         BenchCommand::Synth(b) => synth(b),
         BenchCommand::Multiscale(b) => multiscale(b),
+        BenchCommand::Sampling(b) => sampling(b),
     }
+}
+
+fn sampling(a: BenchSamplingArgs) -> anyhow::Result<()> {
+    use surfsynth::field::{Orientation, OrientationField};
+    let mesh = a.mesh.unwrap_or_else(|| {
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("fixtures/spot_control_mesh.obj")
+    });
+    if a.patterns == 0 || a.patterns > 10_000_000 {
+        anyhow::bail!("--patterns {} must be between 1 and 10000000", a.patterns);
+    }
+    if let Some(k) = a.size.iter().find(|&&k| k % 2 == 0 || k > 99) {
+        anyhow::bail!("--size {k}: pattern sizes must be odd and at most 99");
+    }
+    if let Some(t) = a
+        .step
+        .iter()
+        .find(|t| !(t.is_finite() && **t > 0.0 && **t <= 64.0))
+    {
+        anyhow::bail!("--step {t}: steps must be in (0, 64] texel spacings");
+    }
+    let surface = surfsynth::bake::load_surface_for(&mesh, a.resolution)?;
+    let field = OrientationField::compute(&surface, &Orientation::Auto)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", mesh.display()))?;
+    let mut rows = Vec::new();
+    for &k in &a.size {
+        for &t in &a.step {
+            rows.extend(surfsynth::sampling::bench::bench_sampling(
+                &surface,
+                &field,
+                a.resolution,
+                t,
+                k,
+                a.patterns,
+            ));
+        }
+    }
+    println!("{}", serde_json::to_string_pretty(&rows)?);
+    Ok(())
 }
 
 fn multiscale(a: BenchMultiscaleArgs) -> anyhow::Result<()> {
