@@ -4,8 +4,8 @@
 //! vertex chart Φ = Φ^v:
 //! 1. y = Φ(x);
 //! 2. w_j solves Df·w_j = v_j (least squares; exact since v_j is tangent), τ_j = DΦ·w_j;
-//! 3. y_lm = y + l·τ_1·δ + m·τ_2·δ for l, m = −h..h (K = 2h + 1), plus a second-order
-//!    term (below);
+//! 3. y_lm = y + l·τ_1·δ + m·τ_2·δ for l, m = −h..h (K = 2h + 1), bent onto the
+//!    geodesics (below);
 //! 4. x_lm = Φ⁻¹(y_lm), mapped to (domain, u, v);
 //! 5. (the texture fetch is the caller's: [`crate::maps`]).
 //!
@@ -16,24 +16,28 @@
 //! quadrant at a corner vertex) is off the surface: it is reported missing and the pattern
 //! still fits. If no chart holds the pattern the caller marches instead.
 //!
-//! **Second-order term.** The paper's step 3 is linear: it is exact only where the chart is
-//! an isometry up to a linear map. Characteristic-map charts are not (their metric varies
-//! by ~10% across half a base quad next to a valence-3 vertex), so adjacent samples at the
-//! rim of a 9×9 pattern drifted 5–10% from δ. We therefore place y_lm on the *geodesic*
-//! through y with initial velocity t = l·τ_1 + m·τ_2 (what marching follows too), to
-//! second order: y_lm = y + δ·t − ½δ²·Γ(t, t), where Γ(t, t) = (AᵀA)⁻¹Aᵀ·∂²F/∂t² is the
-//! Christoffel term of the surface F = f∘Φ⁻¹ in chart coordinates, A = DF(y). ∂A is taken
-//! by central differences of A = Df·DΦ⁻¹ at Φ⁻¹(y ± h·e_k) (4 extra Φ⁻¹ per *pattern*,
-//! none per sample). Γ is bilinear, so the per-sample cost is unchanged.
+//! **Geodesics.** The paper's step 3 is linear: it is exact only where the chart is an
+//! isometry up to a linear map. Characteristic-map charts are not (their metric varies by
+//! ~10% across half a base quad next to a valence-3 vertex), so adjacent samples at the rim
+//! of a 9×9 pattern drifted 5–10% from δ. We place y_lm on the *geodesic* through y with
+//! initial velocity l·τ_1 + m·τ_2 (what marching follows too): the geodesic equation
+//! z'' = −Γ(z', z') is integrated (RK4) in pattern coordinates z (y = y + z.x·T1 + z.y·T2,
+//! T_j = δ·τ_j), with the Christoffel symbols Γ = (AᵀA)⁻¹Aᵀ·∂A of the surface F = f∘Φ⁻¹
+//! (A = DF) from differences of A on a grid of nodes over the pattern, interpolated
+//! bilinearly. Grids are nested ([`Nodes`]): 3×3 and 5×5 first, 9×9 where those two
+//! disagree ([`ACCEPT_5`]); each node costs one Φ⁻¹ and one limit evaluation, none per
+//! sample. `PatternOrder::Quadratic`/`Cubic` keep the older Taylor terms (from a 3×3
+//! stencil) and `Linear` the paper's step 3.
 //!
 //! **Check.** Optionally (on by default in [`crate::sampling::Sampler`]) the finished
-//! pattern is checked in 3D — adjacent samples δ·(1 ± tol) apart, no flipped cell — and a
-//! chart that fails is treated like one the pattern does not fit: the next candidate is
-//! tried, then marching. This is where the linearisation the paper relies on ("the
-//! sampling neighbourhood is small enough that various maps can be replaced by their
+//! pattern is checked — adjacent samples δ·(1 ± tol) apart on the surface, no flipped
+//! cell — and a chart that fails is treated like one the pattern does not fit: the next
+//! candidate is tried, then marching. This is where the linearisation the paper relies on
+//! ("the sampling neighbourhood is small enough that various maps can be replaced by their
 //! linearized versions") does not hold: at coarse pattern scales, and next to
-//! extraordinary vertices whose curvature is unbounded. It costs one limit evaluation
-//! per sample.
+//! extraordinary vertices whose curvature is unbounded. The chords come from the grid's
+//! metric (no evaluation) where the grid covers the pattern, else from one limit
+//! evaluation per sample.
 //!
 //! The four corner samples are mapped first, so a pattern that does not fit is usually
 //! rejected after four Φ⁻¹ instead of K².
