@@ -12,7 +12,7 @@
 //! - "adjacent texels of one face": horizontal or vertical neighbours (x±1 or y±1) in the
 //!   same domain; every unordered pair counted once.
 //! - percentiles (median, p10, p90, and the median h) interpolate linearly between order
-//!   statistics (numpy's default): p(q) = v[i] + (v[i+1] - v[i]) (q (n-1) - i).
+//!   statistics (numpy's default): `p(q) = v[i] + (v[i+1] - v[i]) (q (n-1) - i)`.
 //! - seam pairs: unordered pairs of border texels (x or y in {0, N-1}) of different domains
 //!   with 0.5h <= |P_a - P_b| <= 1.25h, found with a k-d tree over border texel positions.
 //! - non-finite values are left out of every measure except coverage, which counts them.

@@ -6,7 +6,7 @@
 //! (d·N + y)·N + x, centre (u, v) = ((x + 0.5)/N, (y + 0.5)/N) — the same layout as
 //! `facemaps.exr` tiles and [`crate::field::OrientationField::texel_frames`].
 //!
-//! A bilinear fetch near a border needs texel centres just outside [0,1]², which belong to
+//! A bilinear fetch near a border needs texel centres just outside [0, 1]², which belong to
 //! a neighbouring domain (possibly rotated, possibly at a different scale where a quad
 //! domain meets an n-gon sub-face, possibly around an extraordinary corner). [`MapLayout`]
 //! precomputes, once per resolution, a *ring* of 4N + 4 such outside centres per domain:
@@ -184,7 +184,7 @@ impl MapLayout {
     }
 
     /// Bilinear taps at a domain point: the four texel centres around (u, v), those outside
-    /// the domain taken from the neighbours through the ring. (u, v) is clamped to [0,1]².
+    /// the domain taken from the neighbours through the ring. (u, v) is clamped to [0, 1]².
     #[inline]
     pub fn taps(&self, loc: DomainLocation) -> Taps {
         let n = self.n;

@@ -260,7 +260,7 @@ impl MeshSize {
 /// The run being estimated.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Job {
-    /// `synth`: `channels` of facemaps.exr (R G B [A] [height] source.u source.v) from an
+    /// `synth`: `channels` of facemaps.exr (R G B \[A\] \[height\] source.u source.v) from an
     /// example of `example_pixels` pixels, with the multiscale method or the coherent one.
     Synth {
         channels: usize,

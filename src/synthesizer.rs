@@ -246,7 +246,7 @@ impl std::fmt::Debug for Synthesizer {
 /// Everything a run produced, in memory.
 #[derive(Debug)]
 pub struct SynthResult {
-    /// facemaps.exr content: R G B [A] [height] source.u source.v.
+    /// facemaps.exr content: R G B \[A\] \[height\] source.u source.v.
     pub maps: FaceMaps,
     /// Limit position and normal per texel (geometry.exr content).
     pub geometry: TexelGeometry,

@@ -465,7 +465,7 @@ pub fn run(
 
 /// Largest distance (in pixels of the finest synthesis level) between a texel's own
 /// source and a neighbour's continuation for the two to count as one patch in
-/// [`continuous_sources`].
+/// `continuous_sources`.
 pub const PATCH_TOLERANCE: f32 = 1.5;
 
 /// Continuous source positions for the finest level.

@@ -24,8 +24,8 @@
 //! z'' = −Γ(z', z') is integrated (RK4) in pattern coordinates z (y = y + z.x·T1 + z.y·T2,
 //! T_j = δ·τ_j), with the Christoffel symbols Γ = (AᵀA)⁻¹Aᵀ·∂A of the surface F = f∘Φ⁻¹
 //! (A = DF) from differences of A on a grid of nodes over the pattern, interpolated
-//! bilinearly. Grids are nested ([`Nodes`]): 3×3 and 5×5 first, 9×9 where those two
-//! disagree ([`ACCEPT_5`]); each node costs one Φ⁻¹ and one limit evaluation, none per
+//! bilinearly. Grids are nested (`Nodes`): 3×3 and 5×5 first, 9×9 where those two
+//! disagree (`ACCEPT_5`); each node costs one Φ⁻¹ and one limit evaluation, none per
 //! sample. `PatternOrder::Quadratic`/`Cubic` keep the older Taylor terms (from a 3×3
 //! stencil) and `Linear` the paper's step 3.
 //!

@@ -107,7 +107,7 @@ pub fn run_coherent(
     }
 }
 
-/// Names of the channels of `facemaps.exr` for `example`: R G B [A] [height] source.u
+/// Names of the channels of `facemaps.exr` for `example`: R G B \[A\] \[height\] source.u
 /// source.v.
 pub fn output_channels(example: &Example) -> Vec<&'static str> {
     let mut v = example.channel_names();

@@ -96,7 +96,7 @@ fn finish(position: DVec3, t1: DVec3, t2: DVec3) -> VertexLimit {
 /// 1e-5° over Spot, pole8 and the cube; 6e-4° at L = 24, 67° at L = 40).
 const REFINEMENT_STEPS: usize = 18;
 
-/// See [`REFINEMENT_STEPS`].
+/// See `REFINEMENT_STEPS`.
 pub fn normal_by_refinement(m: &PolyMesh, v: VertexId, limit: DVec3) -> DVec3 {
     let mut ring = one_ring(m, v);
     let mut center = VertexId(0);

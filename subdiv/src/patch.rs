@@ -46,7 +46,7 @@ pub fn basis(t: f64) -> ([f64; 4], [f64; 4]) {
 }
 
 impl BSplinePatch {
-    /// Evaluates at (s, t) in [0,1]^2.
+    /// Evaluates at (s, t) in [0, 1]².
     #[inline]
     pub fn eval(&self, s: f64, t: f64) -> PatchPoint {
         let (bs, ds) = basis(s);
