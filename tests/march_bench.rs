@@ -2,7 +2,28 @@
 //! dump of their samples so that a change in evaluation can be checked bit-for-bit.
 //! `cargo test --release --test march_bench -- --ignored --nocapture`
 //! (MB_MESH=spot|dt, MB_K=5|9, MB_DUMP=path, MB_REPS=n).
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::atomic::{AtomicIsize, Ordering};
 use subdiv::{DomainId, DomainLocation, Surface};
+
+/// Live heap bytes (to measure the surface and the per-thread deep cache).
+struct Counting;
+static LIVE: AtomicIsize = AtomicIsize::new(0);
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
+        LIVE.fetch_add(l.size() as isize, Ordering::Relaxed);
+        System.alloc(l)
+    }
+    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
+        LIVE.fetch_sub(l.size() as isize, Ordering::Relaxed);
+        System.dealloc(p, l)
+    }
+}
+#[global_allocator]
+static A: Counting = Counting;
+fn live() -> f64 {
+    LIVE.load(Ordering::Relaxed) as f64 / 1e6
+}
 use surfsynth::field::{Orientation, OrientationField};
 use surfsynth::sampling::{Method, Sampler, SamplerKind};
 
@@ -27,6 +48,7 @@ fn march_bench() {
     let rel = match std::env::var("MB_MESH").as_deref() {
         Ok("dt") => "meshes/double_torus_genus2.obj",
         Ok("tri") => "meshes/spot_triangulated.obj",
+        Ok("bunny") => "meshes/stanford_bunny.obj",
         _ => "opensubdiv-reference/spot_control_mesh.obj",
     };
     let k: usize = std::env::var("MB_K")
@@ -39,7 +61,9 @@ fn march_bench() {
         .map(|s| s.parse().unwrap())
         .unwrap_or(300);
     let shared = std::env::var("SURFSYNTH_SHARED").unwrap_or("/work/shared".into());
+    let h0 = live();
     let s = Surface::load_obj(std::path::Path::new(&shared).join("data").join(rel)).unwrap();
+    println!("surface: {:.3} MB live heap", live() - h0);
     let f = OrientationField::compute(&s, &Orientation::Auto).unwrap();
     let n = 32;
     let delta = surfsynth::sampling::median_texel_spacing(&s, n);
@@ -63,16 +87,24 @@ fn march_bench() {
             }
         }
     }
-    let mut out = vec![None; k * k];
+    println!(
+        "live heap after choosing the centres (surface, field, sampler, marching mesh, deep cache): {:.3} MB",
+        live()
+    );
+    let mut out: Vec<Option<DomainLocation>> = Vec::new();
     for _ in 0..reps {
-        out = vec![None; k * k];
+        drop(out);
+        out = Vec::with_capacity(k * k * (cs.len() + 1));
+        out.resize(k * k, None);
+        let h1 = live();
         let t0 = std::time::Instant::now();
         march_loop(&sam, &cs, delta, k, &mut out);
         let secs = t0.elapsed().as_secs_f64();
         println!(
-            "{rel} K{k}: {} marched patterns, {:.3} M samples/s",
+            "{rel} K{k}: {} marched patterns, {:.3} M samples/s; heap growth {:.3} MB",
             cs.len(),
-            (cs.len() * k * k) as f64 / secs / 1e6
+            (cs.len() * k * k) as f64 / secs / 1e6,
+            live() - h1
         );
     }
     if let Ok(p) = std::env::var("MB_DUMP") {

@@ -9,7 +9,9 @@
 //!   extraordinary corner stay irregular, so every point other than the extraordinary vertex
 //!   itself ends in a regular patch after log2(1/distance) levels — this is the classic exact
 //!   evaluation by subdivision (Stam 1998 does the same with eigenvectors). Levels beyond
-//!   `max_depth` are not stored but refined on demand.
+//!   `max_depth` are not stored in the surface but refined on demand; each thread keeps
+//!   the levels it refined in a small bounded cache (`deep.rs`; bit-identical
+//!   values, nothing added to the surface's memory).
 //! - exactly at an extraordinary vertex the limit masks of [`crate::limit`] apply.
 //!
 //! Positions are exact to rounding; derivatives are scaled by 2 per level.
@@ -64,7 +66,8 @@ enum Node {
         corner_limit: [u32; 4],
     },
     /// Below the stored depth: refined on demand from the base mesh along the descent path
-    /// (nothing is stored, which keeps memory per extraordinary corner small).
+    /// (nothing is stored, which keeps memory per extraordinary corner small); the refined
+    /// levels are cached per thread, keyed by this node's index ([`crate::deep`]).
     Deep,
 }
 
