@@ -38,7 +38,7 @@ fn march_loop(
     for c in cs {
         let i = out.len() - k * k;
         sam.sample(*c, delta, k, SamplerKind::Chart, &mut out[i..]);
-        out.extend(std::iter::repeat(None).take(k * k));
+        out.extend(std::iter::repeat_n(None, k * k));
     }
 }
 
