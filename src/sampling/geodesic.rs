@@ -31,18 +31,19 @@ pub struct GeodesicPoint {
 
 /// Newton's method for the surface point q with (q − x)·a = (q − x)·b = 0 (a, b spanning
 /// the tangent plane at the previous point: q is x moved along the previous normal),
-/// starting at `from`. `None` if the point is off the surface (beyond an open boundary) or
-/// Newton does not converge.
+/// starting at `from` (whose limit sample is `e_from`). `None` if the point is off the
+/// surface (beyond an open boundary) or Newton does not converge.
 fn project_along(
     surface: &Surface,
     from: BaseLocation,
+    e_from: LimitSample,
     x: DVec3,
     a: DVec3,
     b: DVec3,
     tol: f64,
 ) -> Option<(BaseLocation, LimitSample)> {
     let mut loc = from;
-    let mut e = surface.eval_base(loc.quad, loc.s, loc.t);
+    let mut e = e_from;
     for _ in 0..60 {
         let r = e.p - x;
         let g = (r.dot(a), r.dot(b));
@@ -113,25 +114,23 @@ pub fn geodesic(
     let e0 = surface.eval_base(start.quad, start.s, start.t);
     let mut state = Some(State {
         loc: start,
-        p: e0.p,
-        n: e0.n,
+        e: e0,
         v: v - e0.n * e0.n.dot(v),
     });
     for _ in 0..segments {
         state = state.and_then(|st| st.advance(surface, substeps, tol));
         out.push(state.map(|st| GeodesicPoint {
             loc: st.loc,
-            p: st.p,
+            p: st.e.p,
         }));
     }
 }
 
-/// RATTLE state: point (base location, position, normal) and tangent velocity.
+/// RATTLE state: point (base location and its limit sample) and tangent velocity.
 #[derive(Clone, Copy)]
 struct State {
     loc: BaseLocation,
-    p: DVec3,
-    n: DVec3,
+    e: LimitSample,
     v: DVec3,
 }
 
@@ -141,14 +140,13 @@ impl State {
     fn advance(mut self, surface: &Surface, substeps: usize, tol: f64) -> Option<State> {
         let dt = 1.0 / substeps as f64;
         for _ in 0..substeps {
-            let (a, b) = plane_axes(self.n);
-            let x = self.p + self.v * dt;
-            let (nl, e) = project_along(surface, self.loc, x, a, b, tol)?;
-            let vh = (e.p - self.p) / dt;
+            let (a, b) = plane_axes(self.e.n);
+            let x = self.e.p + self.v * dt;
+            let (nl, e) = project_along(surface, self.loc, self.e, x, a, b, tol)?;
+            let vh = (e.p - self.e.p) / dt;
             self.v = vh - e.n * e.n.dot(vh);
             self.loc = nl;
-            self.p = e.p;
-            self.n = e.n;
+            self.e = e;
         }
         Some(self)
     }
@@ -163,17 +161,28 @@ pub fn geodesic_end(
     v: DVec3,
     max_step: f64,
 ) -> Option<BaseLocation> {
+    let e0 = surface.eval_base(start.quad, start.s, start.t);
+    geodesic_end_from(surface, start, &e0, v, max_step)
+}
+
+/// [`geodesic_end`] with the start's limit sample `e0` (`eval_base` at `start`) given:
+/// marching starts many geodesics at the same point.
+pub fn geodesic_end_from(
+    surface: &Surface,
+    start: BaseLocation,
+    e0: &LimitSample,
+    v: DVec3,
+    max_step: f64,
+) -> Option<BaseLocation> {
     let len = v.length();
     if !(len.is_finite() && max_step > 0.0) {
         return None;
     }
     let steps = ((len / max_step).ceil() as usize).clamp(1, 1 << 16);
     let tol = 1e-10 * len.max(1e-300);
-    let e0 = surface.eval_base(start.quad, start.s, start.t);
     let st = State {
         loc: start,
-        p: e0.p,
-        n: e0.n,
+        e: *e0,
         v: v - e0.n * e0.n.dot(v),
     };
     st.advance(surface, steps, tol).map(|st| st.loc)

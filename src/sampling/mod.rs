@@ -29,7 +29,7 @@ use glam::DVec3;
 use march::{MarchMesh, PathEnd};
 use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
 use std::sync::OnceLock;
-use subdiv::{BaseLocation, Charts, DomainLocation, Surface, VertexId};
+use subdiv::{BaseLocation, Charts, DomainLocation, LimitSample, Surface, VertexId};
 
 /// Default relative spacing tolerance of accepted chart patterns (4%: inside the 5% that
 /// issue 3 asks of every pattern, with room for the 3D-vs-surface distance difference).
@@ -401,6 +401,8 @@ impl<'a> Sampler<'a> {
             }
         };
         if exact_start {
+            // Every geodesic starts at the centre: its limit sample once.
+            let e0 = self.surface.eval_base(loc.quad, loc.s, loc.t);
             for m in -h..=h {
                 for l in -h..=h {
                     if l == 0 && m == 0 {
@@ -409,14 +411,15 @@ impl<'a> Sampler<'a> {
                     let v = (frame.v1 * l as f64 + frame.v2 * m as f64) * delta;
                     let vt = v - n * n.dot(v);
                     let vt = vt * (v.length() / vt.length().max(1e-300));
-                    out[idx(l, m)] = match geodesic::geodesic_end(self.surface, loc, vt, max_step) {
-                        Some(b) => Some(self.surface.base_to_domain(b.quad, b.s, b.t)),
-                        // Off the surface or a failed projection: the mesh path decides.
-                        None => {
-                            let dir = (a1 * l as f64 + a2 * m as f64).normalize();
-                            finish(mm.walk(p0, dir, v.length()))
-                        }
-                    };
+                    out[idx(l, m)] =
+                        match geodesic::geodesic_end_from(self.surface, loc, &e0, vt, max_step) {
+                            Some(b) => Some(self.surface.base_to_domain(b.quad, b.s, b.t)),
+                            // Off the surface or a failed projection: the mesh path decides.
+                            None => {
+                                let dir = (a1 * l as f64 + a2 * m as f64).normalize();
+                                finish(mm.walk(p0, dir, v.length()))
+                            }
+                        };
                 }
             }
             return stalled;
@@ -436,8 +439,10 @@ impl<'a> Sampler<'a> {
                 let step = (frame.v1 * l0 as f64 + frame.v2 * m0 as f64).length() * delta;
                 let (mut at, mut d) = (p0, dir);
                 // Where the path entered the neighbourhood of an extraordinary vertex:
-                // (entry, base point there, unit 3D tangent, length left to the sample).
-                let mut entry: Option<(march::Entered, BaseLocation, DVec3, f64)> = None;
+                // (entry, base point there and its limit sample, unit 3D tangent, length
+                // left to the sample).
+                let mut entry: Option<(march::Entered, BaseLocation, LimitSample, DVec3, f64)> =
+                    None;
                 let mut done: Option<PathEnd> = None;
                 for j in 1..=reps {
                     let i = idx(l0 * j, m0 * j);
@@ -462,21 +467,23 @@ impl<'a> Sampler<'a> {
                                 let eb = self.surface.eval_base(b.quad, b.s, b.t);
                                 let t = mm.to_3d(e.at.tri, e.dir);
                                 let t = (t - eb.n * eb.n.dot(t)).normalize_or_zero();
-                                entry = Some((e, b, t, e.rest));
+                                entry = Some((e, b, eb, t, e.rest));
                             }
                         }
                     } else if let Some(en) = entry.as_mut() {
-                        en.3 += step;
+                        en.4 += step;
                     }
                     // Next to an extraordinary vertex: on along the exact limit surface.
-                    let Some((e, b, t, rest)) = entry else {
+                    let Some((e, b, eb, t, rest)) = entry else {
                         continue;
                     };
-                    out[i] = match geodesic::geodesic_end(self.surface, b, t * rest, max_step) {
-                        Some(b) => Some(self.surface.base_to_domain(b.quad, b.s, b.t)),
-                        // Off the surface or a failed projection: the mesh path decides.
-                        None => finish(mm.walk(e.at, e.dir, rest)),
-                    };
+                    out[i] =
+                        match geodesic::geodesic_end_from(self.surface, b, &eb, t * rest, max_step)
+                        {
+                            Some(b) => Some(self.surface.base_to_domain(b.quad, b.s, b.t)),
+                            // Off the surface or a failed projection: the mesh path decides.
+                            None => finish(mm.walk(e.at, e.dir, rest)),
+                        };
                 }
             }
         }

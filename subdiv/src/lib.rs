@@ -11,6 +11,7 @@
 
 pub mod adjacency;
 pub mod charts;
+mod deep;
 pub mod domains;
 pub mod error;
 pub mod ids;

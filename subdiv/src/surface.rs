@@ -9,11 +9,14 @@
 //!   extraordinary corner stay irregular, so every point other than the extraordinary vertex
 //!   itself ends in a regular patch after log2(1/distance) levels — this is the classic exact
 //!   evaluation by subdivision (Stam 1998 does the same with eigenvectors). Levels beyond
-//!   `max_depth` are not stored but refined on demand.
+//!   `max_depth` are not stored in the surface but refined on demand; each thread keeps
+//!   the levels it refined in a small bounded cache (`deep.rs`; bit-identical
+//!   values, nothing added to the surface's memory).
 //! - exactly at an extraordinary vertex the limit masks of [`crate::limit`] apply.
 //!
 //! Positions are exact to rounding; derivatives are scaled by 2 per level.
 
+use crate::deep::{self, CacheId, DeepCache, DeepNode, DeepTree, DEEP_CACHE};
 use crate::error::MeshError;
 use crate::ids::{BaseQuadId, FaceId, VertexId};
 use crate::limit::vertex_limit;
@@ -63,7 +66,8 @@ enum Node {
         corner_limit: [u32; 4],
     },
     /// Below the stored depth: refined on demand from the base mesh along the descent path
-    /// (nothing is stored, which keeps memory per extraordinary corner small).
+    /// (nothing is stored, which keeps memory per extraordinary corner small); the refined
+    /// levels are cached per thread, keyed by this node's index ([`crate::deep`]).
     Deep,
 }
 
@@ -82,6 +86,8 @@ pub struct Surface {
     max_depth: u32,
     pub(crate) domain_start: Vec<u32>,
     pub(crate) domain_face: Vec<u32>,
+    /// Key of this surface in the per-thread cache of levels below the stored depth.
+    cache_id: CacheId,
 }
 
 impl Surface {
@@ -103,6 +109,7 @@ impl Surface {
             max_depth: opts.max_depth,
             domain_start: Vec::new(),
             domain_face: Vec::new(),
+            cache_id: CacheId::fresh(),
             control,
             base: PolyMesh::new(vec![], vec![0], vec![], Check::Trusted).unwrap(),
         };
@@ -164,6 +171,17 @@ impl Surface {
 
     /// Evaluates base quad `b` at (s, t) in [0,1]^2; derivatives are with respect to s, t.
     pub fn eval_base(&self, b: BaseQuadId, s: f64, t: f64) -> LimitSample {
+        self.eval_base_impl(b, s, t, true)
+    }
+
+    /// [`Self::eval_base`] without the per-thread cache of levels below the stored depth
+    /// (every such evaluation refined from the base mesh): the reference the cache is
+    /// tested against.
+    pub fn eval_base_uncached(&self, b: BaseQuadId, s: f64, t: f64) -> LimitSample {
+        self.eval_base_impl(b, s, t, false)
+    }
+
+    fn eval_base_impl(&self, b: BaseQuadId, s: f64, t: f64, cached: bool) -> LimitSample {
         let mut node = self.roots[b.idx()];
         let (s0, t0) = (s.clamp(0.0, 1.0), t.clamp(0.0, 1.0));
         let (mut s, mut t) = (s0, t0);
@@ -185,7 +203,7 @@ impl Surface {
                     if let Some(c) = exact_corner(s, t) {
                         let li = corner_limit[c];
                         if li != NO_LIMIT {
-                            return self.at_extraordinary(b, s0, t0, li as usize);
+                            return self.at_extraordinary(b, s0, t0, li as usize, cached);
                         }
                     }
                     let c = quadrant(s, t);
@@ -196,11 +214,19 @@ impl Surface {
                     depth += 1;
                 }
                 Node::Deep => {
-                    let mut m = extract_submesh(&self.base, FaceId(b.0));
-                    for &c in &path[..depth] {
-                        m = extract_submesh(&refine(&m), FaceId::from_idx(c as usize));
+                    let root = || {
+                        let mut m = extract_submesh(&self.base, FaceId(b.0));
+                        for &c in &path[..depth] {
+                            m = extract_submesh(&refine(&m), FaceId::from_idx(c as usize));
+                        }
+                        m
+                    };
+                    if cached {
+                        if let Some(r) = self.eval_deep_cached(node, root, s, t, jac) {
+                            return r;
+                        }
                     }
-                    return self.eval_deep(&m, s, t, jac);
+                    return self.eval_deep(&root(), s, t, jac);
                 }
             }
         }
@@ -211,14 +237,75 @@ impl Surface {
     /// the parametric derivatives themselves are singular there. The probe sits at
     /// 2^-max_depth along the diagonal, which the stored tree reaches without on-demand
     /// refinement (at 1e-9 every call refined ~30 levels).
-    fn at_extraordinary(&self, b: BaseQuadId, s0: f64, t0: f64, li: usize) -> LimitSample {
+    fn at_extraordinary(
+        &self,
+        b: BaseQuadId,
+        s0: f64,
+        t0: f64,
+        li: usize,
+        cached: bool,
+    ) -> LimitSample {
         let (p, n) = self.limits[li];
         let eps = 0.5f64.powi(self.max_depth.max(6) as i32);
         let inward = |x: f64| if x < 0.5 { eps } else { 1.0 - eps };
-        let q = self.eval_base(b, inward(s0), inward(t0));
+        let q = self.eval_base_impl(b, inward(s0), inward(t0), cached);
         let du = (q.du - n * n.dot(q.du)).normalize_or_zero();
         let dv = (q.dv - n * n.dot(q.dv)).normalize_or_zero();
         LimitSample { p, du, dv, n }
+    }
+
+    /// [`Self::eval_deep`] through the per-thread cache ([`crate::deep`]): the same
+    /// operations on the same inputs, each done once per thread and Deep node. `None` if
+    /// the cache is busy (re-entrant call) or the point is within 2^-64 of the
+    /// extraordinary vertex (the uncached evaluation decides then).
+    fn eval_deep_cached(
+        &self,
+        node: u32,
+        root: impl FnOnce() -> PolyMesh,
+        mut s: f64,
+        mut t: f64,
+        mut jac: [[f64; 2]; 2],
+    ) -> Option<LimitSample> {
+        DEEP_CACHE.with(|cache| {
+            let mut cache = cache.try_borrow_mut().ok()?;
+            if cache.nodes > deep::CAPACITY {
+                cache.trees.clear();
+                cache.nodes = 0;
+            }
+            let DeepCache { trees, nodes } = &mut *cache;
+            let tree = trees.entry((self.cache_id.0, node)).or_insert_with(|| {
+                *nodes += 1;
+                DeepTree {
+                    nodes: vec![DeepNode::classify(root())],
+                }
+            });
+            let mut i = 0;
+            for _ in 0..64 {
+                let m = match &tree.nodes[i] {
+                    DeepNode::Patch(p) => return Some(finish(p.eval(s, t), &jac)),
+                    DeepNode::Mesh { m, .. } => m,
+                };
+                if let Some(c) = exact_corner(s, t) {
+                    let v = VertexId(m.face_vertices(FaceId(0))[c]);
+                    if !m.is_regular_vertex(v) {
+                        let l = vertex_limit(m, v);
+                        return Some(LimitSample {
+                            p: l.position,
+                            du: l.tangent1,
+                            dv: l.tangent2,
+                            n: l.normal,
+                        });
+                    }
+                }
+                let c = quadrant(s, t);
+                (s, t) = to_child(c, s, t);
+                jac = mul_child(c, &jac);
+                let (next, added) = tree.child(i, c);
+                *nodes += added;
+                i = next;
+            }
+            None
+        })
     }
 
     fn eval_deep(
@@ -474,6 +561,62 @@ mod tests {
                     assert_eq!(a.n, d.n, "{shape} base {b} ({s},{t})");
                 }
             }
+        }
+    }
+
+    /// The per-thread cache of levels below the stored depth (crate::deep) must give
+    /// bit-identical values to refining from the base mesh on every evaluation, whether a
+    /// value is computed or read back, in any call order and on any thread, and across
+    /// the cache being emptied when full.
+    #[test]
+    fn deep_cache_matches_uncached_refinement() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../shared/data/opensubdiv-reference");
+        for (shape, depth) in [
+            ("catmark_nonquads", 1),
+            ("catmark_edgecorner", 2),
+            ("catmark_pole8", 1),
+            ("catmark_cube", 3),
+        ] {
+            let cm = crate::ControlMesh::load_obj(dir.join(format!("{shape}.obj"))).unwrap();
+            let s = Surface::with_options(cm, SurfaceOptions { max_depth: depth });
+            // Points spiralling into every corner (down to 2^-30 of it), the corners
+            // themselves and a few interior points: every depth below the stored one.
+            let mut pts = Vec::new();
+            for b in 0..s.num_base_quads() as u32 {
+                for (cs, ct) in [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)] {
+                    pts.push((b, cs, ct));
+                    for k in 1..=30 {
+                        let r = 0.5f64.powi(k) * 0.9;
+                        let a = 0.37 * k as f64;
+                        let (ds, dt) = (r * a.cos().abs(), r * a.sin().abs());
+                        let s_ = if cs == 0.0 { ds } else { 1.0 - ds };
+                        let t_ = if ct == 0.0 { dt } else { 1.0 - dt };
+                        pts.push((b, s_, t_));
+                    }
+                }
+                pts.push((b, 0.3, 0.01));
+                pts.push((b, 0.5, 0.5));
+            }
+            let want: Vec<LimitSample> = pts
+                .iter()
+                .map(|&(b, u, v)| s.eval_base_uncached(BaseQuadId(b), u, v))
+                .collect();
+            let check = |order: &mut dyn Iterator<Item = usize>| {
+                for i in order {
+                    let (b, u, v) = pts[i];
+                    let got = s.eval_base(BaseQuadId(b), u, v);
+                    assert_eq!(got, want[i], "{shape} base {b} ({u},{v})");
+                }
+            };
+            // Forward twice (computed, then read back), backward, and on other threads.
+            check(&mut (0..pts.len()));
+            check(&mut (0..pts.len()));
+            check(&mut (0..pts.len()).rev());
+            std::thread::scope(|sc| {
+                sc.spawn(|| check(&mut (0..pts.len()).rev().step_by(3)));
+                sc.spawn(|| check(&mut (0..pts.len()).step_by(7)));
+            });
         }
     }
 
