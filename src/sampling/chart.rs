@@ -140,6 +140,11 @@ pub fn sample_pattern(
         let mut nodes;
         let grid = if order == PatternOrder::Geodesic && k <= MAX_ODE_K && h > 0 {
             nodes = Nodes::new(surface, chart, cp.y, t1, t2, h as f64);
+            // The box's corners are the first nodes: one beyond the chart (not merely off
+            // the surface) means the pattern does not fit, before any grid is built.
+            if nodes.ensure(STRIDES[0]).is_some() && nodes.corner_outside_chart() {
+                continue 'charts;
+            }
             geodesic_pattern(&mut nodes, k, &mut zs)
         } else {
             None
@@ -345,6 +350,20 @@ impl<'a> Nodes<'a> {
             state: [0; NODES * NODES],
             hints: [None; NODES * NODES],
         }
+    }
+
+    /// Whether a corner of the pattern box (evaluated) lies outside the chart, as opposed
+    /// to on the surface or beyond an open boundary.
+    fn corner_outside_chart(&self) -> bool {
+        let last = NODES - 1;
+        [(0, 0), (last, 0), (0, last), (last, last)].iter().any(|&(i, j)| {
+            let z = DVec2::new(
+                -self.h + i as f64 * self.spacing(),
+                -self.h + j as f64 * self.spacing(),
+            );
+            self.state[j * NODES + i] == 2
+                && !off_surface(self.chart, self.y0 + self.t1 * z.x + self.t2 * z.y)
+        })
     }
 
     /// Lattice spacing in pattern units.

@@ -169,7 +169,7 @@ impl Surface {
         self.roots.len()
     }
 
-    /// Evaluates base quad `b` at (s, t) in [0,1]^2; derivatives are with respect to s, t.
+    /// Evaluates base quad `b` at (s, t) in [0, 1]²; derivatives are with respect to s, t.
     pub fn eval_base(&self, b: BaseQuadId, s: f64, t: f64) -> LimitSample {
         self.eval_base_impl(b, s, t, true)
     }
