@@ -356,14 +356,16 @@ impl<'a> Nodes<'a> {
     /// to on the surface or beyond an open boundary.
     fn corner_outside_chart(&self) -> bool {
         let last = NODES - 1;
-        [(0, 0), (last, 0), (0, last), (last, last)].iter().any(|&(i, j)| {
-            let z = DVec2::new(
-                -self.h + i as f64 * self.spacing(),
-                -self.h + j as f64 * self.spacing(),
-            );
-            self.state[j * NODES + i] == 2
-                && !off_surface(self.chart, self.y0 + self.t1 * z.x + self.t2 * z.y)
-        })
+        [(0, 0), (last, 0), (0, last), (last, last)]
+            .iter()
+            .any(|&(i, j)| {
+                let z = DVec2::new(
+                    -self.h + i as f64 * self.spacing(),
+                    -self.h + j as f64 * self.spacing(),
+                );
+                self.state[j * NODES + i] == 2
+                    && !off_surface(self.chart, self.y0 + self.t1 * z.x + self.t2 * z.y)
+            })
     }
 
     /// Lattice spacing in pattern units.
