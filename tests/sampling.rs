@@ -449,3 +449,50 @@ fn masked_fetch_uses_the_nearest_valid_texel() {
     assert!((out[0] - (0.2 * t11 as f32 + 0.8 * t21 as f32)).abs() < 1e-4);
     assert!(!maps.sample_valid(loc, |_| false, &mut out));
 }
+
+/// `surfsynth bench sampling` reports one row per sampler with the chart rows split by
+/// method; bad sizes are a one-line error.
+#[test]
+fn bench_sampling_cli_reports_every_sampler() {
+    use std::process::Command;
+    let o = Command::new(env!("CARGO_BIN_EXE_surfsynth"))
+        .args(["bench", "sampling", "--size", "5", "--patterns", "300"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let rows: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let rows = rows.as_array().unwrap();
+    let names: Vec<&str> = rows
+        .iter()
+        .map(|r| r["sampler"].as_str().unwrap())
+        .collect();
+    assert_eq!(names, ["chart", "chart-unchecked", "march"]);
+    for r in rows {
+        assert_eq!(r["k"], 5);
+        assert_eq!(r["patterns"], 300);
+        assert!(r["samples_per_second"].as_f64().unwrap() > 0.0);
+        let fb = r["fallback_rate"].as_f64().unwrap();
+        assert!((0.0..=1.0).contains(&fb));
+    }
+    // Spot: some chart patterns are marched (next to extraordinary vertices), most not.
+    let fb = rows[0]["fallback_rate"].as_f64().unwrap();
+    assert!(fb > 0.0 && fb < 0.5, "fallback rate {fb}");
+    assert!(
+        rows[0]["chart_sampled_samples_per_second"]
+            .as_f64()
+            .unwrap()
+            > 0.0
+    );
+    assert!(rows[0]["marched_samples_per_second"].as_f64().unwrap() > 0.0);
+    assert!(rows[2]["chart_sampled_samples_per_second"].is_null());
+    let o = Command::new(env!("CARGO_BIN_EXE_surfsynth"))
+        .args(["bench", "sampling", "--size", "4"])
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("--size 4") && err.lines().count() == 1,
+        "{err}"
+    );
+}
