@@ -46,13 +46,17 @@ pub const MAX_PATCH_DEPTH: u32 = 10;
 
 /// Loads a control mesh and builds its surface with the patch depth `n` needs.
 pub fn load_surface_for(path: impl AsRef<Path>, n: usize) -> Result<Surface> {
-    let control = subdiv::ControlMesh::load_obj(path)?;
-    Ok(Surface::with_options(
+    Ok(surface_for(subdiv::ControlMesh::load_obj(path)?, n))
+}
+
+/// The surface of `control` with the patch depth maps of resolution `n` need.
+pub fn surface_for(control: subdiv::ControlMesh, n: usize) -> Surface {
+    Surface::with_options(
         control,
         subdiv::surface::SurfaceOptions {
             max_depth: patch_depth_for(n),
         },
-    ))
+    )
 }
 
 /// Evaluates domain `d` at its N x N texel centres ((x+0.5)/N, (y+0.5)/N) into `out`:

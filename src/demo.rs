@@ -19,6 +19,12 @@ use std::path::Path;
 pub const MESH_OBJ: &[u8] = include_bytes!("../fixtures/spot_control_mesh.obj");
 /// File name of the mesh in `DIR/inputs/`.
 pub const MESH_NAME: &str = "spot_control_mesh.obj";
+
+/// The bundled mesh, parsed (for commands that default to it without a file on disk).
+pub fn control_mesh() -> subdiv::ControlMesh {
+    let text = std::str::from_utf8(MESH_OBJ).expect("the bundled mesh is UTF-8");
+    subdiv::ControlMesh::parse_obj(text).expect("the bundled mesh parses")
+}
 /// 128x128 gravel (scikit-image, CC0), a stochastic texture coherent synthesis handles well.
 pub const EXAMPLE_PNG: &[u8] = include_bytes!("../fixtures/gravel.png");
 /// File name of the example in `DIR/inputs/`.
@@ -89,6 +95,8 @@ mod tests {
         // Small, as the licence file promises.
         let ex = crate::example::Example::load(dir.join(EXAMPLE_NAME)).unwrap();
         assert_eq!((ex.width, ex.height), (128, 128));
+        // The parsed bundled mesh is the file's mesh (252 domains, as the demo reports).
+        assert_eq!(control_mesh().num_domains(), 252);
         let licences = std::fs::read_to_string(dir.join("LICENSES.txt")).unwrap();
         for name in [MESH_NAME, EXAMPLE_NAME] {
             assert!(licences.contains(name), "{name} has a licence entry");

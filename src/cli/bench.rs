@@ -31,7 +31,7 @@ pub enum BenchCommand {
 
 #[derive(Args, Debug)]
 pub struct BenchSamplingArgs {
-    /// Mesh (default: the bundled fixtures/spot_control_mesh.obj).
+    /// Mesh (default: the bundled Spot control mesh, as in `surfsynth demo`).
     #[arg(long, value_name = "M.obj")]
     pub mesh: Option<PathBuf>,
     /// Pattern sizes K (odd).
@@ -129,9 +129,6 @@ pub fn run(a: BenchArgs) -> anyhow::Result<()> {
 
 fn sampling(a: BenchSamplingArgs) -> anyhow::Result<()> {
     use surfsynth::field::{Orientation, OrientationField};
-    let mesh = a.mesh.unwrap_or_else(|| {
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("fixtures/spot_control_mesh.obj")
-    });
     if a.patterns == 0 || a.patterns > 10_000_000 {
         anyhow::bail!("--patterns {} must be between 1 and 10000000", a.patterns);
     }
@@ -145,9 +142,19 @@ fn sampling(a: BenchSamplingArgs) -> anyhow::Result<()> {
     {
         anyhow::bail!("--step {t}: steps must be in (0, 64] texel spacings");
     }
-    let surface = surfsynth::bake::load_surface_for(&mesh, a.resolution)?;
+    // Default: the bundled Spot (built into the binary, as the demo's).
+    let (surface, name) = match &a.mesh {
+        Some(p) => (
+            surfsynth::bake::load_surface_for(p, a.resolution)?,
+            p.display().to_string(),
+        ),
+        None => (
+            surfsynth::bake::surface_for(surfsynth::demo::control_mesh(), a.resolution),
+            surfsynth::demo::MESH_NAME.to_string(),
+        ),
+    };
     let field = OrientationField::compute(&surface, &Orientation::Auto)
-        .map_err(|e| anyhow::anyhow!("{}: {e}", mesh.display()))?;
+        .map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
     let mut rows = Vec::new();
     for &k in &a.size {
         for &t in &a.step {
