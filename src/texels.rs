@@ -522,18 +522,7 @@ mod tests {
     }
 
     fn cube() -> Surface {
-        let pos: Vec<DVec3> = (0..8)
-            .map(|i| DVec3::new((i & 1) as f64, ((i >> 1) & 1) as f64, (i >> 2) as f64))
-            .collect();
-        let faces: [&[u32]; 6] = [
-            &[0, 2, 3, 1],
-            &[4, 5, 7, 6],
-            &[0, 1, 5, 4],
-            &[2, 6, 7, 3],
-            &[0, 4, 6, 2],
-            &[1, 3, 7, 5],
-        ];
-        Surface::new(ControlMesh::from_faces(pos, &faces).unwrap())
+        Surface::new(ControlMesh::cuboid(DVec3::ZERO, DVec3::ONE))
     }
 
     fn shared(path: &str) -> Surface {

@@ -407,24 +407,8 @@ fn samplers_follow_the_exact_exponential_map() {
 #[test]
 fn thin_box_spacing_is_the_exact_maps_own() {
     use subdiv::ControlMesh;
-    let (x, y, z) = (2.0, 1.0, 0.05);
-    let p = |i: u32| {
-        DVec3::new(
-            if i & 1 == 0 { -x } else { x },
-            if i & 2 == 0 { -y } else { y },
-            if i & 4 == 0 { -z } else { z },
-        )
-    };
-    let verts: Vec<DVec3> = (0..8).map(p).collect();
-    let faces: [&[u32]; 6] = [
-        &[0, 2, 3, 1],
-        &[4, 5, 7, 6],
-        &[0, 1, 5, 4],
-        &[2, 6, 7, 3],
-        &[0, 4, 6, 2],
-        &[1, 3, 7, 5],
-    ];
-    let s = Surface::new(ControlMesh::from_faces(verts, &faces).unwrap());
+    let half = DVec3::new(2.0, 1.0, 0.05);
+    let s = Surface::new(ControlMesh::cuboid(-half, half));
     let f = OrientationField::compute(&s, &Orientation::Auto).unwrap();
     let sam = Sampler::new(&s, &f);
     let delta = surfsynth::sampling::median_texel_spacing(&s, 32);

@@ -132,6 +132,30 @@ impl ControlMesh {
         Self::from_polygons(pos, fs, fv).expect("a grid is a valid mesh")
     }
 
+    /// An axis-aligned box from `min` to `max`: 8 vertices (vertex i has bit 0, 1, 2 of i
+    /// choosing max over min in x, y, z), 6 outward-facing quads. Every vertex has valence
+    /// 3, so its limit surface is a rounded box with eight extraordinary corners.
+    pub fn cuboid(min: DVec3, max: DVec3) -> Self {
+        let pos = (0..8)
+            .map(|i| {
+                DVec3::new(
+                    if i & 1 == 0 { min.x } else { max.x },
+                    if i & 2 == 0 { min.y } else { max.y },
+                    if i & 4 == 0 { min.z } else { max.z },
+                )
+            })
+            .collect();
+        let faces: [&[u32]; 6] = [
+            &[0, 2, 3, 1],
+            &[4, 5, 7, 6],
+            &[0, 1, 5, 4],
+            &[2, 6, 7, 3],
+            &[0, 4, 6, 2],
+            &[1, 3, 7, 5],
+        ];
+        Self::from_faces(pos, &faces).expect("a box is a valid mesh")
+    }
+
     /// Number of Ptex face domains: 1 per quad, n per n-gon.
     pub fn num_domains(&self) -> usize {
         (0..self.mesh.num_faces())
@@ -171,6 +195,27 @@ mod tests {
     }
 
     const QUAD: &str = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n";
+
+    /// The box is closed, its faces point outward (each face's normal, by Newell's
+    /// formula, points away from the centre) and it spans min..max.
+    #[test]
+    fn cuboid_is_a_closed_outward_box() {
+        let (min, max) = (DVec3::new(-2.0, -1.0, -0.5), DVec3::new(2.0, 1.0, 0.5));
+        let m = ControlMesh::cuboid(min, max);
+        assert_eq!(m.num_domains(), 6);
+        assert_eq!(m.bounds(), (min, max));
+        let centre = (min + max) * 0.5;
+        for f in 0..m.mesh.num_faces() {
+            let vs = m.mesh.face_vertices(crate::FaceId::from_idx(f));
+            let p: Vec<DVec3> = vs.iter().map(|&v| m.mesh.positions[v as usize]).collect();
+            let n = (0..4).fold(DVec3::ZERO, |a, i| a + p[i].cross(p[(i + 1) % 4]));
+            let c = p.iter().sum::<DVec3>() / 4.0;
+            assert!(n.dot(c - centre) > 0.0, "face {f} points inward");
+        }
+        for v in 0..8 {
+            assert!(!m.mesh.is_boundary_vertex(crate::VertexId::from_idx(v)));
+        }
+    }
 
     #[test]
     fn reads_ngons_groups_and_negative_indices() {
