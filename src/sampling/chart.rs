@@ -566,9 +566,7 @@ impl<'n, 'a> ChristoffelGrid<'n, 'a> {
         if !gamma[..nn * nn].iter().flatten().all(|v| v.is_finite()) {
             return None;
         }
-        let mut grid = Self::with_gamma(nodes, stride, gamma);
-        grid.complete = complete;
-        Some(grid)
+        Some(Self::with_gamma(nodes, stride, gamma))
     }
 
     /// A grid with Γ already computed (by [`Self::new`] for the same nodes and stride).
@@ -625,7 +623,7 @@ impl<'n, 'a> ChristoffelGrid<'n, 'a> {
         (iy * nn + ix, fx - ix as f64, fy - iy as f64)
     }
 
-    /// Whether every pattern point lies within the grid's box (to 1e-9).
+    /// Whether every pattern point lies within the grid's box, up to [`COVER_MARGIN`].
     fn covers(&self, zs: &[DVec2]) -> bool {
         // Rim geodesics usually end a little outside the box; the metric is held constant
         // beyond it, which is accurate for an overshoot of a fraction of a sample step.

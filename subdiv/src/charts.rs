@@ -172,15 +172,7 @@ impl VertexChart {
     /// Φ⁻¹ with Φ and DΦ at the point found (saves the caller a [`Self::phi`]; DΦ is the
     /// one of Newton's last iterate, within ~1e-6 of the point).
     pub fn phi_inv_point(&self, y: DVec2) -> Option<(BaseLocation, ChartPoint)> {
-        let (loc, j, _, jac) = self.locate(y, None)?;
-        let c = self.sectors[j].1 as usize;
-        Some((
-            loc,
-            ChartPoint {
-                y,
-                jacobian: base_jacobian(c, jac),
-            },
-        ))
+        self.phi_inv_hinted(y, &mut None)
     }
 
     /// As [`Self::phi_inv_point`], with Newton's method started from `hint` (the
