@@ -35,9 +35,9 @@
 //! candidate is tried, then marching. This is where the linearisation the paper relies on
 //! ("the sampling neighbourhood is small enough that various maps can be replaced by their
 //! linearized versions") does not hold: at coarse pattern scales, and next to
-//! extraordinary vertices whose curvature is unbounded. The chords come from the grid's
-//! metric (no evaluation) where the grid covers the pattern, else from one limit
-//! evaluation per sample.
+//! extraordinary vertices whose curvature is unbounded. Each chord comes from the grid's
+//! metric (no evaluation) where the grid is known around it, else from limit evaluations
+//! at its two samples.
 //!
 //! The four corner samples are mapped first, so a pattern that does not fit is usually
 //! rejected after four Φ⁻¹ instead of K².
@@ -133,6 +133,7 @@ pub fn sample_pattern(
             g: node_g,
             hints: node_hints,
             gamma,
+            pos,
         } = &mut **scratch;
         'charts: for v in candidates(surface, loc) {
             let Some(chart) = charts.chart(v) else {
@@ -221,12 +222,15 @@ pub fn sample_pattern(
             }
             if let Some(tol) = tolerance {
                 let square = match &grid {
-                    // Nodes outside the chart carry copied values, and the grid's metric is
-                    // clamped beyond its box (strongly distorted charts carry the geodesics
-                    // past it): evaluate instead.
-                    Some(grid) if grid.complete && grid.covers(&zs[..k * k]) => {
-                        grid.pattern_is_square(&zs[..k * k], &out[..k * k], k, delta, tol)
-                    }
+                    Some(grid) => grid.pattern_is_square(
+                        surface,
+                        &zs[..k * k],
+                        &out[..k * k],
+                        pos,
+                        k,
+                        delta,
+                        tol,
+                    ),
                     _ => pattern_is_square(surface, &out[..k * k], k, delta, tol),
                 };
                 if !square {
@@ -253,6 +257,8 @@ struct Scratch {
     hints: [Option<ChartHint>; NODES * NODES],
     /// Christoffel symbols of the three nested grids.
     gamma: [[[DVec2; 3]; NODES * NODES]; 3],
+    /// Limit positions of samples, where the check needs them.
+    pos: [Option<DVec3>; MAX_ODE_K * MAX_ODE_K],
 }
 
 thread_local! {
@@ -262,6 +268,7 @@ thread_local! {
         g: [[DVec3::ZERO; 2]; NODES * NODES],
         hints: [None; NODES * NODES],
         gamma: [[[DVec2::ZERO; 3]; NODES * NODES]; 3],
+        pos: [None; MAX_ODE_K * MAX_ODE_K],
     }));
 }
 
@@ -681,14 +688,6 @@ impl<'n, 'a> ChristoffelGrid<'n, 'a> {
         )
     }
 
-    /// Whether every pattern point lies within the grid's box, up to [`COVER_MARGIN`].
-    fn covers(&self, zs: &[DVec2]) -> bool {
-        // Rim geodesics usually end a little outside the box; the metric is held constant
-        // beyond it, which is accurate for an overshoot of a fraction of a sample step.
-        let r = self.h + COVER_MARGIN;
-        zs.iter().all(|z| z.x.abs() <= r && z.y.abs() <= r)
-    }
-
     /// The Φ⁻¹ warm start of the node nearest pattern point z.
     #[inline]
     fn hint_near(&self, z: DVec2) -> Option<ChartHint> {
@@ -699,24 +698,56 @@ impl<'n, 'a> ChristoffelGrid<'n, 'a> {
     }
 
     /// Whether every pair of adjacent samples is δ·(1 ± tol) apart and no cell is flipped,
-    /// from the surface's metric on the grid instead of limit evaluations at the samples:
-    /// the chord between adjacent samples is ∂F/∂z (bilinear between nodes) at their
-    /// midpoint times their pattern offset (second-order accurate: the chord differs from
-    /// it by O(|Δz|³) and the nodes are a sample step or less apart), and a cell of the
-    /// pattern is flipped on the surface exactly when it is flipped in pattern coordinates
-    /// (F is orientation-preserving there). Samples off the surface (`None`) are skipped.
+    /// from the surface's metric on the grid where it is known instead of limit
+    /// evaluations at the samples: the chord between adjacent samples is ∂F/∂z (bilinear
+    /// between nodes) at their midpoint times their pattern offset (second-order accurate:
+    /// the chord differs from it by O(|Δz|³) and the nodes are a sample step or less
+    /// apart), and a cell of the pattern is flipped on the surface exactly when it is
+    /// flipped in pattern coordinates (F is orientation-preserving there). Where the
+    /// midpoint lies more than [`COVER_MARGIN`] outside the grid's box (strongly distorted
+    /// charts carry rim geodesics past it: half of Spot's K = 9 patterns) or a node of its
+    /// cell is not on the surface, the chord is measured between the two samples' limit
+    /// positions instead (`pos`: storage for them). Samples off the surface (`None`) are
+    /// skipped.
+    #[allow(clippy::too_many_arguments)]
     fn pattern_is_square(
         &self,
+        surface: &Surface,
         zs: &[DVec2],
         out: &[Option<DomainLocation>],
+        pos: &mut [Option<DVec3>],
         k: usize,
         delta: f64,
         tol: f64,
     ) -> bool {
         let (lo, hi) = ((delta * (1.0 - tol)).powi(2), (delta * (1.0 + tol)).powi(2));
-        let chord = |a: DVec2, b: DVec2| {
-            let (i0, ax, ay) = self.cell((a + b) * 0.5);
-            let nn = self.n;
+        pos[..k * k].fill(None);
+        let mut exact = |i: usize, j: usize| {
+            let mut at = |i: usize| {
+                *pos[i].get_or_insert_with(|| {
+                    let x = out[i].expect("only samples on the surface are measured");
+                    surface.eval(x.domain, x.u, x.v).p
+                })
+            };
+            (at(j) - at(i)).length_squared()
+        };
+        let r = self.h + COVER_MARGIN;
+        let nn = self.n;
+        let known = |i0: usize| {
+            [i0, i0 + 1, i0 + nn, i0 + nn + 1].iter().all(|&n| {
+                let (i, j) = (n % nn, n / nn);
+                self.nodes.state[(j * NODES + i) * self.stride] == 1
+            })
+        };
+        let metric = |a: DVec2, b: DVec2| -> Option<f64> {
+            let mid = (a + b) * 0.5;
+            if mid.x.abs() > r || mid.y.abs() > r {
+                return None;
+            }
+            let (i0, ax, ay) = self.cell(mid);
+            if !self.complete && !known(i0) {
+                return None;
+            }
             let (c00, c10, c01, c11) = (
                 self.g(i0),
                 self.g(i0 + 1),
@@ -732,19 +763,19 @@ impl<'n, 'a> ChristoffelGrid<'n, 'a> {
             let gl = c00[0] * w[0] + c10[0] * w[1] + c01[0] * w[2] + c11[0] * w[3];
             let gm = c00[1] * w[0] + c10[1] * w[1] + c01[1] * w[2] + c11[1] * w[3];
             let d = b - a;
-            (gl * d.x + gm * d.y).length_squared()
+            Some((gl * d.x + gm * d.y).length_squared())
         };
+        let mut chord = |i: usize, j: usize| metric(zs[i], zs[j]).unwrap_or_else(|| exact(i, j));
         for m in 0..k {
             for l in 0..k {
                 let i = m * k + l;
                 if out[i].is_none() {
                     continue;
                 }
-                let z = zs[i];
-                if l > 0 && out[i - 1].is_some() && !(lo..=hi).contains(&chord(zs[i - 1], z)) {
+                if l > 0 && out[i - 1].is_some() && !(lo..=hi).contains(&chord(i - 1, i)) {
                     return false;
                 }
-                if m > 0 && out[i - k].is_some() && !(lo..=hi).contains(&chord(zs[i - k], z)) {
+                if m > 0 && out[i - k].is_some() && !(lo..=hi).contains(&chord(i - k, i)) {
                     return false;
                 }
                 // Cell with corner (l-1, m-1).
