@@ -131,6 +131,7 @@ pub fn sample_pattern(
             zs,
             za,
             g: node_g,
+            metric: node_metric,
             hints: node_hints,
             gamma,
             pos,
@@ -149,7 +150,15 @@ pub fn sample_pattern(
             // `zs`.
             let mut nodes;
             let grid = if order == PatternOrder::Geodesic && k <= MAX_ODE_K && h > 0 {
-                nodes = Nodes::new(surface, chart, cp.y, t1, t2, h as f64, node_g, node_hints);
+                nodes = Nodes::new(
+                    surface,
+                    chart,
+                    cp.y,
+                    t1,
+                    t2,
+                    h as f64,
+                    (node_g, node_metric, node_hints),
+                );
                 // The box's corners are the first nodes: one beyond the chart (not merely off
                 // the surface) means the pattern does not fit, before any grid is built.
                 if nodes.ensure(STRIDES[0]).is_some() && nodes.corner_outside_chart() {
@@ -254,6 +263,7 @@ struct Scratch {
     za: [DVec2; MAX_ODE_K * MAX_ODE_K],
     /// [`Nodes`]' values and Φ⁻¹ warm starts.
     g: [[DVec3; 2]; NODES * NODES],
+    metric: [[f64; 3]; NODES * NODES],
     hints: [Option<ChartHint>; NODES * NODES],
     /// Christoffel symbols of the three nested grids.
     gamma: [[[DVec2; 3]; NODES * NODES]; 3],
@@ -266,6 +276,7 @@ thread_local! {
         zs: [DVec2::ZERO; MAX_ODE_K * MAX_ODE_K],
         za: [DVec2::ZERO; MAX_ODE_K * MAX_ODE_K],
         g: [[DVec3::ZERO; 2]; NODES * NODES],
+        metric: [[0.0; 3]; NODES * NODES],
         hints: [None; NODES * NODES],
         gamma: [[[DVec2::ZERO; 3]; NODES * NODES]; 3],
         pos: [None; MAX_ODE_K * MAX_ODE_K],
@@ -355,6 +366,13 @@ const STRIDES: [usize; 3] = [4, 2, 1];
 /// about a third of it (0.2% of δ) off the geodesics; otherwise the 9-node grid is used.
 const ACCEPT_5: f64 = 0.006;
 
+/// Storage of [`Nodes`]: values, metric, warm starts.
+type NodeStorage<'a> = (
+    &'a mut [[DVec3; 2]; NODES * NODES],
+    &'a mut [[f64; 3]; NODES * NODES],
+    &'a mut [Option<ChartHint>; NODES * NODES],
+);
+
 /// ∂F/∂l, ∂F/∂m (F = f∘Φ⁻¹ in pattern coordinates z, chart point y = y0 + z.x·T1 +
 /// z.y·T2) at the nodes of a NODES×NODES lattice over the pattern box [−h, h]²,
 /// evaluated on demand one nested level at a time, so a coarse grid's evaluations are
@@ -368,6 +386,8 @@ struct Nodes<'a> {
     h: f64,
     /// Valid where `state` is 1.
     g: &'a mut [[DVec3; 2]; NODES * NODES],
+    /// The metric in pattern coordinates, g_ab = ∂_aF·∂_bF: (ll, lm, mm), where `state` is 1.
+    metric: &'a mut [[f64; 3]; NODES * NODES],
     /// 0: not evaluated, 1: on the surface, 2: outside the chart or off the surface.
     state: [u8; NODES * NODES],
     /// The Φ⁻¹ solution per node (`None` where `state` is 2): a warm start for nearby
@@ -376,8 +396,8 @@ struct Nodes<'a> {
 }
 
 impl<'a> Nodes<'a> {
-    /// Nodes over the pattern box, none evaluated yet; `g` and `hints` are storage.
-    #[allow(clippy::too_many_arguments)]
+    /// Nodes over the pattern box, none evaluated yet; `storage` holds `g`, `metric` and
+    /// `hints`.
     fn new(
         surface: &'a Surface,
         chart: &'a VertexChart,
@@ -385,9 +405,9 @@ impl<'a> Nodes<'a> {
         t1: DVec2,
         t2: DVec2,
         h: f64,
-        g: &'a mut [[DVec3; 2]; NODES * NODES],
-        hints: &'a mut [Option<ChartHint>; NODES * NODES],
+        storage: NodeStorage<'a>,
     ) -> Self {
+        let (g, metric, hints) = storage;
         Nodes {
             surface,
             chart,
@@ -396,6 +416,7 @@ impl<'a> Nodes<'a> {
             t2,
             h,
             g,
+            metric,
             state: [0; NODES * NODES],
             hints,
         }
@@ -449,7 +470,9 @@ impl<'a> Nodes<'a> {
                 let e = self.surface.eval_base(x.quad, x.s, x.t);
                 let a = chart_differential(e.du, e.dv, cp.jacobian)?;
                 let (t1, t2) = (self.t1, self.t2);
-                self.g[n] = [a[0] * t1.x + a[1] * t1.y, a[0] * t2.x + a[1] * t2.y];
+                let (gl, gm) = (a[0] * t1.x + a[1] * t1.y, a[0] * t2.x + a[1] * t2.y);
+                self.g[n] = [gl, gm];
+                self.metric[n] = [gl.dot(gl), gl.dot(gm), gm.dot(gm)];
                 self.state[n] = 1;
             }
         }
@@ -642,13 +665,6 @@ impl<'n, 'a> ChristoffelGrid<'n, 'a> {
         }
     }
 
-    /// ∂F/∂l, ∂F/∂m at grid node n.
-    #[inline]
-    fn g(&self, n: usize) -> &[DVec3; 2] {
-        let (i, j) = (n % self.n, n / self.n);
-        &self.nodes.g[(j * NODES + i) * self.stride]
-    }
-
     /// The pattern: `zs[(m+h)·K + (l+h)]` = the geodesic's point for sample (l, m), for
     /// the samples on the chosen rays (primitive directions and their multiples).
     fn pattern(&self, k: usize, rays: Rays, zs: &mut [DVec2]) {
@@ -674,6 +690,13 @@ impl<'n, 'a> ChristoffelGrid<'n, 'a> {
     /// Cell of pattern point z: lower-left node index and bilinear weights.
     #[inline]
     fn cell(&self, z: DVec2) -> (usize, f64, f64) {
+        let (ix, iy, ax, ay) = self.cell_xy(z);
+        (iy * self.n + ix, ax, ay)
+    }
+
+    /// [`Self::cell`] with the cell's column and row.
+    #[inline]
+    fn cell_xy(&self, z: DVec2) -> (usize, usize, f64, f64) {
         let nn = self.n;
         // Clamped to the last cell (weights up to 1 at its far side); i32 because a float
         // to usize conversion costs ~4 times as many instructions.
@@ -681,11 +704,7 @@ impl<'n, 'a> ChristoffelGrid<'n, 'a> {
         let fx = ((z.x + self.h) * self.inv_step).clamp(0.0, (nn - 1) as f64);
         let fy = ((z.y + self.h) * self.inv_step).clamp(0.0, (nn - 1) as f64);
         let (ix, iy) = ((fx as i32).min(last), (fy as i32).min(last));
-        (
-            iy as usize * nn + ix as usize,
-            fx - ix as f64,
-            fy - iy as f64,
-        )
+        (ix as usize, iy as usize, fx - ix as f64, fy - iy as f64)
     }
 
     /// The Φ⁻¹ warm start of the node nearest pattern point z.
@@ -744,26 +763,27 @@ impl<'n, 'a> ChristoffelGrid<'n, 'a> {
             if mid.x.abs() > r || mid.y.abs() > r {
                 return None;
             }
-            let (i0, ax, ay) = self.cell(mid);
-            if !self.complete && !known(i0) {
+            let (ix, iy, ax, ay) = self.cell_xy(mid);
+            if !self.complete && !known(iy * nn + ix) {
                 return None;
             }
-            let (c00, c10, c01, c11) = (
-                self.g(i0),
-                self.g(i0 + 1),
-                self.g(i0 + nn),
-                self.g(i0 + nn + 1),
+            // Lattice indices of the cell's corners.
+            let (n0, di, dj) = (
+                (iy * NODES + ix) * self.stride,
+                self.stride,
+                NODES * self.stride,
             );
+            let m = &self.nodes.metric;
+            let (c00, c10, c01, c11) = (&m[n0], &m[n0 + di], &m[n0 + dj], &m[n0 + dj + di]);
             let w = [
                 (1.0 - ax) * (1.0 - ay),
                 ax * (1.0 - ay),
                 (1.0 - ax) * ay,
                 ax * ay,
             ];
-            let gl = c00[0] * w[0] + c10[0] * w[1] + c01[0] * w[2] + c11[0] * w[3];
-            let gm = c00[1] * w[0] + c10[1] * w[1] + c01[1] * w[2] + c11[1] * w[3];
+            let g = |c: usize| c00[c] * w[0] + c10[c] * w[1] + c01[c] * w[2] + c11[c] * w[3];
             let d = b - a;
-            Some((gl * d.x + gm * d.y).length_squared())
+            Some(g(0) * d.x * d.x + 2.0 * g(1) * d.x * d.y + g(2) * d.y * d.y)
         };
         let mut chord = |i: usize, j: usize| metric(zs[i], zs[j]).unwrap_or_else(|| exact(i, j));
         for m in 0..k {
