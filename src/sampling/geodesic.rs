@@ -188,6 +188,35 @@ pub fn geodesic_end_from(
     st.advance(surface, steps, tol).map(|st| st.loc)
 }
 
+/// The geodesic from `start` (whose limit sample is `e0`) with initial tangent `v`, ended
+/// after each of `segments` segments of arc length |v|: `at(j, end)` for j = 1..=segments,
+/// `end` `None` from the first point past an open boundary (or a failed projection) on.
+/// Each segment is ⌈|v| / `max_step`⌉ RATTLE steps, so the point after j segments is
+/// integrated with steps no longer than [`geodesic_end_from`]'s for j·v. What marching
+/// uses for the multiples (j·l0, j·m0) of a primitive pattern direction (one path each).
+pub fn geodesic_ends_from(
+    surface: &Surface,
+    start: BaseLocation,
+    e0: &LimitSample,
+    v: DVec3,
+    segments: usize,
+    max_step: f64,
+    mut at: impl FnMut(usize, Option<BaseLocation>),
+) {
+    let len = v.length();
+    let mut state = (len.is_finite() && max_step > 0.0).then_some(State {
+        loc: start,
+        e: *e0,
+        v: v - e0.n * e0.n.dot(v),
+    });
+    let steps = ((len / max_step).ceil() as usize).clamp(1, 1 << 16);
+    let tol = 1e-10 * (len * segments as f64).max(1e-300);
+    for j in 1..=segments {
+        state = state.and_then(|st| st.advance(surface, steps, tol));
+        at(j, state.map(|st| st.loc));
+    }
+}
+
 /// The reference pattern: `out[(m+h)·K + (l+h)]` = exp_x(δ·(l·v1 + m·v2)) (3D position and
 /// domain point), `None` past an open boundary. Each primitive direction (l0, m0) (gcd 1)
 /// is integrated once, with `substeps` RATTLE steps per |(l0, m0)|·δ of arc, and its
