@@ -33,6 +33,12 @@ pub struct GeodesicPoint {
 /// the tangent plane at the previous point: q is x moved along the previous normal),
 /// starting at `from` (whose limit sample is `e_from`). `None` if the point is off the
 /// surface (beyond an open boundary) or Newton does not converge.
+///
+/// `guess` is a predicted parameter move from `from`: Newton starts there instead if its
+/// residual is below half of `from`'s. The flag returned tells whether the point is in
+/// `from`'s base quad with no base-quad edge crossed on the way (the move is then the
+/// difference of the parameters).
+#[allow(clippy::too_many_arguments)]
 fn project_along(
     surface: &Surface,
     from: BaseLocation,
@@ -41,15 +47,28 @@ fn project_along(
     a: DVec3,
     b: DVec3,
     tol: f64,
-) -> Option<(BaseLocation, LimitSample)> {
+    guess: Option<(f64, f64)>,
+) -> Option<(BaseLocation, LimitSample, bool)> {
     let mut loc = from;
     let mut e = e_from;
+    let mut same_quad = true;
+    if let Some((ds, dt)) = guess {
+        if let Some((next, crossed)) = surface.walk_base(from, ds, dt) {
+            let en = surface.eval_base(next.quad, next.s, next.t);
+            let (r0, r1) = (e.p - x, en.p - x);
+            let g0 = r0.dot(a).powi(2) + r0.dot(b).powi(2);
+            let g1 = r1.dot(a).powi(2) + r1.dot(b).powi(2);
+            if g1 < 0.25 * g0 {
+                (loc, e, same_quad) = (next, en, crossed == 0);
+            }
+        }
+    }
     for _ in 0..60 {
         let r = e.p - x;
         let g = (r.dot(a), r.dot(b));
         let gn = (g.0 * g.0 + g.1 * g.1).sqrt();
         if gn <= tol {
-            return Some((loc, e));
+            return Some((loc, e, same_quad && loc.quad == from.quad));
         }
         let (j00, j01, j10, j11) = (a.dot(e.du), a.dot(e.dv), b.dot(e.du), b.dot(e.dv));
         let det = j00 * j11 - j01 * j10;
@@ -67,11 +86,12 @@ fn project_along(
         }
         let mut accepted = false;
         for _ in 0..30 {
-            if let Some((next, _)) = surface.walk_base(loc, ds, dt) {
+            if let Some((next, crossed)) = surface.walk_base(loc, ds, dt) {
                 let en = surface.eval_base(next.quad, next.s, next.t);
                 let rn = en.p - x;
                 let gn2 = (rn.dot(a).powi(2) + rn.dot(b).powi(2)).sqrt();
                 if gn2 < gn || gn2 <= tol {
+                    same_quad &= crossed == 0;
                     loc = next;
                     e = en;
                     accepted = true;
@@ -90,6 +110,11 @@ fn project_along(
     None
 }
 
+/// Projection tolerance of the marching geodesics, in units of their longest step: each
+/// RATTLE point is on the surface to 1e-7 of a step (5e-8 δ). Measured: the marched
+/// patterns move by at most ~5e-6 δ against 1e-10 of the geodesic's length (the
+/// integration error is ~1e-3 δ), with 10–15% fewer evaluations.
+const PROJECTION_TOL: f64 = 1e-7;
 /// Unit vectors spanning the plane normal to `n`.
 fn plane_axes(n: DVec3) -> (DVec3, DVec3) {
     let a = n.any_orthonormal_vector();
@@ -112,11 +137,7 @@ pub fn geodesic(
 ) {
     out.clear();
     let e0 = surface.eval_base(start.quad, start.s, start.t);
-    let mut state = Some(State {
-        loc: start,
-        e: e0,
-        v: v - e0.n * e0.n.dot(v),
-    });
+    let mut state = Some(State::new(start, e0, v));
     for _ in 0..segments {
         state = state.and_then(|st| st.advance(surface, substeps, tol));
         out.push(state.map(|st| GeodesicPoint {
@@ -126,23 +147,59 @@ pub fn geodesic(
     }
 }
 
-/// RATTLE state: point (base location and its limit sample) and tangent velocity.
+/// RATTLE state: point (base location and its limit sample), tangent velocity, and the
+/// second-order part of the last step's parameter move.
 #[derive(Clone, Copy)]
 struct State {
     loc: BaseLocation,
     e: LimitSample,
     v: DVec3,
+    /// The last step's parameter move less its first-order part (the Newton step from the
+    /// previous point), in the base quad of `loc`; `None` at the start or after a step
+    /// across a base-quad edge. It changes slowly from step to step, so the next step's
+    /// Newton starts from its first-order move plus this (measured: 10% fewer evaluations
+    /// per step next to Spot's extraordinary vertices; the third derivatives jump at the
+    /// patch boundaries, which are dense there, so the guess is 5x better, not O(Δt³)).
+    corr: Option<(f64, f64)>,
 }
 
 impl State {
+    fn new(loc: BaseLocation, e: LimitSample, v: DVec3) -> State {
+        State {
+            loc,
+            e,
+            v: v - e.n * e.n.dot(v),
+            corr: None,
+        }
+    }
+
     /// `substeps` RATTLE steps of 1/substeps of the velocity each; `None` past an open
     /// boundary or if a projection fails.
     fn advance(mut self, surface: &Surface, substeps: usize, tol: f64) -> Option<State> {
         let dt = 1.0 / substeps as f64;
         for _ in 0..substeps {
             let (a, b) = plane_axes(self.e.n);
-            let x = self.e.p + self.v * dt;
-            let (nl, e) = project_along(surface, self.loc, self.e, x, a, b, tol)?;
+            let d = self.v * dt;
+            let x = self.e.p + d;
+            // First-order parameter move: the Newton step from the current point.
+            let (j00, j01) = (a.dot(self.e.du), a.dot(self.e.dv));
+            let (j10, j11) = (b.dot(self.e.du), b.dot(self.e.dv));
+            let det = j00 * j11 - j01 * j10;
+            let (ga, gb) = (d.dot(a), d.dot(b));
+            let lin = ((j11 * ga - j01 * gb) / det, (j00 * gb - j10 * ga) / det);
+            let lin = (lin.0.is_finite() && lin.1.is_finite()).then_some(lin);
+            let guess = match (lin, self.corr) {
+                (Some(l), Some(c)) => {
+                    let g = (l.0 + c.0, l.1 + c.1);
+                    (g.0 * g.0 + g.1 * g.1 <= 0.04).then_some(g)
+                }
+                _ => None,
+            };
+            let (nl, e, same) = project_along(surface, self.loc, self.e, x, a, b, tol, guess)?;
+            self.corr = match (lin, same) {
+                (Some(l), true) => Some((nl.s - self.loc.s - l.0, nl.t - self.loc.t - l.1)),
+                _ => None,
+            };
             let vh = (e.p - self.e.p) / dt;
             self.v = vh - e.n * e.n.dot(vh);
             self.loc = nl;
@@ -179,13 +236,34 @@ pub fn geodesic_end_from(
         return None;
     }
     let steps = ((len / max_step).ceil() as usize).clamp(1, 1 << 16);
-    let tol = 1e-10 * len.max(1e-300);
-    let st = State {
-        loc: start,
-        e: *e0,
-        v: v - e0.n * e0.n.dot(v),
-    };
+    let tol = PROJECTION_TOL * max_step;
+    let st = State::new(start, *e0, v);
     st.advance(surface, steps, tol).map(|st| st.loc)
+}
+
+/// The geodesic from `start` (whose limit sample is `e0`) with initial tangent `v`, ended
+/// after each of `segments` segments of arc length |v|: `at(j, end)` for j = 1..=segments,
+/// `end` `None` from the first point past an open boundary (or a failed projection) on.
+/// Each segment is ⌈|v| / `max_step`⌉ RATTLE steps, so the point after j segments is
+/// integrated with steps no longer than [`geodesic_end_from`]'s for j·v. What marching
+/// uses for the multiples (j·l0, j·m0) of a primitive pattern direction (one path each).
+pub fn geodesic_ends_from(
+    surface: &Surface,
+    start: BaseLocation,
+    e0: &LimitSample,
+    v: DVec3,
+    segments: usize,
+    max_step: f64,
+    mut at: impl FnMut(usize, Option<BaseLocation>),
+) {
+    let len = v.length();
+    let mut state = (len.is_finite() && max_step > 0.0).then_some(State::new(start, *e0, v));
+    let steps = ((len / max_step).ceil() as usize).clamp(1, 1 << 16);
+    let tol = PROJECTION_TOL * max_step;
+    for j in 1..=segments {
+        state = state.and_then(|st| st.advance(surface, steps, tol));
+        at(j, state.map(|st| st.loc));
+    }
 }
 
 /// The reference pattern: `out[(m+h)·K + (l+h)]` = exp_x(δ·(l·v1 + m·v2)) (3D position and

@@ -52,6 +52,8 @@ struct TriGeo {
     ey: DVec3,
     /// Unit normal (ex × ey).
     n: DVec3,
+    /// Unit direction of each local edge j (corner j → j + 1), in the 2D frame.
+    edge: [DVec2; 3],
 }
 
 /// A point of the triangulated mesh.
@@ -125,13 +127,17 @@ impl MarchMesh {
                 }
                 let n = n.normalize_or(DVec3::Z);
                 let ey = n.cross(ex);
+                let (x2, y2) = (e2.dot(ex), e2.dot(ey).max(1e-300));
+                let c = [DVec2::ZERO, DVec2::new(x1, 0.0), DVec2::new(x2, y2)];
+                let edge = [0, 1, 2].map(|j| (c[(j + 1) % 3] - c[j]).normalize_or(DVec2::X));
                 geo.push(TriGeo {
                     x1,
-                    x2: e2.dot(ex),
-                    y2: e2.dot(ey).max(1e-300),
+                    x2,
+                    y2,
                     ex,
                     ey,
                     n,
+                    edge,
                 });
                 corner_normals.push(tv.map(|v| lm.normal[v as usize]));
                 let mut a = [NONE; 3];
@@ -450,7 +456,10 @@ impl MarchMesh {
                 Some((next, _)) => loc = next,
                 None => break,
             }
-            if len < 1e-12 {
+            // Converged: the step just taken was under 1e-4 of a level face, so what is
+            // left is second order in it (1e-12 moved the samples by < 2e-7 δ and took
+            // 4 evaluations where this takes 2.3 on average).
+            if len < 1e-4 * cap {
                 break;
             }
         }
@@ -461,8 +470,7 @@ impl MarchMesh {
 /// Unit direction of local edge j (corner j → j+1) and the unit normal into the triangle.
 #[inline]
 fn edge_axes(g: &TriGeo, j: usize) -> (DVec2, DVec2) {
-    let p = [DVec2::ZERO, DVec2::new(g.x1, 0.0), DVec2::new(g.x2, g.y2)];
-    let e = (p[(j + 1) % 3] - p[j]).normalize_or(DVec2::X);
+    let e = g.edge[j];
     // Corners are counter-clockwise, so the interior is to the left of every edge.
     (e, DVec2::new(-e.y, e.x))
 }

@@ -401,25 +401,37 @@ impl<'a> Sampler<'a> {
             }
         };
         if exact_start {
-            // Every geodesic starts at the centre: its limit sample once.
+            // Every geodesic starts at the centre: its limit sample once. One geodesic per
+            // primitive direction (l0, m0) (gcd 1), its multiples (j·l0, j·m0) read off
+            // along the way, as below.
             let e0 = self.surface.eval_base(loc.quad, loc.s, loc.t);
-            for m in -h..=h {
-                for l in -h..=h {
-                    if l == 0 && m == 0 {
+            for m0 in -h..=h {
+                for l0 in -h..=h {
+                    if geodesic::gcd(l0.unsigned_abs(), m0.unsigned_abs()) != 1 {
                         continue;
                     }
-                    let v = (frame.v1 * l as f64 + frame.v2 * m as f64) * delta;
+                    let reps = h / l0.abs().max(m0.abs());
+                    let v = (frame.v1 * l0 as f64 + frame.v2 * m0 as f64) * delta;
                     let vt = v - n * n.dot(v);
                     let vt = vt * (v.length() / vt.length().max(1e-300));
-                    out[idx(l, m)] =
-                        match geodesic::geodesic_end_from(self.surface, loc, &e0, vt, max_step) {
-                            Some(b) => Some(self.surface.base_to_domain(b.quad, b.s, b.t)),
-                            // Off the surface or a failed projection: the mesh path decides.
-                            None => {
-                                let dir = (a1 * l as f64 + a2 * m as f64).normalize();
-                                finish(mm.walk(p0, dir, v.length()))
-                            }
-                        };
+                    let dir = (a1 * l0 as f64 + a2 * m0 as f64).normalize();
+                    let s = self.surface;
+                    geodesic::geodesic_ends_from(
+                        s,
+                        loc,
+                        &e0,
+                        vt,
+                        reps as usize,
+                        max_step,
+                        |j, b| {
+                            let j = j as i64;
+                            out[idx(l0 * j, m0 * j)] = match b {
+                                Some(b) => Some(s.base_to_domain(b.quad, b.s, b.t)),
+                                // Off the surface or a failed projection: the mesh path decides.
+                                None => finish(mm.walk(p0, dir, v.length() * j as f64)),
+                            };
+                        },
+                    );
                 }
             }
             return stalled;
