@@ -5,37 +5,14 @@
 //! (all extraordinary vertices are domain corners).
 
 use glam::DVec3;
-use std::path::PathBuf;
 use std::sync::Arc;
 use subdiv::{ControlMesh, DomainId, DomainLocation, Surface};
 use surfsynth::field::{Orientation, OrientationField};
 use surfsynth::maps::{FaceMaps, MapLayout};
 use surfsynth::sampling::{Method, Sampler, SamplerKind};
 
-fn shared() -> PathBuf {
-    std::env::var_os("SURFSYNTH_SHARED")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared"))
-}
-
-fn load(rel: &str) -> Surface {
-    Surface::load_obj(shared().join("data").join(rel)).unwrap()
-}
-
-struct Lcg(u64);
-impl Lcg {
-    fn next(&mut self) -> f64 {
-        self.0 = self
-            .0
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
-    }
-}
-
-fn pos(s: &Surface, l: &Option<DomainLocation>) -> Option<DVec3> {
-    l.map(|l| s.eval(l.domain, l.u, l.v).p)
-}
+mod common;
+use common::{load, pos, Lcg};
 
 /// A planar n×n grid of unit quads at z = 0.
 fn grid(n: usize) -> Surface {
