@@ -12,7 +12,7 @@ use surfsynth::maps::{FaceMaps, MapLayout};
 use surfsynth::sampling::{Method, Sampler, SamplerKind};
 
 mod common;
-use common::{load, pos, Lcg};
+use common::{centres, load, pos, Lcg};
 
 /// A planar n×n grid of unit quads at z = 0.
 fn grid(n: usize) -> Surface {
@@ -139,25 +139,7 @@ struct MeshReport {
 /// `max_bend` degrees are not judged (no square grid of that size fits such a surface to
 /// 5%: on a sphere the exp-map grid's spacing drifts by bend²/6) — they are counted.
 fn survey(s: &Surface, sam: &Sampler, k: usize, texels: f64, max_bend: f64) -> MeshReport {
-    let mut centres = Vec::new();
-    let mut r = Lcg(11);
-    for _ in 0..300 {
-        let d = DomainId((r.next() * s.num_domains() as f64) as u32);
-        centres.push(DomainLocation {
-            domain: d,
-            u: r.next(),
-            v: r.next(),
-        });
-    }
-    for d in 0..s.num_domains() {
-        for (u, v) in [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)] {
-            centres.push(DomainLocation {
-                domain: DomainId(d as u32),
-                u,
-                v,
-            });
-        }
-    }
+    let centres = centres(s, 300, 11);
     let mut rep = MeshReport {
         chart: Stats::default(),
         march: Stats::default(),

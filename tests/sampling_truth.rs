@@ -8,7 +8,7 @@ use surfsynth::sampling::geodesic::exp_pattern;
 use surfsynth::sampling::{Method, Sampler, SamplerKind};
 
 mod common;
-use common::{load, pos, Lcg};
+use common::{centres, load, pos};
 
 /// Worst adjacent-pair spacing error of a position grid.
 fn spacing(p: &[Option<DVec3>], k: usize, delta: f64) -> (f64, usize, usize) {
@@ -31,29 +31,6 @@ fn spacing(p: &[Option<DVec3>], k: usize, delta: f64) -> (f64, usize, usize) {
         }
     }
     (w, n, over)
-}
-
-fn centres(s: &Surface, n: usize, seed: u64) -> Vec<DomainLocation> {
-    let mut r = Lcg(seed);
-    let mut c = Vec::new();
-    for _ in 0..n {
-        let d = DomainId((r.next() * s.num_domains() as f64) as u32);
-        c.push(DomainLocation {
-            domain: d,
-            u: r.next(),
-            v: r.next(),
-        });
-    }
-    for d in 0..s.num_domains() {
-        for (u, v) in [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)] {
-            c.push(DomainLocation {
-                domain: DomainId(d as u32),
-                u,
-                v,
-            });
-        }
-    }
-    c
 }
 
 /// Measurement (prints; run with --ignored --nocapture). SURVEY_MESH selects one mesh.

@@ -5,7 +5,7 @@
 
 use glam::DVec3;
 use std::path::PathBuf;
-use subdiv::{DomainLocation, Surface};
+use subdiv::{DomainId, DomainLocation, Surface};
 
 /// The shared data checkout (meshes, textures, OpenSubdiv reference values), which is not
 /// part of this repository: `$SURFSYNTH_SHARED` when set, else `../shared` relative to
@@ -44,4 +44,30 @@ impl Lcg {
 #[allow(dead_code)]
 pub fn pos(s: &Surface, l: &Option<DomainLocation>) -> Option<DVec3> {
     l.map(|l| s.eval(l.domain, l.u, l.v).p)
+}
+
+/// Sample centres on `s`: `n` random points (`Lcg(seed)`), then every domain corner (all
+/// extraordinary vertices are domain corners).
+#[allow(dead_code)]
+pub fn centres(s: &Surface, n: usize, seed: u64) -> Vec<DomainLocation> {
+    let mut r = Lcg(seed);
+    let mut c = Vec::new();
+    for _ in 0..n {
+        let d = DomainId((r.next() * s.num_domains() as f64) as u32);
+        c.push(DomainLocation {
+            domain: d,
+            u: r.next(),
+            v: r.next(),
+        });
+    }
+    for d in 0..s.num_domains() {
+        for (u, v) in [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)] {
+            c.push(DomainLocation {
+                domain: DomainId(d as u32),
+                u,
+                v,
+            });
+        }
+    }
+    c
 }
