@@ -5,11 +5,8 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use surfsynth::io::exr::{read_face_maps, TileLayout};
 
-fn shared() -> PathBuf {
-    std::env::var_os("SURFSYNTH_SHARED")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared"))
-}
+mod common;
+use common::shared;
 
 fn reference(name: &str) -> PathBuf {
     shared().join("data/opensubdiv-reference").join(name)

@@ -3,19 +3,11 @@
 //! constraints hold, and the result does not depend on the thread count.
 
 use glam::DVec3;
-use std::path::PathBuf;
 use subdiv::{DomainId, Surface};
 use surfsynth::field::{Constraints, FieldOptions, Orientation, OrientationField};
 
-fn shared() -> PathBuf {
-    std::env::var_os("SURFSYNTH_SHARED")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared"))
-}
-
-fn load(rel: &str) -> Surface {
-    Surface::load_obj(shared().join("data").join(rel)).unwrap()
-}
+mod common;
+use common::load;
 
 #[test]
 fn energy_falls_monotonically_on_every_level() {

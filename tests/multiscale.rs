@@ -92,6 +92,19 @@ fn run(
     }
 }
 
+/// `run` as every flat-grid test calls it: k-coherence search, the field along x.
+fn run_along_x(surface: &Surface, ex: &Example, n: usize, seed: u64, scale_factor: f64) -> Run {
+    run(
+        surface,
+        ex,
+        n,
+        kcoherence(),
+        seed,
+        scale_factor,
+        &Orientation::Axis(glam::DVec3::X),
+    )
+}
+
 fn quality(r: &Run, example: Option<&Example>) -> surfsynth::eval::Quality {
     surfsynth::eval::evaluate_maps(&r.maps, &r.geometry, Some(r.scale), example).unwrap()
 }
@@ -100,15 +113,7 @@ fn quality(r: &Run, example: Option<&Example>) -> surfsynth::eval::Quality {
 fn flat_grid_matches_2d_multiscale_patch_fidelity() {
     let ex = texture("etr_gravel.png", 64);
     let (k, n) = (6, 24);
-    let r = run(
-        &flat_grid(k),
-        &ex,
-        n,
-        kcoherence(),
-        3,
-        1.0,
-        &Orientation::Axis(glam::DVec3::X),
-    );
+    let r = run_along_x(&flat_grid(k), &ex, n, 3, 1.0);
     // multiscale::run lays image rows along −v2 (the builder's Handedness::Outside frame),
     // so the tiles are the example's mirror image: compare them with it upside down.
     let q = quality(&r, Some(&ex.flipped_rows()));
@@ -176,15 +181,7 @@ fn small_domains_match_2d_patch_fidelity() {
         let surface = flat_grid(k);
         let mut pf = 0.0;
         for seed in seeds.clone() {
-            let r = run(
-                &surface,
-                &ex,
-                n,
-                kcoherence(),
-                seed,
-                1.0,
-                &Orientation::Axis(glam::DVec3::X),
-            );
+            let r = run_along_x(&surface, &ex, n, seed, 1.0);
             let q = quality(&r, Some(&mirrored));
             assert_eq!(q.coverage, 1.0);
             assert!(q.seam_ratio.unwrap() <= 1.15, "{:?}", q.seam_ratio);
@@ -286,15 +283,7 @@ fn scale_picks_levels_and_keeps_the_texture_size() {
     // texels continue the nearest synthesized texel's patch.
     let ex = texture("gimp_leopard.png", 48);
     let (k, n) = (4, 24);
-    let r = run(
-        &flat_grid(k),
-        &ex,
-        n,
-        kcoherence(),
-        1,
-        2.0,
-        &Orientation::Axis(glam::DVec3::X),
-    );
+    let r = run_along_x(&flat_grid(k), &ex, n, 1, 2.0);
     let st = &r.out.stats;
     let res: Vec<usize> = st.levels.iter().map(|l| l.resolution).collect();
     assert_eq!(res, vec![12, 6]);
@@ -325,15 +314,7 @@ fn alpha_and_height_are_synthesized_jointly_and_displace_the_surface() {
     ex.height_map = Some(hmap);
     let (k, n) = (2, 16);
     let surface = flat_grid(k);
-    let r = run(
-        &surface,
-        &ex,
-        n,
-        kcoherence(),
-        4,
-        1.0,
-        &Orientation::Axis(glam::DVec3::X),
-    );
+    let r = run_along_x(&surface, &ex, n, 4, 1.0);
     assert_eq!(
         r.maps.names(),
         vec!["R", "G", "B", "A", "height", "source.u", "source.v"]
@@ -386,15 +367,7 @@ fn alpha_and_height_are_synthesized_jointly_and_displace_the_surface() {
     }
     assert!(zmax - zmin > 0.05, "relief {zmin}..{zmax}");
     // Missing height channel: a one-line error.
-    let plain = run(
-        &surface,
-        &texture("etr_gravel.png", 32),
-        8,
-        kcoherence(),
-        1,
-        1.0,
-        &Orientation::Axis(glam::DVec3::X),
-    );
+    let plain = run_along_x(&surface, &texture("etr_gravel.png", 32), 8, 1, 1.0);
     let e = surfsynth::io::displace::displaced_mesh(&surface, &plain.maps, 0.1)
         .unwrap_err()
         .to_string();

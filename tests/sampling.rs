@@ -5,37 +5,14 @@
 //! (all extraordinary vertices are domain corners).
 
 use glam::DVec3;
-use std::path::PathBuf;
 use std::sync::Arc;
 use subdiv::{ControlMesh, DomainId, DomainLocation, Surface};
 use surfsynth::field::{Orientation, OrientationField};
 use surfsynth::maps::{FaceMaps, MapLayout};
 use surfsynth::sampling::{Method, Sampler, SamplerKind};
 
-fn shared() -> PathBuf {
-    std::env::var_os("SURFSYNTH_SHARED")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared"))
-}
-
-fn load(rel: &str) -> Surface {
-    Surface::load_obj(shared().join("data").join(rel)).unwrap()
-}
-
-struct Lcg(u64);
-impl Lcg {
-    fn next(&mut self) -> f64 {
-        self.0 = self
-            .0
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
-    }
-}
-
-fn pos(s: &Surface, l: &Option<DomainLocation>) -> Option<DVec3> {
-    l.map(|l| s.eval(l.domain, l.u, l.v).p)
-}
+mod common;
+use common::{centres, load, pos, Lcg};
 
 /// A planar n×n grid of unit quads at z = 0.
 fn grid(n: usize) -> Surface {
@@ -162,25 +139,7 @@ struct MeshReport {
 /// `max_bend` degrees are not judged (no square grid of that size fits such a surface to
 /// 5%: on a sphere the exp-map grid's spacing drifts by bend²/6) — they are counted.
 fn survey(s: &Surface, sam: &Sampler, k: usize, texels: f64, max_bend: f64) -> MeshReport {
-    let mut centres = Vec::new();
-    let mut r = Lcg(11);
-    for _ in 0..300 {
-        let d = DomainId((r.next() * s.num_domains() as f64) as u32);
-        centres.push(DomainLocation {
-            domain: d,
-            u: r.next(),
-            v: r.next(),
-        });
-    }
-    for d in 0..s.num_domains() {
-        for (u, v) in [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)] {
-            centres.push(DomainLocation {
-                domain: DomainId(d as u32),
-                u,
-                v,
-            });
-        }
-    }
+    let centres = centres(s, 300, 11);
     let mut rep = MeshReport {
         chart: Stats::default(),
         march: Stats::default(),

@@ -2,36 +2,13 @@
 //! surface (`surfsynth::sampling::geodesic`).
 
 use glam::DVec3;
-use std::path::PathBuf;
 use subdiv::{DomainId, DomainLocation, Surface};
 use surfsynth::field::{Orientation, OrientationField};
 use surfsynth::sampling::geodesic::exp_pattern;
 use surfsynth::sampling::{Method, Sampler, SamplerKind};
 
-fn shared() -> PathBuf {
-    std::env::var_os("SURFSYNTH_SHARED")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared"))
-}
-
-fn load(rel: &str) -> Surface {
-    Surface::load_obj(shared().join("data").join(rel)).unwrap()
-}
-
-struct Lcg(u64);
-impl Lcg {
-    fn next(&mut self) -> f64 {
-        self.0 = self
-            .0
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
-    }
-}
-
-fn pos(s: &Surface, l: &Option<DomainLocation>) -> Option<DVec3> {
-    l.map(|l| s.eval(l.domain, l.u, l.v).p)
-}
+mod common;
+use common::{centres, load, pos};
 
 /// Worst adjacent-pair spacing error of a position grid.
 fn spacing(p: &[Option<DVec3>], k: usize, delta: f64) -> (f64, usize, usize) {
@@ -54,29 +31,6 @@ fn spacing(p: &[Option<DVec3>], k: usize, delta: f64) -> (f64, usize, usize) {
         }
     }
     (w, n, over)
-}
-
-fn centres(s: &Surface, n: usize, seed: u64) -> Vec<DomainLocation> {
-    let mut r = Lcg(seed);
-    let mut c = Vec::new();
-    for _ in 0..n {
-        let d = DomainId((r.next() * s.num_domains() as f64) as u32);
-        c.push(DomainLocation {
-            domain: d,
-            u: r.next(),
-            v: r.next(),
-        });
-    }
-    for d in 0..s.num_domains() {
-        for (u, v) in [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)] {
-            c.push(DomainLocation {
-                domain: DomainId(d as u32),
-                u,
-                v,
-            });
-        }
-    }
-    c
 }
 
 /// Measurement (prints; run with --ignored --nocapture). SURVEY_MESH selects one mesh.

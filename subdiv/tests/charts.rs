@@ -2,14 +2,10 @@
 //! the region each chart serves, and Φ⁻¹(Φ(x)) = x.
 
 use glam::DVec2;
-use std::path::PathBuf;
 use subdiv::{BaseLocation, BaseQuadId, Charts, Surface, VertexId};
 
-fn shared() -> PathBuf {
-    std::env::var_os("SURFSYNTH_SHARED")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared"))
-}
+mod common;
+use common::{shared, Lcg};
 
 fn meshes() -> Vec<(String, Surface)> {
     let r = shared().join("data/opensubdiv-reference");
@@ -47,17 +43,6 @@ fn at(quad: BaseQuadId, c: u8, a: f64, b: f64) -> BaseLocation {
         quad,
         s: cs + a * ns + b * ps,
         t: ct + a * nt + b * pt,
-    }
-}
-
-struct Lcg(u64);
-impl Lcg {
-    fn next(&mut self) -> f64 {
-        self.0 = self
-            .0
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
     }
 }
 

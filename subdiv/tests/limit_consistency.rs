@@ -3,15 +3,11 @@
 //! limit mask applied to the globally refined mesh; shared domain edges must be crack-free
 //! from both sides at arbitrary (non-dyadic) parameters.
 
-use std::path::PathBuf;
 use subdiv::limit::vertex_limit;
-use subdiv::{DomainLocation, Surface, VertexId};
+use subdiv::{DomainLocation, VertexId};
 
-fn shared() -> PathBuf {
-    std::env::var_os("SURFSYNTH_SHARED")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared"))
-}
+mod common;
+use common::load;
 
 const MESHES: &[&str] = &[
     "meshes/opensubdiv/catmark_xord_boundary.obj",
@@ -28,7 +24,7 @@ const MESHES: &[&str] = &[
 #[test]
 fn patch_trees_agree_with_global_refinement_and_masks() {
     for name in MESHES {
-        let s = Surface::load_obj(shared().join("data").join(name)).unwrap();
+        let s = load(name);
         let (lo, hi) = s.bounds();
         let diag = (hi - lo).length();
         let lm = s.limit_mesh(4);
@@ -77,7 +73,7 @@ fn patch_trees_agree_with_global_refinement_and_masks() {
 #[test]
 fn shared_domain_edges_are_crack_free_at_any_parameter() {
     for name in MESHES {
-        let s = Surface::load_obj(shared().join("data").join(name)).unwrap();
+        let s = load(name);
         let mut checked = 0;
         for d in 0..s.num_domains() {
             let d = subdiv::DomainId(d as u32);

@@ -1,0 +1,73 @@
+//! Helpers shared by the root crate's integration tests: each test file says `mod common;`.
+//! Cargo compiles `tests/common/mod.rs` into every test that names it and does not build it
+//! as a test binary of its own. Not every test uses every helper, so each item allows
+//! `dead_code` rather than the test binaries that leave it unused.
+
+use glam::DVec3;
+use std::path::PathBuf;
+use subdiv::{DomainId, DomainLocation, Surface};
+
+/// The shared data checkout (meshes, textures, OpenSubdiv reference values), which is not
+/// part of this repository: `$SURFSYNTH_SHARED` when set, else `../shared` relative to
+/// this crate, i.e. a `shared` directory beside the workspace checkout.
+#[allow(dead_code)]
+pub fn shared() -> PathBuf {
+    std::env::var_os("SURFSYNTH_SHARED")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared"))
+}
+
+/// The limit surface of `data/<rel>` in the shared checkout; panics when it does not load.
+#[allow(dead_code)]
+pub fn load(rel: &str) -> Surface {
+    Surface::load_obj(shared().join("data").join(rel)).unwrap()
+}
+
+/// A seeded linear congruential generator (Knuth's MMIX constants), so that random test
+/// points are the same on every run and machine without a `rand` dependency.
+#[allow(dead_code)]
+pub struct Lcg(pub u64);
+
+#[allow(dead_code)]
+impl Lcg {
+    /// The next number, uniform in [0, 1) (the top 53 bits of the state).
+    pub fn next(&mut self) -> f64 {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (self.0 >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
+/// The limit position at a sampled location, `None` where the sampler found none.
+#[allow(dead_code)]
+pub fn pos(s: &Surface, l: &Option<DomainLocation>) -> Option<DVec3> {
+    l.map(|l| s.eval(l.domain, l.u, l.v).p)
+}
+
+/// Sample centres on `s`: `n` random points (`Lcg(seed)`), then every domain corner (all
+/// extraordinary vertices are domain corners).
+#[allow(dead_code)]
+pub fn centres(s: &Surface, n: usize, seed: u64) -> Vec<DomainLocation> {
+    let mut r = Lcg(seed);
+    let mut c = Vec::new();
+    for _ in 0..n {
+        let d = DomainId((r.next() * s.num_domains() as f64) as u32);
+        c.push(DomainLocation {
+            domain: d,
+            u: r.next(),
+            v: r.next(),
+        });
+    }
+    for d in 0..s.num_domains() {
+        for (u, v) in [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)] {
+            c.push(DomainLocation {
+                domain: DomainId(d as u32),
+                u,
+                v,
+            });
+        }
+    }
+    c
+}
