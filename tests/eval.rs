@@ -3,6 +3,9 @@
 //! fidelity exactly 1), texel noise (seam ratio 1 in expectation), per-face colour jumps
 //! (seam ratio far above 1), patch fidelity 0 for copied patches, and the error cases.
 
+mod common;
+
+use common::data;
 use glam::DVec3;
 use std::path::Path;
 use subdiv::{ControlMesh, DomainId, Surface};
@@ -235,10 +238,7 @@ fn texel_noise_has_seam_ratio_one_and_face_jumps_do_not() {
 
 #[test]
 fn evaluation_does_not_depend_on_thread_count() {
-    let s = Surface::load_obj(
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/meshes/spot_control_mesh.obj"),
-    )
-    .unwrap();
+    let s = Surface::load_obj(data("meshes/spot_control_mesh.obj")).unwrap();
     let geo = geometry(&s, 8);
     let col = colour_maps(&s, &geo, |d, x, y, p| {
         let k = ((d * 64 + y) * 64 + x) as u64 * 3;
@@ -393,11 +393,7 @@ fn bad_inputs_give_one_line_errors_naming_the_file() {
     write_face_maps(d.join("facemaps.exr"), &grey).unwrap();
     assert!(err(&d, &none).contains("'R'"));
     // Patch fidelity on a curved mesh is refused.
-    let cube = Surface::load_obj(
-        Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../shared/data/opensubdiv-reference/catmark_cube.obj"),
-    )
-    .unwrap();
+    let cube = Surface::load_obj(data("opensubdiv-reference/catmark_cube.obj")).unwrap();
     let cg = geometry(&cube, 8);
     let cc = colour_maps(&cube, &cg, |_, _, _, _| ([0.5; 3], [0.0, 0.0]));
     write_dir(&d, &cc, &cg, Some(1.0));

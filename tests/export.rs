@@ -2,21 +2,18 @@
 //! the written files are parsed (OBJ text, PNG pixels) and compared with the exact limit
 //! surface; nothing here reuses the exporter's own UV or gutter code.
 
+mod common;
+
+use common::data;
 use glam::DVec3;
 use std::collections::HashMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use subdiv::{DomainId, Surface};
 use surfsynth::io::atlas::{export, ExportOptions, ATLAS_NAME, MTL_NAME, OBJ_NAME};
 use surfsynth::io::exr::FaceMaps;
 
-fn shared(rel: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/data")
-        .join(rel)
-}
-
 fn load(rel: &str) -> Surface {
-    Surface::load_obj(shared(rel)).unwrap()
+    Surface::load_obj(data(rel)).unwrap()
 }
 
 /// Independent sRGB encoding (IEC 61966-2-1) for expected pixel values.
@@ -510,7 +507,7 @@ fn obj_is_crack_free_on_the_limit_surface_with_consistent_counts() {
 
         // Crack-free: every edge (by the text of its end points) is used by two faces,
         // except the refined open-boundary edges, counted from the control OBJ itself.
-        let text = std::fs::read_to_string(shared(mesh)).unwrap();
+        let text = std::fs::read_to_string(data(mesh)).unwrap();
         let mut ctrl: HashMap<(usize, usize), usize> = HashMap::new();
         for line in text.lines().filter(|l| l.starts_with("f ")) {
             let ids: Vec<usize> = line[2..]

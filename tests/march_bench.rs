@@ -2,6 +2,9 @@
 //! dump of their samples so that a change in evaluation can be checked bit-for-bit.
 //! `cargo test --release --test march_bench -- --ignored --nocapture`
 //! (MB_MESH=spot|dt, MB_K=5|9, MB_DUMP=path, MB_REPS=n).
+mod common;
+
+use common::data;
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicIsize, Ordering};
 use subdiv::{DomainId, DomainLocation, Surface};
@@ -60,9 +63,8 @@ fn march_bench() {
     let npat: usize = std::env::var("MB_N")
         .map(|s| s.parse().unwrap())
         .unwrap_or(300);
-    let shared = std::env::var("SURFSYNTH_SHARED").unwrap_or("/work/shared".into());
     let h0 = live();
-    let s = Surface::load_obj(std::path::Path::new(&shared).join("data").join(rel)).unwrap();
+    let s = Surface::load_obj(data(rel)).unwrap();
     println!("surface: {:.3} MB live heap", live() - h0);
     let f = OrientationField::compute(&s, &Orientation::Auto).unwrap();
     let n = 32;

@@ -3,7 +3,10 @@
 //! flat grid against the 2D reference synthesizer, determinism across thread counts,
 //! `--scale` handling, joint alpha/height synthesis and displacement.
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use common::data;
+use std::path::Path;
 use subdiv::Surface;
 use surfsynth::example::Example;
 use surfsynth::field::{Orientation, OrientationField};
@@ -15,16 +18,10 @@ use surfsynth::search::kcoherence::KParams;
 use surfsynth::search::model::Method;
 use surfsynth::texels::TexelGeometry;
 
-fn shared(rel: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/data")
-        .join(rel)
-}
-
 /// A shared texture halved until its width is below `2 * size`, cropped to a square of at
 /// most `size` pixels.
 fn texture(name: &str, size: usize) -> Example {
-    let ex = Example::load(shared(&format!("textures/{name}"))).unwrap();
+    let ex = Example::load(data(&format!("textures/{name}"))).unwrap();
     let mut img = Image::from_example(&ex);
     while img.width >= 2 * size {
         img = img.downsample();
@@ -205,7 +202,7 @@ fn curved_meshes_meet_the_quality_bar() {
     // border rather than seams (docs/multiscale.md).
     let (mesh, tex, n, seed) = ("meshes/cube_no_bottom.obj", "etr_gravel.png", 12, 5);
     {
-        let surface = surfsynth::bake::load_surface_for(shared(mesh), n).unwrap();
+        let surface = surfsynth::bake::load_surface_for(data(mesh), n).unwrap();
         let ex = texture(tex, 64);
         let r = run(
             &surface,
@@ -302,7 +299,7 @@ fn scale_picks_levels_and_keeps_the_texture_size() {
 fn alpha_and_height_are_synthesized_jointly_and_displace_the_surface() {
     // RGBA stripes (the stripes are in alpha; colour is flat) with a height map derived
     // from the alpha (same size, as --height requires).
-    let mut ex = Example::load(shared("textures/gimp_stripes_alpha.png")).unwrap();
+    let mut ex = Example::load(data("textures/gimp_stripes_alpha.png")).unwrap();
     assert!(ex.alpha.is_some());
     let hmap: Vec<f32> = ex
         .alpha
@@ -416,11 +413,9 @@ fn figures() {
             let r = match faces {
                 Some(f) => multiscale::bench::bench_torus(f, n, &ex, &params, 1).unwrap(),
                 None => {
-                    let surface = surfsynth::bake::load_surface_for(
-                        shared("meshes/spot_control_mesh.obj"),
-                        n,
-                    )
-                    .unwrap();
+                    let surface =
+                        surfsynth::bake::load_surface_for(data("meshes/spot_control_mesh.obj"), n)
+                            .unwrap();
                     multiscale::bench::bench_surface(&surface, n, &ex, &params, 1).unwrap()
                 }
             };
@@ -466,7 +461,7 @@ fn pattern_accuracy() {
     use surfsynth::sampling::{Method as SMethod, Sampler, SamplerKind};
     let mesh = std::env::var("MS_MESH").unwrap_or_else(|_| "meshes/spot_control_mesh.obj".into());
     let n = 32;
-    let surface = surfsynth::bake::load_surface_for(shared(&mesh), n).unwrap();
+    let surface = surfsynth::bake::load_surface_for(data(&mesh), n).unwrap();
     let field = OrientationField::compute(&surface, &Orientation::Auto).unwrap();
     let h = TexelGeometry::compute(&surface, n).median_spacing(&surface);
     let sampler = Sampler::new(&surface, &field);

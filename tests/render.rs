@@ -2,19 +2,16 @@
 //! texture continuity across face edges (a screen-space seam ratio, with a per-face-jump
 //! control that must fail it), displacement, determinism and clean errors.
 
+mod common;
+
+use common::data;
 use glam::DVec3;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::Arc;
 use subdiv::{DomainId, Surface};
 use surfsynth::io::exr::{write_face_maps, FaceMaps};
 use surfsynth::maps::{FaceMaps as TexelMaps, MapLayout};
 use surfsynth::render::{render_dir, Picture, RenderOptions, Scene};
-
-fn shared(rel: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/data")
-        .join(rel)
-}
 
 /// Colour maps (R, G, B and optionally A, height) with `field(domain, x, y, P)`.
 fn maps_from(
@@ -150,7 +147,7 @@ fn pictures_are_hole_free_and_framed() {
         "meshes/spot_control_mesh.obj",
         "meshes/double_torus_genus2.obj",
     ] {
-        let mesh = shared(rel);
+        let mesh = data(rel);
         let s = Surface::load_obj(&mesh).unwrap();
         let maps = maps_from(&s, 8, &["R", "G", "B"], |_, _, _, _| [0.5; 5]);
         let dir = result_dir(&mesh, &maps);
@@ -198,7 +195,7 @@ fn texture_is_continuous_across_face_edges() {
         "opensubdiv-reference/catmark_nonquads.obj",
         "opensubdiv-reference/catmark_pole8.obj",
     ] {
-        let mesh = shared(rel);
+        let mesh = data(rel);
         let s = Surface::load_obj(&mesh).unwrap();
         let lambda = diag(&s) / 6.0;
         let n = 16;
@@ -228,7 +225,7 @@ fn texture_is_continuous_across_face_edges() {
 
 #[test]
 fn picture_does_not_depend_on_thread_count_and_png_is_written() {
-    let mesh = shared("opensubdiv-reference/catmark_pole8.obj");
+    let mesh = data("opensubdiv-reference/catmark_pole8.obj");
     let s = Surface::load_obj(&mesh).unwrap();
     let maps = maps_from(&s, 8, &["R", "G", "B", "A"], |d, x, y, _| {
         let k = ((d * 64 + y) * 64 + x) as u64 * 4;
@@ -253,7 +250,7 @@ fn picture_does_not_depend_on_thread_count_and_png_is_written() {
 
 #[test]
 fn displacement_moves_vertices_along_the_normal() {
-    let mesh = shared("opensubdiv-reference/catmark_cube.obj");
+    let mesh = data("opensubdiv-reference/catmark_cube.obj");
     let s = Surface::load_obj(&mesh).unwrap();
     let n = 8;
     // Interleaved R, G, B, A, height with height 1 everywhere.
@@ -291,7 +288,7 @@ fn displacement_moves_vertices_along_the_normal() {
 
 #[test]
 fn bad_inputs_give_one_line_errors() {
-    let mesh = shared("opensubdiv-reference/catmark_cube.obj");
+    let mesh = data("opensubdiv-reference/catmark_cube.obj");
     let s = Surface::load_obj(&mesh).unwrap();
     let maps = maps_from(&s, 4, &["R", "G", "B"], |_, _, _, _| [0.5; 5]);
     let one_line = |e: surfsynth::Error| {
@@ -320,7 +317,7 @@ fn bad_inputs_give_one_line_errors() {
     assert!(e.contains("gone.obj"), "{e}");
     // The wrong mesh.
     let mut wrong = o.clone();
-    wrong.mesh = Some(shared("opensubdiv-reference/catmark_pole8.obj"));
+    wrong.mesh = Some(data("opensubdiv-reference/catmark_pole8.obj"));
     let e = one_line(render_dir(tmp.path(), &wrong).unwrap_err());
     assert!(
         e.contains("catmark_pole8.obj") && e.contains("domains"),
@@ -348,7 +345,7 @@ fn bad_inputs_give_one_line_errors() {
 #[test]
 fn command_line_writes_the_picture_or_one_error_line() {
     let exe = env!("CARGO_BIN_EXE_surfsynth");
-    let mesh = shared("opensubdiv-reference/catmark_cube.obj");
+    let mesh = data("opensubdiv-reference/catmark_cube.obj");
     let s = Surface::load_obj(&mesh).unwrap();
     let maps = maps_from(&s, 4, &["R", "G", "B"], |_, _, _, _| [0.5; 5]);
     let dir = result_dir(&mesh, &maps);

@@ -2,6 +2,9 @@
 //! brute force, k-coherence lists against exhaustive ranking, patch fidelity of 2D
 //! multiscale synthesis, and bit-identical output for any thread count.
 
+mod common;
+
+use common::data;
 use surfsynth::example::Example;
 use surfsynth::pyramid::{Image, Pyramid};
 use surfsynth::search::ann::{AnnIndex, AnnParams, AnnScratch};
@@ -10,12 +13,10 @@ use surfsynth::search::model::{Method, ModelParams};
 use surfsynth::search::{Features, Prepared, Query, Shape, TopN};
 use surfsynth::synth2d::{self, patch_fidelity, Params2d, Schedule};
 
-const TEX: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data/textures/");
-
 /// The texture halved until its width is below `2 * scale`, then the `size x size` crop at
 /// (`x0`, `y0`).
 fn texture(name: &str, scale: usize, x0: usize, y0: usize, size: usize) -> Image {
-    let ex = Example::load(format!("{TEX}{name}")).expect("shared texture loads");
+    let ex = Example::load(data(&format!("textures/{name}"))).expect("shared texture loads");
     let mut img = Image::from_example(&ex);
     while img.width >= 2 * scale {
         img = img.downsample();

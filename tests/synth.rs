@@ -2,17 +2,14 @@
 //! computed here from the in-memory maps (same definitions as `surfsynth eval`), plus
 //! determinism across thread counts and the error contract of the CLI.
 
+mod common;
+
+use common::data;
 use std::path::{Path, PathBuf};
 use surfsynth::field::Orientation;
 use surfsynth::io::exr::FaceMaps;
 use surfsynth::synth::coherent::Order;
 use surfsynth::synthesizer::{CoherentParams, SynthResult, Synthesizer};
-
-fn shared(rel: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/data")
-        .join(rel)
-}
 
 fn fixture(rel: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -129,7 +126,7 @@ fn explore() {
         ),
     ] {
         for (name, p) in &variants {
-            let r = Synthesizer::new(shared(mesh), shared(ex))
+            let r = Synthesizer::new(data(mesh), data(ex))
                 .resolution(16)
                 .coherent_params(p.clone())
                 .seed(7)
@@ -155,9 +152,9 @@ fn explore() {
 fn explore_flat() {
     let k = 8;
     for (name, ex) in [
-        ("brick", shared("textures/skimage_brick.png")),
+        ("brick", data("textures/skimage_brick.png")),
         ("gravel", fixture("gravel.png")),
-        ("weave", shared("textures/gimp_burlap_weave.png")),
+        ("weave", data("textures/gimp_burlap_weave.png")),
     ] {
         for rc in [0, 1, 4] {
             let r = Synthesizer::new(flat_grid(k), ex.clone())
@@ -206,7 +203,7 @@ fn assert_quality(mesh: PathBuf, example: PathBuf, n: usize, seed: u64) -> Measu
 #[test]
 fn spot_with_stochastic_gravel_meets_the_quality_bar() {
     assert_quality(
-        shared("meshes/spot_control_mesh.obj"),
+        data("meshes/spot_control_mesh.obj"),
         fixture("gravel.png"),
         16,
         7,
@@ -216,8 +213,8 @@ fn spot_with_stochastic_gravel_meets_the_quality_bar() {
 #[test]
 fn spot_with_structured_bricks_meets_the_quality_bar() {
     assert_quality(
-        shared("meshes/spot_control_mesh.obj"),
-        shared("textures/skimage_brick.png"),
+        data("meshes/spot_control_mesh.obj"),
+        data("textures/skimage_brick.png"),
         16,
         7,
     );
@@ -226,7 +223,7 @@ fn spot_with_structured_bricks_meets_the_quality_bar() {
 #[test]
 fn genus2_double_torus_meets_the_quality_bar() {
     assert_quality(
-        shared("meshes/double_torus_genus2.obj"),
+        data("meshes/double_torus_genus2.obj"),
         fixture("gravel.png"),
         16,
         3,
@@ -241,14 +238,14 @@ fn curved_meshes_with_reptile_scales_meet_the_quality_bar() {
     // in clusters of small, densely sampled domains. With the area-weighted order
     // (seeds 1-16): Blub 0.42-0.77, double torus 0.77-1.02. Every run is held to 1.1,
     // the median of five to 1.0, and every run keeps coverage, scale and coherence.
-    let scales = shared("textures/krita_reptile_scales.png");
+    let scales = data("textures/krita_reptile_scales.png");
     for mesh in [
         "meshes/blub_control_mesh.obj",
         "meshes/double_torus_genus2.obj",
     ] {
         let mut seams: Vec<f64> = (1..=5)
             .map(|seed| {
-                let r = Synthesizer::new(shared(mesh), &scales)
+                let r = Synthesizer::new(data(mesh), &scales)
                     .resolution(32)
                     .seed(seed)
                     .run()
@@ -271,8 +268,8 @@ fn curved_meshes_with_reptile_scales_meet_the_quality_bar() {
 #[test]
 fn open_boundary_mesh_meets_the_quality_bar() {
     assert_quality(
-        shared("meshes/cube_no_bottom.obj"),
-        shared("textures/gimp_burlap_weave.png"),
+        data("meshes/cube_no_bottom.obj"),
+        data("textures/gimp_burlap_weave.png"),
         16,
         5,
     );
@@ -292,8 +289,8 @@ fn library_result_is_bit_identical_for_one_and_two_threads() {
     // Bricks on Spot: T-junctions, extraordinary corners, many waves with several domains.
     let run = |t: usize| {
         Synthesizer::new(
-            shared("meshes/spot_control_mesh.obj"),
-            shared("textures/skimage_brick.png"),
+            data("meshes/spot_control_mesh.obj"),
+            data("textures/skimage_brick.png"),
         )
         .resolution(12)
         .seed(11)
@@ -307,8 +304,8 @@ fn library_result_is_bit_identical_for_one_and_two_threads() {
     assert_eq!(bits(&a.maps), bits(&b.maps));
     // And the seed matters.
     let c = Synthesizer::new(
-        shared("meshes/spot_control_mesh.obj"),
-        shared("textures/skimage_brick.png"),
+        data("meshes/spot_control_mesh.obj"),
+        data("textures/skimage_brick.png"),
     )
     .resolution(12)
     .seed(12)
@@ -486,7 +483,7 @@ fn tiny_example_fails_cleanly() {
 #[test]
 fn height_of_another_size_fails_cleanly() {
     let dir = tempfile::tempdir().unwrap();
-    let h = shared("textures/gimp_recessed_height.png"); // 80x80 vs 128x128
+    let h = data("textures/gimp_recessed_height.png"); // 80x80 vs 128x128
     let hs = h.to_str().unwrap();
     assert_fails(
         &fixture("gravel.png"),
@@ -528,7 +525,7 @@ fn unwritable_out_fails_cleanly_before_synthesis() {
 fn height_and_alpha_channels_are_synthesized_from_the_same_source() {
     // Bricks with alpha (RGBA) plus a height map of the same size: every channel of a texel
     // must equal the example's bilinear value at the recorded source.
-    let ex_path = shared("textures/embark_bricks_alpha.png");
+    let ex_path = data("textures/embark_bricks_alpha.png");
     let dir = tempfile::tempdir().unwrap();
     let hpath = dir.path().join("h.png");
     let ex = surfsynth::example::Example::load(&ex_path).unwrap();
@@ -536,7 +533,7 @@ fn height_and_alpha_channels_are_synthesized_from_the_same_source() {
     image::GrayImage::from_fn(w, h, |x, y| image::Luma([((x * 7 + y * 3) % 256) as u8]))
         .save(&hpath)
         .unwrap();
-    let r = Synthesizer::new(shared("meshes/cube_no_bottom.obj"), &ex_path)
+    let r = Synthesizer::new(data("meshes/cube_no_bottom.obj"), &ex_path)
         .height(&hpath)
         .resolution(8)
         .run()
@@ -580,7 +577,7 @@ fn explore_scales() {
     ] {
         for (name, p) in &variants {
             for orient in [Orientation::Auto, Orientation::Axis(glam::DVec3::Z)] {
-                let r = Synthesizer::new(shared(mesh), shared("textures/krita_reptile_scales.png"))
+                let r = Synthesizer::new(data(mesh), data("textures/krita_reptile_scales.png"))
                     .resolution(32)
                     .orientation(orient.clone())
                     .coherent_params(p.clone())
@@ -623,7 +620,7 @@ const TAIL_SETS: [(&str, &str); 5] = [
 fn tail_path(rel: &str) -> PathBuf {
     match rel.strip_prefix("fixtures/") {
         Some(f) => fixture(f),
-        None => shared(rel),
+        None => data(rel),
     }
 }
 
@@ -661,7 +658,7 @@ fn seam_tail() {
         let (mut coh, mut p10, mut p90, mut secs) = (f64::INFINITY, f64::INFINITY, 0.0f64, 0.0);
         let mut waves = 0;
         for seed in first..first + seeds {
-            let r = Synthesizer::new(shared(mesh), tail_path(ex))
+            let r = Synthesizer::new(data(mesh), tail_path(ex))
                 .resolution(n)
                 .seed(seed)
                 .handedness(hand)
@@ -709,7 +706,7 @@ fn diagnose_seams() {
     let seed: u64 = env_or("DIAG_SEED", 5);
     let n: usize = env_or("DIAG_N", 32);
     let top: usize = env_or("DIAG_TOP", 25);
-    let r = Synthesizer::new(shared(&mesh), tail_path(&ex))
+    let r = Synthesizer::new(data(&mesh), tail_path(&ex))
         .resolution(n)
         .seed(seed)
         .run()

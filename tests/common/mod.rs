@@ -17,10 +17,16 @@ pub fn shared() -> PathBuf {
         .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared"))
 }
 
+/// `data/<rel>` in the shared checkout.
+#[allow(dead_code)]
+pub fn data(rel: &str) -> PathBuf {
+    shared().join("data").join(rel)
+}
+
 /// The limit surface of `data/<rel>` in the shared checkout; panics when it does not load.
 #[allow(dead_code)]
 pub fn load(rel: &str) -> Surface {
-    Surface::load_obj(shared().join("data").join(rel)).unwrap()
+    Surface::load_obj(data(rel)).unwrap()
 }
 
 /// A seeded linear congruential generator (Knuth's MMIX constants), so that random test
