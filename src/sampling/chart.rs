@@ -123,133 +123,149 @@ pub fn sample_pattern(
     tolerance: Option<f64>,
     out: &mut [Option<DomainLocation>],
 ) -> Option<VertexId> {
+    SCRATCH.with_borrow_mut(|scratch| {
+        sample_pattern_in(
+            scratch, surface, charts, centre, loc, ds, dt, frame, delta, k, order, tolerance, out,
+        )
+    })
+}
+
+/// [`sample_pattern`] with its working memory.
+#[allow(clippy::too_many_arguments)]
+fn sample_pattern_in(
+    scratch: &mut Scratch,
+    surface: &Surface,
+    charts: &Charts,
+    centre: DomainLocation,
+    loc: BaseLocation,
+    ds: DVec3,
+    dt: DVec3,
+    frame: &Frame,
+    delta: f64,
+    k: usize,
+    order: PatternOrder,
+    tolerance: Option<f64>,
+    out: &mut [Option<DomainLocation>],
+) -> Option<VertexId> {
     debug_assert!(k % 2 == 1 && out.len() >= k * k);
     let h = (k / 2) as i64;
     let (w1, w2) = parameter_axes(ds, dt, frame)?;
-    SCRATCH.with_borrow_mut(|scratch| {
-        let Scratch {
-            zs,
-            za,
-            g: node_g,
-            metric: node_metric,
-            hints: node_hints,
-            gamma,
-            pos,
-        } = &mut **scratch;
-        'charts: for v in candidates(surface, loc) {
-            let Some(chart) = charts.chart(v) else {
-                continue;
-            };
-            let Some(cp) = chart.phi(loc) else {
-                continue;
-            };
-            let (t1, t2) = chart_axes(cp.jacobian, w1, w2);
-            let (t1, t2) = (t1 * delta, t2 * delta);
-            let idx = |l: i64, m: i64| ((m + h) as usize) * k + (l + h) as usize;
-            // Pattern coordinates z of every sample (chart point y = y0 + z.x·T1 + z.y·T2):
-            // `zs`.
-            let mut nodes;
-            let grid = if order == PatternOrder::Geodesic && k <= MAX_ODE_K && h > 0 {
-                nodes = Nodes::new(
-                    surface,
-                    chart,
-                    cp.y,
-                    t1,
-                    t2,
-                    h as f64,
-                    (node_g, node_metric, node_hints),
-                );
-                // The box's corners are the first nodes: one beyond the chart (not merely off
-                // the surface) means the pattern does not fit, before any grid is built.
-                if nodes.ensure(STRIDES[0]).is_some() && nodes.corner_outside_chart() {
-                    continue 'charts;
-                }
-                geodesic_pattern(&mut nodes, k, zs, za, gamma)
+    let Scratch {
+        zs,
+        za,
+        g: node_g,
+        metric: node_metric,
+        hints: node_hints,
+        gamma,
+        pos,
+    } = scratch;
+    'charts: for v in candidates(surface, loc) {
+        let Some(chart) = charts.chart(v) else {
+            continue;
+        };
+        let Some(cp) = chart.phi(loc) else {
+            continue;
+        };
+        let (t1, t2) = chart_axes(cp.jacobian, w1, w2);
+        let (t1, t2) = (t1 * delta, t2 * delta);
+        let idx = |l: i64, m: i64| ((m + h) as usize) * k + (l + h) as usize;
+        // Pattern coordinates z of every sample (chart point y = y0 + z.x·T1 + z.y·T2):
+        // `zs`.
+        let mut nodes;
+        let grid = if order == PatternOrder::Geodesic && k <= MAX_ODE_K && h > 0 {
+            nodes = Nodes::new(
+                surface,
+                chart,
+                cp.y,
+                t1,
+                t2,
+                h as f64,
+                (node_g, node_metric, node_hints),
+            );
+            // The box's corners are the first nodes: one beyond the chart (not merely off
+            // the surface) means the pattern does not fit, before any grid is built.
+            if nodes.ensure(STRIDES[0]).is_some() && nodes.corner_outside_chart() {
+                continue 'charts;
+            }
+            geodesic_pattern(&mut nodes, k, zs, za, gamma)
+        } else {
+            None
+        };
+        let g = match order {
+            _ if grid.is_some() => GeodesicTerms::default(),
+            PatternOrder::Linear => GeodesicTerms::default(),
+            _ => geodesic_terms(
+                surface,
+                chart,
+                cp.y,
+                ds,
+                dt,
+                cp.jacobian,
+                t1,
+                t2,
+                order,
+                h as f64,
+            ),
+        };
+        let y_at = |l: i64, m: i64| {
+            if grid.is_some() {
+                let z = zs[idx(l, m)];
+                cp.y + t1 * z.x + t2 * z.y
             } else {
-                None
-            };
-            let g = match order {
-                _ if grid.is_some() => GeodesicTerms::default(),
-                PatternOrder::Linear => GeodesicTerms::default(),
-                _ => geodesic_terms(
-                    surface,
-                    chart,
-                    cp.y,
-                    ds,
-                    dt,
-                    cp.jacobian,
-                    t1,
-                    t2,
-                    order,
-                    h as f64,
-                ),
-            };
-            let y_at = |l: i64, m: i64| {
-                if grid.is_some() {
-                    let z = zs[idx(l, m)];
-                    cp.y + t1 * z.x + t2 * z.y
-                } else {
-                    cp.y + g.offset(t1, t2, l as f64, m as f64)
-                }
-            };
-            // Φ⁻¹ warm-started from the grid node nearest the sample (or the previous sample).
-            let mut hint = None;
-            let mut map = |l: i64, m: i64| {
-                let y = y_at(l, m);
-                if let Some(grid) = &grid {
-                    hint = grid.hint_near(zs[idx(l, m)]).or(hint);
-                }
-                match chart.phi_inv_hinted(y, &mut hint) {
-                    Some((b, _)) => Some(Some(surface.base_to_domain(b.quad, b.s, b.t))),
-                    None if off_surface(chart, y) => Some(None),
-                    None => None,
-                }
-            };
-            // Corners first: a pattern that does not fit fails fast.
-            if h > 0 {
-                for (l, m) in [(-h, -h), (h, -h), (-h, h), (h, h)] {
-                    match map(l, m) {
-                        Some(s) => out[idx(l, m)] = s,
-                        None => continue 'charts,
-                    }
+                cp.y + g.offset(t1, t2, l as f64, m as f64)
+            }
+        };
+        // Φ⁻¹ warm-started from the grid node nearest the sample (or the previous sample).
+        let mut hint = None;
+        let mut map = |l: i64, m: i64| {
+            let y = y_at(l, m);
+            if let Some(grid) = &grid {
+                hint = grid.hint_near(zs[idx(l, m)]).or(hint);
+            }
+            match chart.phi_inv_hinted(y, &mut hint) {
+                Some((b, _)) => Some(Some(surface.base_to_domain(b.quad, b.s, b.t))),
+                None if off_surface(chart, y) => Some(None),
+                None => None,
+            }
+        };
+        // Corners first: a pattern that does not fit fails fast.
+        if h > 0 {
+            for (l, m) in [(-h, -h), (h, -h), (-h, h), (h, h)] {
+                match map(l, m) {
+                    Some(s) => out[idx(l, m)] = s,
+                    None => continue 'charts,
                 }
             }
-            for m in -h..=h {
-                for l in -h..=h {
-                    if l.abs() == h && m.abs() == h && h > 0 {
-                        continue;
-                    }
-                    if l == 0 && m == 0 {
-                        out[idx(0, 0)] = Some(centre);
-                        continue;
-                    }
-                    match map(l, m) {
-                        Some(s) => out[idx(l, m)] = s,
-                        None => continue 'charts,
-                    }
-                }
-            }
-            if let Some(tol) = tolerance {
-                let square = match &grid {
-                    Some(grid) => grid.pattern_is_square(
-                        surface,
-                        &zs[..k * k],
-                        &out[..k * k],
-                        pos,
-                        k,
-                        delta,
-                        tol,
-                    ),
-                    _ => pattern_is_square(surface, &out[..k * k], k, delta, tol),
-                };
-                if !square {
-                    continue 'charts;
-                }
-            }
-            return Some(v);
         }
-        None
-    })
+        for m in -h..=h {
+            for l in -h..=h {
+                if l.abs() == h && m.abs() == h && h > 0 {
+                    continue;
+                }
+                if l == 0 && m == 0 {
+                    out[idx(0, 0)] = Some(centre);
+                    continue;
+                }
+                match map(l, m) {
+                    Some(s) => out[idx(l, m)] = s,
+                    None => continue 'charts,
+                }
+            }
+        }
+        if let Some(tol) = tolerance {
+            let square = match &grid {
+                Some(grid) => {
+                    grid.pattern_is_square(surface, &zs[..k * k], &out[..k * k], pos, k, delta, tol)
+                }
+                _ => pattern_is_square(surface, &out[..k * k], k, delta, tol),
+            };
+            if !square {
+                continue 'charts;
+            }
+        }
+        return Some(v);
+    }
+    None
 }
 
 /// Working memory of [`sample_pattern`], one per thread: zeroing these ~20 KB of arrays
