@@ -853,10 +853,14 @@ impl<'n, 'a> ChristoffelGrid<'n, 'a> {
     /// Integrates the geodesic from z = 0 with velocity `v` (pattern units) for `reps`
     /// units of time and writes the point at each whole time into `out` (via `put`).
     fn ray(&self, v: DVec2, reps: usize, mut put: impl FnMut(usize, DVec2)) {
-        // One RK4 step per sample step (v.max_element() of them per unit of time): the
-        // geodesics bend by a few % of δ per step, so the RK4 error is far below the
-        // grid's (halving the step changed no sample by more than 0.03% of δ).
-        let sub = (v.x.abs().max(v.y.abs()).ceil() as usize).max(1);
+        // One RK4 step per sample step or per grid cell, whichever is longer (max norm):
+        // the geodesics bend by a few % of δ per step, so the RK4 error is far below the
+        // grid's (halving the step changed no sample by more than 0.03% of δ). Half as
+        // many steps everywhere was too coarse (Spot K = 5: 1.3 → 3.8% of δ off the exact
+        // map); on the 5-node grid of a K = 9 pattern, whose cells are two sample steps
+        // wide (Γ is bilinear within a cell), a step per cell moved no sample by more than
+        // 1.1e-3 δ, left every test figure as it was and saved 7% of the instructions.
+        let sub = ((v.x.abs().max(v.y.abs()) / self.step.max(1.0)).ceil() as usize).max(1);
         let dt = 1.0 / sub as f64;
         let (mut z, mut w) = (DVec2::ZERO, v);
         for r in 1..=reps {
