@@ -17,8 +17,9 @@
 //! `path_K.bin` on the first run, report the largest difference from it on later runs:
 //! refactors must show 0).
 use glam::DVec3;
-use subdiv::{DomainId, DomainLocation};
+use subdiv::DomainLocation;
 use surfsynth::field::{Orientation, OrientationField};
+use surfsynth::sampling::bench::bench_centres;
 use surfsynth::sampling::{median_texel_spacing, Method, Sampler, SamplerKind};
 
 #[inline(never)]
@@ -61,17 +62,8 @@ fn chart_patterns() {
     let mut out = vec![None; k * k];
     // The centres of `surfsynth bench sampling` (sampling::bench), chart-sampled ones only.
     let only = std::env::var("CB_ONLY").unwrap_or_default();
-    let total = surface.num_domains() * n * n;
-    let centres: Vec<DomainLocation> = (0..tried)
-        .map(|i| {
-            let t = (i * 7919 + 13) % total;
-            let (d, r) = (t / (n * n), t % (n * n));
-            DomainLocation {
-                domain: DomainId::from_idx(d),
-                u: ((r % n) as f64 + 0.5) / n as f64,
-                v: ((r / n) as f64 + 0.5) / n as f64,
-            }
-        })
+    let centres: Vec<DomainLocation> = bench_centres(&surface, n, tried)
+        .into_iter()
         .filter(|c| {
             match sampler
                 .sample(*c, delta, k, SamplerKind::Chart, &mut out)

@@ -28,6 +28,24 @@ pub struct SamplingRate {
     pub marched_samples_per_second: Option<f64>,
 }
 
+/// The pattern centres the benchmark samples: `count` texel centres of an `n`×`n` layout,
+/// spread over all domains by a fixed stride through the texels (coprime with typical
+/// sizes), so that every run and tests/chart_bench.rs see the same ones.
+pub fn bench_centres(surface: &Surface, n: usize, count: usize) -> Vec<DomainLocation> {
+    let total = surface.num_domains() * n * n;
+    (0..count)
+        .map(|i| {
+            let t = (i * 7919 + 13) % total;
+            let (d, r) = (t / (n * n), t % (n * n));
+            DomainLocation {
+                domain: DomainId::from_idx(d),
+                u: ((r % n) as f64 + 0.5) / n as f64,
+                v: ((r / n) as f64 + 0.5) / n as f64,
+            }
+        })
+        .collect()
+}
+
 /// Samples `patterns` K×K neighbourhoods at texel centres spread over all domains of an
 /// `n`×`n` layout, δ = `step_texels` × the median texel spacing, with each sampler, on one
 /// thread. Returns one entry per sampler.
@@ -40,20 +58,7 @@ pub fn bench_sampling(
     patterns: usize,
 ) -> Vec<SamplingRate> {
     let delta = step_texels * super::median_texel_spacing(surface, n);
-    let nd = surface.num_domains();
-    let total = nd * n * n;
-    // A fixed stride through all texels (coprime with typical sizes) spreads the centres.
-    let centres: Vec<DomainLocation> = (0..patterns)
-        .map(|i| {
-            let t = (i * 7919 + 13) % total;
-            let (d, r) = (t / (n * n), t % (n * n));
-            DomainLocation {
-                domain: DomainId::from_idx(d),
-                u: ((r % n) as f64 + 0.5) / n as f64,
-                v: ((r / n) as f64 + 0.5) / n as f64,
-            }
-        })
-        .collect();
+    let centres = bench_centres(surface, n, patterns);
     let mut out = vec![None; k * k];
     let mut rates = Vec::new();
     for (name, kind, tol) in [
