@@ -16,6 +16,9 @@
 //! regular / extraordinary vertex), `CB_REF=path` (store every sample's position at
 //! `path_K.bin` on the first run, report the largest difference from it on later runs:
 //! refactors must show 0).
+mod common;
+
+use common::env_or;
 use glam::DVec3;
 use subdiv::DomainLocation;
 use surfsynth::field::{Orientation, OrientationField};
@@ -41,17 +44,10 @@ fn chart_loop(
     n
 }
 
-fn env<T: std::str::FromStr>(name: &str, default: T) -> T {
-    std::env::var(name)
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(default)
-}
-
 #[test]
 #[ignore]
 fn chart_patterns() {
-    let (k, tried, n) = (env("CB_K", 5usize), env("CB_N", 1500usize), 32);
+    let (k, tried, n) = (env_or("CB_K", 5usize), env_or("CB_N", 1500usize), 32);
     let surface = match std::env::var("CB_MESH") {
         Ok(p) => surfsynth::bake::load_surface_for(std::path::Path::new(&p), n).unwrap(),
         Err(_) => surfsynth::bake::surface_for(surfsynth::demo::control_mesh(), n),

@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::data;
+use common::{data, env_or};
 use std::path::{Path, PathBuf};
 use surfsynth::field::Orientation;
 use surfsynth::io::exr::FaceMaps;
@@ -622,13 +622,6 @@ fn tail_path(rel: &str) -> PathBuf {
         Some(f) => fixture(f),
         None => data(rel),
     }
-}
-
-fn env_or<T: std::str::FromStr>(name: &str, default: T) -> T {
-    std::env::var(name)
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(default)
 }
 
 /// Seam ratio (and the other measures) over TAIL_SEEDS seeds (default 8) from TAIL_FIRST

@@ -29,6 +29,16 @@ pub fn load(rel: &str) -> Surface {
     Surface::load_obj(data(rel)).unwrap()
 }
 
+/// The environment variable `name` parsed as a `T`, or `default` when it is unset or does
+/// not parse (the settings of the ignored measurement tests).
+#[allow(dead_code)]
+pub fn env_or<T: std::str::FromStr>(name: &str, default: T) -> T {
+    std::env::var(name)
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
+}
+
 /// A seeded linear congruential generator (Knuth's MMIX constants), so that random test
 /// points are the same on every run and machine without a `rand` dependency.
 #[allow(dead_code)]
