@@ -208,27 +208,10 @@ mod tests {
     use subdiv::ControlMesh;
 
     fn cube() -> Surface {
-        let p = [
-            [-1., -1., -1.],
-            [1., -1., -1.],
-            [1., 1., -1.],
-            [-1., 1., -1.],
-            [-1., -1., 1.],
-            [1., -1., 1.],
-            [1., 1., 1.],
-            [-1., 1., 1.],
-        ]
-        .map(glam::DVec3::from_array)
-        .to_vec();
-        let f: [&[u32]; 6] = [
-            &[0, 3, 2, 1],
-            &[4, 5, 6, 7],
-            &[0, 1, 5, 4],
-            &[1, 2, 6, 5],
-            &[2, 3, 7, 6],
-            &[3, 0, 4, 7],
-        ];
-        Surface::new(ControlMesh::from_faces(p, &f).unwrap())
+        Surface::new(ControlMesh::cuboid(
+            glam::DVec3::splat(-1.0),
+            glam::DVec3::splat(1.0),
+        ))
     }
 
     #[test]
