@@ -739,8 +739,8 @@ impl<'n, 'a> ChristoffelGrid<'n, 'a> {
     #[inline]
     fn hint_near(&self, z: DVec2) -> Option<ChartHint> {
         let n = (self.n - 1) as f64;
-        let i = ((z.x + self.h) / self.step).round().clamp(0.0, n) as usize;
-        let j = ((z.y + self.h) / self.step).round().clamp(0.0, n) as usize;
+        let i = ((z.x + self.h) * self.inv_step).round().clamp(0.0, n) as usize;
+        let j = ((z.y + self.h) * self.inv_step).round().clamp(0.0, n) as usize;
         self.nodes.hints[(j * NODES + i) * self.stride]
     }
 
