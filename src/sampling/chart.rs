@@ -600,49 +600,52 @@ impl<'n, 'a> ChristoffelGrid<'n, 'a> {
         if !valid(c as isize, c as isize) {
             return None;
         }
-        // Derivative along a grid line through node (i, j) in direction (di, dj):
-        // central where both neighbours exist, else second-order one-sided, else
-        // first-order.
-        let diff = |i: isize, j: isize, di: isize, dj: isize| -> Option<[DVec3; 2]> {
-            let ok = |t: isize| valid(i + t * di, j + t * dj);
-            let v = |t: isize| nodes.g[at((i + t * di) as usize, (j + t * dj) as usize)];
-            let comb = |terms: &[(isize, f64)], d: f64| {
-                let mut r = [DVec3::ZERO; 2];
-                for &(t, w) in terms {
-                    let g = v(t);
-                    r[0] += g[0] * w;
-                    r[1] += g[1] * w;
-                }
-                [r[0] / d, r[1] / d]
-            };
-            Some(if ok(-1) && ok(1) {
-                comb(&[(1, 1.0), (-1, -1.0)], 2.0 * step)
-            } else if ok(1) && ok(2) {
-                comb(&[(1, 4.0), (0, -3.0), (2, -1.0)], 2.0 * step)
-            } else if ok(-1) && ok(-2) {
-                comb(&[(0, 3.0), (-1, -4.0), (-2, 1.0)], 2.0 * step)
-            } else if ok(1) {
-                comb(&[(1, 1.0), (0, -1.0)], step)
-            } else if ok(-1) {
-                comb(&[(0, 1.0), (-1, -1.0)], step)
-            } else {
-                return None;
-            })
+        let pinv = |i: usize, j: usize| {
+            let n = at(i, j);
+            Pinv::with_gram(nodes.g[n], nodes.metric[n])
         };
         let mut complete = true;
-        for j in 0..nn as isize {
-            for i in 0..nn as isize {
-                if !valid(i, j) {
-                    complete = false;
-                    continue;
+        if (0..nn).all(|j| (0..nn).all(|i| nodes.state[at(i, j)] == 1)) {
+            // Every node is on the surface (the common case): the stencils of `diff` below
+            // by position alone, without its neighbour tests.
+            for j in 0..nn {
+                for i in 0..nn {
+                    let dl = line_diff(|t| nodes.g[at(t, j)], i, nn, step);
+                    let dm = line_diff(|t| nodes.g[at(i, t)], j, nn, step);
+                    gamma[j * nn + i] = christoffel(&pinv(i, j)?, dl, dm);
                 }
-                // ∂_l G_b and ∂_m G_b.
-                let dl = diff(i, j, 1, 0)?;
-                let dm = diff(i, j, 0, 1)?;
-                let flm = (dl[1] + dm[0]) * 0.5;
-                let p = Pinv::new(nodes.g[at(i as usize, j as usize)])?;
-                gamma[j as usize * nn + i as usize] =
-                    [p.apply(dl[0]), p.apply(flm), p.apply(dm[1])];
+            }
+        } else {
+            // Derivative along a grid line through node (i, j) in direction (di, dj):
+            // central where both neighbours exist, else second-order one-sided, else
+            // first-order.
+            let diff = |i: isize, j: isize, di: isize, dj: isize| -> Option<[DVec3; 2]> {
+                let ok = |t: isize| valid(i + t * di, j + t * dj);
+                let v = |t: isize| nodes.g[at((i + t * di) as usize, (j + t * dj) as usize)];
+                Some(if ok(-1) && ok(1) {
+                    stencil([(v(1), 1.0), (v(-1), -1.0)], 2.0 * step)
+                } else if ok(1) && ok(2) {
+                    stencil([(v(1), 4.0), (v(0), -3.0), (v(2), -1.0)], 2.0 * step)
+                } else if ok(-1) && ok(-2) {
+                    stencil([(v(0), 3.0), (v(-1), -4.0), (v(-2), 1.0)], 2.0 * step)
+                } else if ok(1) {
+                    stencil([(v(1), 1.0), (v(0), -1.0)], step)
+                } else if ok(-1) {
+                    stencil([(v(0), 1.0), (v(-1), -1.0)], step)
+                } else {
+                    return None;
+                })
+            };
+            for j in 0..nn as isize {
+                for i in 0..nn as isize {
+                    if !valid(i, j) {
+                        complete = false;
+                        continue;
+                    }
+                    let (dl, dm) = (diff(i, j, 1, 0)?, diff(i, j, 0, 1)?);
+                    let p = pinv(i as usize, j as usize)?;
+                    gamma[j as usize * nn + i as usize] = christoffel(&p, dl, dm);
+                }
             }
         }
         if !complete {
@@ -959,10 +962,55 @@ impl Pinv {
         }
         Some(Pinv { a, gi: g.inverse() })
     }
+
+    /// [`Self::new`] with the Gram matrix AᵀA already known (`gram`: a₀·a₀, a₀·a₁, a₁·a₁,
+    /// as [`Nodes`] stores it): the same numbers without the three dot products.
+    fn with_gram(a: [DVec3; 2], gram: [f64; 3]) -> Option<Self> {
+        let g = DMat2::from_cols(DVec2::new(gram[0], gram[1]), DVec2::new(gram[1], gram[2]));
+        let det = g.determinant();
+        if !det.is_finite() || det.abs() <= 1e-300 {
+            return None;
+        }
+        Some(Pinv { a, gi: g.inverse() })
+    }
     #[inline]
     fn apply(&self, v: DVec3) -> DVec2 {
         self.gi * DVec2::new(self.a[0].dot(v), self.a[1].dot(v))
     }
+}
+
+/// Σ w·g over a finite-difference stencil of node values, divided by `d`: one function
+/// for [`ChristoffelGrid::new`]'s complete and general grids, so both do the same
+/// floating-point operations in the same order.
+#[inline]
+fn stencil<const N: usize>(terms: [([DVec3; 2], f64); N], d: f64) -> [DVec3; 2] {
+    let mut r = [DVec3::ZERO; 2];
+    for (g, w) in terms {
+        r[0] += g[0] * w;
+        r[1] += g[1] * w;
+    }
+    [r[0] / d, r[1] / d]
+}
+
+/// Derivative at node `i` of a grid line of `nn` ≥ 3 nodes, all on the surface (`v(t)`:
+/// the value at node t): central inside, second-order one-sided at the ends.
+#[inline]
+fn line_diff(v: impl Fn(usize) -> [DVec3; 2], i: usize, nn: usize, step: f64) -> [DVec3; 2] {
+    if i == 0 {
+        stencil([(v(1), 4.0), (v(0), -3.0), (v(2), -1.0)], 2.0 * step)
+    } else if i == nn - 1 {
+        stencil([(v(i), 3.0), (v(i - 1), -4.0), (v(i - 2), 1.0)], 2.0 * step)
+    } else {
+        stencil([(v(i + 1), 1.0), (v(i - 1), -1.0)], 2.0 * step)
+    }
+}
+
+/// Γ(e_l, e_l), Γ(e_l, e_m), Γ(e_m, e_m) at a node from ∂_l G and ∂_m G (G = [∂F/∂l
+/// ∂F/∂m]): the tangential parts of F's second derivatives, in pattern coordinates.
+#[inline]
+fn christoffel(p: &Pinv, dl: [DVec3; 2], dm: [DVec3; 2]) -> [DVec2; 3] {
+    let flm = (dl[1] + dm[0]) * 0.5;
+    [p.apply(dl[0]), p.apply(flm), p.apply(dm[1])]
 }
 
 #[allow(clippy::needless_range_loop)]
