@@ -184,7 +184,7 @@ fn sample_pattern_in(
             );
             // The box's corners are the first nodes: one beyond the chart (not merely off
             // the surface) means the pattern does not fit, before any grid is built.
-            if nodes.ensure(STRIDES[0]).is_some() && nodes.corner_outside_chart() {
+            if nodes.corners_outside_chart() == Some(true) {
                 continue 'charts;
             }
             geodesic_pattern(&mut nodes, k, zs, za, gamma)
@@ -442,20 +442,22 @@ impl<'a> Nodes<'a> {
         }
     }
 
-    /// Whether a corner of the pattern box (evaluated) lies outside the chart, as opposed
-    /// to on the surface or beyond an open boundary.
-    fn corner_outside_chart(&self) -> bool {
+    /// Evaluates the four corners of the pattern box first and tells whether one lies
+    /// outside the chart (as opposed to on the surface or beyond an open boundary): then
+    /// the pattern cannot fit and no other node is needed. A third of Spot's patterns
+    /// that end in a regular chart are first tried in an extraordinary one (those come
+    /// first, [`candidates`]) and fail here. `None` where the chart differential is
+    /// singular.
+    fn corners_outside_chart(&mut self) -> Option<bool> {
         let last = NODES - 1;
-        [(0, 0), (last, 0), (0, last), (last, last)]
-            .iter()
-            .any(|&(i, j)| {
-                let z = DVec2::new(
-                    -self.h + i as f64 * self.spacing(),
-                    -self.h + j as f64 * self.spacing(),
-                );
-                self.state[j * NODES + i] == 2
-                    && !off_surface(self.chart, self.y0 + self.t1 * z.x + self.t2 * z.y)
-            })
+        let mut hint = None;
+        for (i, j) in [(0, 0), (last, 0), (0, last), (last, last)] {
+            self.eval_node(i, j, &mut hint)?;
+            if self.state[j * NODES + i] == 2 && !off_surface(self.chart, self.chart_point(i, j)) {
+                return Some(true);
+            }
+        }
+        Some(false)
     }
 
     /// Lattice spacing in pattern units.
@@ -463,10 +465,17 @@ impl<'a> Nodes<'a> {
         2.0 * self.h / (NODES - 1) as f64
     }
 
+    /// The chart point of lattice node (i, j).
+    #[inline]
+    fn chart_point(&self, i: usize, j: usize) -> DVec2 {
+        let step = self.spacing();
+        let z = DVec2::new(-self.h + i as f64 * step, -self.h + j as f64 * step);
+        self.y0 + self.t1 * z.x + self.t2 * z.y
+    }
+
     /// Evaluates every node on the lattice lines of `stride` not evaluated yet. `None`
     /// where the chart differential is singular.
     fn ensure(&mut self, stride: usize) -> Option<()> {
-        let step = self.spacing();
         let mut hint = None;
         for j in (0..NODES).step_by(stride) {
             // Warm start from the row's first node on the level below.
@@ -479,23 +488,30 @@ impl<'a> Nodes<'a> {
                     hint = self.hints[n].or(hint);
                     continue;
                 }
-                let z = DVec2::new(-self.h + i as f64 * step, -self.h + j as f64 * step);
-                let y = self.y0 + self.t1 * z.x + self.t2 * z.y;
-                let Some((x, cp)) = self.chart.phi_inv_hinted(y, &mut hint) else {
-                    self.state[n] = 2;
-                    self.hints[n] = None;
-                    continue;
-                };
-                self.hints[n] = hint;
-                let e = self.surface.eval_base(x.quad, x.s, x.t);
-                let a = chart_differential(e.du, e.dv, cp.jacobian)?;
-                let (t1, t2) = (self.t1, self.t2);
-                let (gl, gm) = (a[0] * t1.x + a[1] * t1.y, a[0] * t2.x + a[1] * t2.y);
-                self.g[n] = [gl, gm];
-                self.metric[n] = [gl.dot(gl), gl.dot(gm), gm.dot(gm)];
-                self.state[n] = 1;
+                self.eval_node(i, j, &mut hint)?;
             }
         }
+        Some(())
+    }
+
+    /// Evaluates lattice node (i, j) (Φ⁻¹ warm-started from `hint`, which it updates).
+    /// `None` where the chart differential is singular.
+    #[inline]
+    fn eval_node(&mut self, i: usize, j: usize, hint: &mut Option<ChartHint>) -> Option<()> {
+        let n = j * NODES + i;
+        let Some((x, cp)) = self.chart.phi_inv_hinted(self.chart_point(i, j), hint) else {
+            self.state[n] = 2;
+            self.hints[n] = None;
+            return Some(());
+        };
+        self.hints[n] = *hint;
+        let e = self.surface.eval_base(x.quad, x.s, x.t);
+        let a = chart_differential(e.du, e.dv, cp.jacobian)?;
+        let (t1, t2) = (self.t1, self.t2);
+        let (gl, gm) = (a[0] * t1.x + a[1] * t1.y, a[0] * t2.x + a[1] * t2.y);
+        self.g[n] = [gl, gm];
+        self.metric[n] = [gl.dot(gl), gl.dot(gm), gm.dot(gm)];
+        self.state[n] = 1;
         Some(())
     }
 }
