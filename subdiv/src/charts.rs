@@ -12,7 +12,10 @@
 //! We evaluate Φ *exactly*, with the same patch trees as the surface itself: the planar net
 //! is a [`ControlMesh`] whose first k faces are the inner quads, so Φ on sector j is
 //! [`Surface::eval`] of net domain j. Nets depend only on (interior/boundary, k), so they
-//! are built once per kind and shared.
+//! are built once per kind and shared. Φ⁻¹ runs Newton's method on Φ, so an irregular net
+//! also tabulates Φ on first use: outside a 2^-16 neighbourhood of v each square of its
+//! patch tree is one bicubic polynomial, fitted to that exact evaluation (agreeing to
+//! ~1e-15) and evaluated ~3x cheaper than the 3D patch tree (`NetTable`).
 //!
 //! The parameter of a base quad with v at corner c is rotated into the *corner frame* of v
 //! (v at (0,0), first axis toward corner c+1, second toward corner c-1): the same rotation as
@@ -21,7 +24,7 @@
 //! Each chart *serves* the quarter of each incident quad nearest to v (corner-frame
 //! parameter in [0, 0.5]^2): every surface point has a home chart, at least half a base
 //! quad away from that chart's edge. Φ⁻¹ is point location by sector angle followed by
-//! Newton's method on the exact Φ.
+//! Newton's method on Φ.
 
 use crate::adjacency::BaseLocation;
 use crate::ids::{BaseQuadId, DomainId, FaceId, VertexId};
@@ -30,7 +33,7 @@ use crate::surface::{from_child, mul_child, quadrant, to_child, Surface};
 use glam::{DMat2, DVec2, DVec3};
 use std::collections::HashMap;
 use std::f64::consts::{FRAC_PI_2, PI};
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 
 /// A point of a chart domain V with the differential of Φ at it.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -63,6 +66,9 @@ struct ChartNet {
     /// reproduce linear functions). Evaluated in closed form: most charts of a typical mesh
     /// are regular, and Φ, Φ⁻¹ dominate chart sampling's cost otherwise.
     affine: bool,
+    /// Φ_j as bicubic polynomials on the squares of the patch tree (not for the affine net),
+    /// built on first use: see [`NetTable`].
+    table: OnceLock<NetTable>,
 }
 
 /// The chart of one vertex: the base quads around it, counter-clockwise.
@@ -384,6 +390,7 @@ impl ChartNet {
             alpha,
             boundary,
             affine: !boundary && k == 4,
+            table: OnceLock::new(),
         }
     }
 
@@ -431,11 +438,272 @@ impl ChartNet {
             let r = rotation(j);
             return (r * p, r);
         }
+        match self.table().eval(j, p) {
+            Some(r) => r,
+            None => self.eval_exact(j, p),
+        }
+    }
+
+    /// [`Self::eval`] by the net's limit surface (a 3D patch-tree evaluation): the
+    /// reference the [`NetTable`] is fitted to, and what it falls back to.
+    fn eval_exact(&self, j: usize, p: DVec2) -> (DVec2, DMat2) {
         let e = self.surface.eval(DomainId(j as u32), p.x, p.y);
         (
             DVec2::new(e.p.x, e.p.y),
             DMat2::from_cols(DVec2::new(e.du.x, e.du.y), DVec2::new(e.dv.x, e.dv.y)),
         )
+    }
+
+    /// The table, built by the first caller (the same values whichever thread that is).
+    fn table(&self) -> &NetTable {
+        self.table.get_or_init(|| NetTable::build(self))
+    }
+}
+
+/// Levels of the patch tree in a [`NetTable`]: points of a sector with max(a, b) < 2^-16
+/// (within 2^-15 of the vertex in base-quad parameter) keep the patch-tree evaluation.
+/// Together with the exact vertex and points outside [0, 1]² that was 0.16% of the net
+/// evaluations of chart sampling on Spot (tests/chart_bench.rs, K = 5).
+const TABLE_LEVELS: usize = 16;
+
+/// Φ_j of a non-affine net as bicubic polynomials: ~130 instructions for Φ_j and DΦ_j
+/// instead of ~425 for the patch tree of the net's 3D surface (Φ⁻¹ of irregular charts is
+/// Newton's method on Φ_j, and the net evaluations were a third of chart sampling's
+/// instructions on meshes with many extraordinary vertices).
+///
+/// Away from the extraordinary vertex the net's limit map is piecewise bicubic on the
+/// squares of the patch tree: at level n (m = max(a, b) ∈ [2^-(n+1), 2^-n], h = 2^-(n+1))
+/// the squares [h,2h]×[0,h], [h,2h]×[h,2h] and [0,h]×[h,2h] are regular quads of the
+/// refined net, each one bicubic B-spline patch. Each square's polynomial is fitted to
+/// the exact Φ_j, DΦ_j at a 4×4 grid and checked against them at other points when built;
+/// a square that fails (none has, for the nets of valence 1–12 tested) keeps the
+/// patch-tree evaluation.
+///
+/// Interior nets are rotationally symmetric (the k sectors are one placed k times, and
+/// subdivision commutes with rotations), so Φ_j = R(jα) Φ_0 and only sector 0 is stored:
+/// 16 levels × 3 squares × 264 bytes ≈ 12.4 KiB plus 32 bytes per sector. Boundary nets
+/// are not: they store every sector, ≈ 12.4 KiB each.
+#[derive(Debug)]
+struct NetTable {
+    /// Square q of level n of stored sector s at `(s * TABLE_LEVELS + n) * 3 + q`; `None`
+    /// where Φ is not one polynomial.
+    squares: Vec<Option<Bicubic>>,
+    /// Interior nets: R(jα) for each sector j (only sector 0 is stored). Empty for boundary
+    /// nets.
+    rotations: Vec<DMat2>,
+}
+
+impl NetTable {
+    /// Fits every square of the stored sectors (~25 patch-tree evaluations each).
+    fn build(net: &ChartNet) -> Self {
+        let (rotations, stored) = if net.boundary {
+            (Vec::new(), net.sectors)
+        } else {
+            let r = (0..net.sectors)
+                .map(|j| DMat2::from_angle(j as f64 * net.alpha))
+                .collect();
+            (r, 1)
+        };
+        let mut squares = Vec::with_capacity(stored * TABLE_LEVELS * 3);
+        for j in 0..stored {
+            for n in 0..TABLE_LEVELS {
+                for q in 0..3 {
+                    let sq = Square::new(n, q);
+                    squares.push(sq.fit(|p| net.eval_exact(j, p)));
+                }
+            }
+        }
+        NetTable { squares, rotations }
+    }
+
+    /// Φ_j and DΦ_j at `p`, or `None` where the table does not apply (max(a, b) < 2^-16,
+    /// p outside [0, 1]², or in a square that is not one polynomial).
+    #[inline]
+    fn eval(&self, j: usize, p: DVec2) -> Option<(DVec2, DMat2)> {
+        let (n, q, w, z, scale) = Square::locate(p)?;
+        let stored = if self.rotations.is_empty() { j } else { 0 };
+        let poly = self.squares[(stored * TABLE_LEVELS + n) * 3 + q].as_ref()?;
+        let (y, dw, dz) = poly.eval(w, z);
+        let jac = DMat2::from_cols(dw * scale, dz * scale);
+        Some(match self.rotations.get(j) {
+            Some(r) => (*r * y, *r * jac),
+            None => (y, jac),
+        })
+    }
+}
+
+/// Square q (0: [h,2h]×[0,h], 1: [h,2h]×[h,2h], 2: [0,h]×[h,2h]) of level n of a sector,
+/// h = 2^-(n+1), with the local parameter (w, z) ∈ [-1, 1]² (centred: the power basis is
+/// far better conditioned there than on [0, 1]²).
+#[derive(Clone, Copy, Debug)]
+struct Square {
+    origin: DVec2,
+    h: f64,
+}
+
+impl Square {
+    fn new(n: usize, q: usize) -> Self {
+        let h = 0.5f64.powi(n as i32 + 1);
+        let origin = [DVec2::new(h, 0.0), DVec2::splat(h), DVec2::new(0.0, h)][q];
+        Square { origin, h }
+    }
+
+    /// The sector point of local parameter (w, z).
+    fn point(&self, w: f64, z: f64) -> DVec2 {
+        self.origin + 0.5 * self.h * DVec2::new(w + 1.0, z + 1.0)
+    }
+
+    /// The square holding `p`: level n, square q, local (w, z) and d(w, z)/d(a, b) = 2/h.
+    /// The level comes from the exponent bits of max(a, b) (no logarithm), and scaling by
+    /// 2/h is exact.
+    #[inline]
+    fn locate(p: DVec2) -> Option<(usize, usize, f64, f64, f64)> {
+        let m = p.x.max(p.y);
+        // Also rejects NaN.
+        if !(p.x >= 0.0 && p.y >= 0.0 && m <= 1.0) {
+            return None;
+        }
+        // m ∈ [2^-(n+1), 2^-n) has biased exponent 1022 - n; m = 1 joins level 0.
+        let biased = ((m.to_bits() >> 52) & 0x7ff) as usize;
+        let n = 1022usize.saturating_sub(biased);
+        if n >= TABLE_LEVELS {
+            return None;
+        }
+        // 2/h = 2^(n+2); (a, b) · 2/h ∈ [0, 4]², the square's centre at 1 or 3.
+        let scale = f64::from_bits(((1025 + n) as u64) << 52);
+        let (x, y) = (p.x * scale, p.y * scale);
+        Some(match (x >= 2.0, y >= 2.0) {
+            (true, false) => (n, 0, x - 3.0, y - 1.0, scale),
+            (true, true) => (n, 1, x - 3.0, y - 3.0, scale),
+            _ => (n, 2, x - 1.0, y - 3.0, scale),
+        })
+    }
+
+    /// The polynomial of this square fitted to `exact` (Φ_j, DΦ_j at a sector point), if
+    /// Φ_j is one polynomial here.
+    ///
+    /// Only the constant term comes from values: the others come from the partials, which
+    /// the patch tree gives to full relative precision even where Φ is far smaller than
+    /// the net's control points (deep squares of a net without an extraordinary vertex, as
+    /// the corner k = 1); fitted to values alone, DΦ there lost 4 digits.
+    fn fit(&self, exact: impl Fn(DVec2) -> (DVec2, DMat2)) -> Option<Bicubic> {
+        let half_h = 0.5 * self.h;
+        let samples: [[(DVec2, DMat2); 4]; 4] = std::array::from_fn(|iz| {
+            std::array::from_fn(|iw| exact(self.point(NODES[iw], NODES[iz])))
+        });
+        let value = interpolate(|iw, iz| samples[iz][iw].0);
+        let dw = interpolate(|iw, iz| samples[iz][iw].1.col(0) * half_h);
+        let dz = interpolate(|iw, iz| samples[iz][iw].1.col(1) * half_h);
+        // d/dw of Σ c_ij w^i z^j has c_ij · i at w^(i-1) z^j (its w^3 terms are zero).
+        let mut c = [DVec2::ZERO; 16];
+        c[0] = value[0];
+        for j in 0..4 {
+            for i in 1..4 {
+                c[4 * j + i] = dw[4 * j + i - 1] / i as f64;
+            }
+        }
+        for j in 1..4 {
+            c[4 * j] = dz[4 * (j - 1)] / j as f64;
+        }
+        let poly = Bicubic(c);
+        self.agrees(&poly, &exact).then_some(poly)
+    }
+
+    /// Whether `poly` matches `exact` at the square's corners and a point in each of its
+    /// quarters (a square made of several polynomials differs from the fit in one of them).
+    fn agrees(&self, poly: &Bicubic, exact: impl Fn(DVec2) -> (DVec2, DMat2)) -> bool {
+        const CHECKS: [(f64, f64); 9] = [
+            (-1.0, -1.0),
+            (1.0, -1.0),
+            (1.0, 1.0),
+            (-1.0, 1.0),
+            (-0.46, -0.38),
+            (0.54, -0.62),
+            (0.38, 0.66),
+            (-0.72, 0.16),
+            (0.0, 0.0),
+        ];
+        let scale = 2.0 / self.h;
+        CHECKS.iter().all(|&(w, z)| {
+            let (y, jac) = exact(self.point(w, z));
+            let (py, dw, dz) = poly.eval(w, z);
+            let d = jac.col(0).length().max(jac.col(1).length());
+            (py - y).length() <= FIT_VALUE_TOL
+                && (dw * scale - jac.col(0)).length() <= FIT_DERIV_TOL * d
+                && (dz * scale - jac.col(1)).length() <= FIT_DERIV_TOL * d
+        })
+    }
+}
+
+/// Largest difference in Φ between a square's polynomial and the patch tree accepted when
+/// building (the unit tests ask for 1e-13).
+const FIT_VALUE_TOL: f64 = 1e-14;
+/// The same for DΦ, relative to its largest column (the unit tests ask for 1e-11).
+const FIT_DERIV_TOL: f64 = 1e-12;
+
+/// Interpolation nodes in [-1, 1]: Chebyshev points, inside the square (each evaluated by
+/// the square's own patch) and well conditioned.
+const NODES: [f64; 4] = [
+    -0.9238795325112867,
+    -0.3826834323650898,
+    0.3826834323650898,
+    0.9238795325112867,
+];
+
+/// Power-basis coefficients (`c[4 * j + i]` of w^i z^j) of the bicubic polynomial taking
+/// the values `f(iw, iz)` at (NODES[iw], NODES[iz]).
+fn interpolate(f: impl Fn(usize, usize) -> DVec2) -> [DVec2; 16] {
+    // l[i][e]: coefficient of t^e in the Lagrange polynomial of node i.
+    let l: [[f64; 4]; 4] = std::array::from_fn(|i| {
+        let mut c = [1.0, 0.0, 0.0, 0.0];
+        for (m, &tm) in NODES.iter().enumerate() {
+            if m != i {
+                // c · (t - tm) / (t_i - tm), highest power first to read the old c.
+                let d = NODES[i] - tm;
+                for e in (0..4).rev() {
+                    let lower = if e > 0 { c[e - 1] } else { 0.0 };
+                    c[e] = (lower - tm * c[e]) / d;
+                }
+            }
+        }
+        c
+    });
+    let mut c = [DVec2::ZERO; 16];
+    for (j, row) in c.chunks_exact_mut(4).enumerate() {
+        for (i, cij) in row.iter_mut().enumerate() {
+            for (iz, lz) in l.iter().enumerate() {
+                for (iw, lw) in l.iter().enumerate() {
+                    *cij += f(iw, iz) * (lw[i] * lz[j]);
+                }
+            }
+        }
+    }
+    c
+}
+
+/// A bicubic polynomial map [-1, 1]² → R² in the power basis: `c[4 * j + i]` multiplies
+/// w^i z^j.
+#[derive(Clone, Copy, Debug)]
+struct Bicubic([DVec2; 16]);
+
+impl Bicubic {
+    /// Value and partials d/dw, d/dz at (w, z), by Horner's rule.
+    #[inline(always)]
+    fn eval(&self, w: f64, z: f64) -> (DVec2, DVec2, DVec2) {
+        let row = |j: usize| {
+            let r = &self.0[4 * j..4 * j + 4];
+            let val = ((r[3] * w + r[2]) * w + r[1]) * w + r[0];
+            let dw = (r[3] * (3.0 * w) + r[2] * 2.0) * w + r[1];
+            (val, dw)
+        };
+        let (r0, d0) = row(0);
+        let (r1, d1) = row(1);
+        let (r2, d2) = row(2);
+        let (r3, d3) = row(3);
+        let val = ((r3 * z + r2) * z + r1) * z + r0;
+        let dw = ((d3 * z + d2) * z + d1) * z + d0;
+        let dz = (r3 * (3.0 * z) + r2 * 2.0) * z + r1;
+        (val, dw, dz)
     }
 }
 
@@ -573,6 +841,187 @@ mod tests {
                     }
                 }
             }
+        }
+    }
+
+    /// Test points of a sector (xorshift, fixed seed): random ones at every scale down to
+    /// 2^-20, on square borders and at level boundaries (max(a, b) exactly 2^-n), next to
+    /// and at the vertex, and on the far edges.
+    fn table_test_points() -> Vec<DVec2> {
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut rnd = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut pts = vec![
+            DVec2::ZERO,
+            DVec2::ONE,
+            DVec2::X,
+            DVec2::Y,
+            DVec2::new(1.0, 0.5),
+            DVec2::new(0.5, 1.0),
+        ];
+        for n in 0..TABLE_LEVELS + 3 {
+            let h = 0.5f64.powi(n as i32 + 1);
+            let (r, s) = (rnd(), rnd());
+            pts.extend([
+                // Level boundary 2^-n, from both squares and the diagonal.
+                DVec2::new(2.0 * h, r * 2.0 * h),
+                DVec2::new(s * 2.0 * h, 2.0 * h),
+                DVec2::splat(2.0 * h),
+                DVec2::new(2.0 * h, 0.0),
+                DVec2::new(0.0, 2.0 * h),
+                // Just below it (the level below).
+                DVec2::new(2.0 * h * (1.0 - f64::EPSILON), r * h),
+                // Borders between the squares of level n.
+                DVec2::new(h, r * h),
+                DVec2::new(h, h + s * h),
+                DVec2::new(h + r * h, h),
+                DVec2::new(s * h, h),
+                DVec2::splat(h),
+            ]);
+        }
+        for _ in 0..300 {
+            let scale = 0.5f64.powf(20.0 * rnd());
+            pts.push(DVec2::new(rnd(), rnd()) * scale);
+        }
+        pts
+    }
+
+    /// The tabulated Φ_j, DΦ_j match the net's limit surface everywhere in every sector
+    /// (the rotated sector 0 for interior nets, each sector for boundary ones), and every
+    /// square of these nets is one polynomial (the claim the table rests on).
+    #[test]
+    fn table_matches_the_net_surface() {
+        let kinds = [
+            (false, 3),
+            (false, 5),
+            (false, 6),
+            (false, 7),
+            (false, 8),
+            (false, 12),
+            (true, 1),
+            (true, 2),
+            (true, 3),
+            (true, 5),
+        ];
+        let pts = table_test_points();
+        for (boundary, k) in kinds {
+            let net = ChartNet::new(boundary, k);
+            let table = net.table();
+            assert!(
+                table.squares.iter().all(Option::is_some),
+                "boundary={boundary} k={k}: a square is not one polynomial"
+            );
+            let (mut worst_y, mut worst_d, mut tabulated) = (0.0f64, 0.0f64, 0);
+            for j in 0..k {
+                for &p in &pts {
+                    let m = p.x.max(p.y);
+                    let inside = m >= 0.5f64.powi(TABLE_LEVELS as i32);
+                    assert_eq!(table.eval(j, p).is_some(), inside, "{p}");
+                    tabulated += inside as usize;
+                    let (y, jac) = net.eval(j, p);
+                    let (ye, jace) = net.eval_exact(j, p);
+                    let scale = jace.col(0).length().max(jace.col(1).length());
+                    let dy = (y - ye).length();
+                    let dd = (0..2)
+                        .map(|c| (jac.col(c) - jace.col(c)).length() / scale)
+                        .fold(0.0, f64::max);
+                    let at = format!("boundary={boundary} k={k} sector {j} {p:?}");
+                    assert!(dy <= 1e-13, "{at}: Φ {y} vs {ye}");
+                    assert!(dd <= 1e-11, "{at}: DΦ {jac} vs {jace}");
+                    (worst_y, worst_d) = (worst_y.max(dy), worst_d.max(dd));
+                }
+            }
+            assert!(tabulated > k * pts.len() * 3 / 4);
+            println!("boundary={boundary} k={k}: Φ within {worst_y:.1e}, DΦ {worst_d:.1e}");
+        }
+    }
+
+    /// The build-time check rejects what is not one polynomial: the quad at the
+    /// extraordinary vertex, [0, h]², is not (the characteristic map is not polynomial
+    /// there), while at a regular vertex (interior k = 4, boundary k = 2, the corner k = 1)
+    /// it is.
+    #[test]
+    fn table_check_rejects_the_quad_at_an_extraordinary_vertex() {
+        for (boundary, k, polynomial) in [
+            (false, 3, false),
+            (false, 5, false),
+            (true, 3, false),
+            (false, 4, true),
+            (true, 2, true),
+            (true, 1, true),
+        ] {
+            let net = ChartNet::new(boundary, k);
+            for n in [1, 4, 12] {
+                let sq = Square {
+                    origin: DVec2::ZERO,
+                    h: 0.5f64.powi(n),
+                };
+                let fit = sq.fit(|p| net.eval_exact(0, p));
+                assert_eq!(
+                    fit.is_some(),
+                    polynomial,
+                    "boundary={boundary} k={k} h=2^-{n}"
+                );
+            }
+        }
+    }
+
+    /// The level and square of a point come from exponent bits: check them against the
+    /// definition (m = max(a, b) ∈ [2^-(n+1), 2^-n), m = 1 in level 0).
+    #[test]
+    fn squares_are_located_by_exponent() {
+        for p in table_test_points() {
+            let m = p.x.max(p.y);
+            match Square::locate(p) {
+                None => assert!(m < 0.5f64.powi(TABLE_LEVELS as i32), "{p}"),
+                Some((n, q, w, z, scale)) => {
+                    let sq = Square::new(n, q);
+                    assert_eq!(scale, 2.0 / sq.h);
+                    assert!(m >= sq.h && (m < 2.0 * sq.h || m == 1.0), "{p}: level {n}");
+                    let unit = -1.0..=1.0;
+                    assert!(unit.contains(&w) && unit.contains(&z), "{p}: square {q}");
+                    assert!((sq.point(w, z) - p).length() <= f64::EPSILON * m, "{p}");
+                }
+            }
+        }
+        assert!(Square::locate(DVec2::new(-1e-3, 0.5)).is_none());
+        assert!(Square::locate(DVec2::new(0.5, 1.0 + 1e-12)).is_none());
+        assert!(Square::locate(DVec2::new(f64::NAN, 0.5)).is_none());
+    }
+
+    /// Build time of [`Charts::new`] on Spot and of the tables of its irregular net kinds
+    /// (`cargo test --release -p subdiv --lib charts_build_time -- --ignored --nocapture`).
+    #[test]
+    #[ignore]
+    fn charts_build_time() {
+        let shared = std::env::var_os("SURFSYNTH_SHARED").map_or_else(
+            || std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared"),
+            std::path::PathBuf::from,
+        );
+        let s = Surface::load_obj(shared.join("data/opensubdiv-reference/spot_control_mesh.obj"))
+            .unwrap();
+        for _ in 0..3 {
+            let t0 = std::time::Instant::now();
+            let charts = Charts::new(&s);
+            let built = t0.elapsed();
+            let mut kinds: Vec<(bool, usize)> = Vec::new();
+            let t1 = std::time::Instant::now();
+            for c in charts.charts.iter().flatten() {
+                let key = (c.is_boundary(), c.valence());
+                if !c.net().affine && !kinds.contains(&key) {
+                    kinds.push(key);
+                    c.net().table();
+                }
+            }
+            println!(
+                "Charts::new {:.2} ms; tables of the irregular kinds {kinds:?}: {:.2} ms",
+                built.as_secs_f64() * 1e3,
+                t1.elapsed().as_secs_f64() * 1e3
+            );
         }
     }
 }
