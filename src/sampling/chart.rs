@@ -530,6 +530,7 @@ fn geodesic_pattern<'n, 'a>(
     let [g_coarse, g_mid, g_fine] = gamma;
     nodes.ensure(coarse)?;
     nodes.ensure(mid)?;
+    // Whether the 5-node grid is accepted, and then whether all its nodes are on the surface.
     let accepted = {
         let nodes: &Nodes = nodes;
         match (
@@ -541,19 +542,20 @@ fn geodesic_pattern<'n, 'a>(
                 m.pattern(k, Rays::Main, zs);
                 // Only the main rays' rim ends are compared (the rest of `za` is stale).
                 let h = (k / 2) as i64;
-                [-h, h].iter().all(|&t| {
+                let close = [-h, h].iter().all(|&t| {
                     [(t, 0), (0, t), (t, t), (t, -t)].iter().all(|&(l, m)| {
                         let i = ((m + h) as usize) * k + (l + h) as usize;
                         (za[i] - zs[i]).length() <= ACCEPT_5
                     })
-                })
+                });
+                close.then_some(m.complete)
             }
-            _ => false,
+            _ => None,
         }
     };
-    if accepted {
+    if let Some(complete) = accepted {
         // The main rays are already integrated on this grid, whose Γ is in `g_mid`.
-        let grid = ChristoffelGrid::with_gamma(nodes, mid, g_mid);
+        let grid = ChristoffelGrid::with_gamma(nodes, mid, g_mid, complete);
         grid.pattern(k, Rays::Others, zs);
         Some(grid)
     } else {
@@ -684,24 +686,25 @@ impl<'n, 'a> ChristoffelGrid<'n, 'a> {
         if !gamma[..nn * nn].iter().flatten().all(|v| v.is_finite()) {
             return None;
         }
-        Some(Self::with_gamma(nodes, stride, gamma))
+        Some(Self::with_gamma(nodes, stride, gamma, complete))
     }
 
-    /// A grid with Γ already computed (by [`Self::new`] for the same nodes and stride).
+    /// A grid with Γ already computed (by [`Self::new`] for the same nodes and stride,
+    /// which also found whether every node is on the surface: `complete`).
     fn with_gamma(
         nodes: &'n Nodes<'a>,
         stride: usize,
         gamma: &'n [[DVec2; 3]; NODES * NODES],
+        complete: bool,
     ) -> Self {
-        let nn = (NODES - 1) / stride + 1;
-        let complete = (0..nn * nn).all(|n| nodes.state[((n / nn) * NODES + n % nn) * stride] == 1);
+        let step = nodes.spacing() * stride as f64;
         ChristoffelGrid {
             nodes,
             stride,
             h: nodes.h,
-            step: nodes.spacing() * stride as f64,
-            inv_step: 1.0 / (nodes.spacing() * stride as f64),
-            n: nn,
+            step,
+            inv_step: 1.0 / step,
+            n: (NODES - 1) / stride + 1,
             gamma,
             complete,
         }
