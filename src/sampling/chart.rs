@@ -282,7 +282,7 @@ struct Scratch {
     metric: [[f64; 3]; NODES * NODES],
     hints: [Option<ChartHint>; NODES * NODES],
     /// Christoffel symbols of the three nested grids.
-    gamma: [[[DVec2; 3]; NODES * NODES]; 3],
+    gamma: [GammaStore; 3],
     /// Limit positions of samples, where the check needs them.
     pos: [Option<DVec3>; MAX_ODE_K * MAX_ODE_K],
 }
@@ -294,7 +294,10 @@ thread_local! {
         g: [[DVec3::ZERO; 2]; NODES * NODES],
         metric: [[0.0; 3]; NODES * NODES],
         hints: [None; NODES * NODES],
-        gamma: [[[DVec2::ZERO; 3]; NODES * NODES]; 3],
+        gamma: std::array::from_fn(|_| GammaStore {
+            node: [[DVec2::ZERO; 3]; NODES * NODES],
+            cell: [[[DVec2::ZERO; 4]; 3]; (NODES - 1) * (NODES - 1)],
+        }),
         pos: [None; MAX_ODE_K * MAX_ODE_K],
     }));
 }
@@ -524,7 +527,7 @@ fn geodesic_pattern<'n, 'a>(
     k: usize,
     zs: &mut [DVec2],
     za: &mut [DVec2],
-    gamma: &'n mut [[[DVec2; 3]; NODES * NODES]; 3],
+    gamma: &'n mut [GammaStore; 3],
 ) -> Option<ChristoffelGrid<'n, 'a>> {
     let [coarse, mid, fine] = STRIDES;
     let [g_coarse, g_mid, g_fine] = gamma;
@@ -579,6 +582,42 @@ enum Rays {
     Others,
 }
 
+/// Γ of one nested grid, per node and per cell.
+struct GammaStore {
+    /// Per node: Γ(e_l, e_l), Γ(e_l, e_m), Γ(e_m, e_m) (the first n² entries).
+    node: [[DVec2; 3]; NODES * NODES],
+    /// Per cell (row-major, the first (n−1)² entries) and component: a, b, c, d of the
+    /// bilinear interpolant a + b·x + (c + d·x)·y in the cell's local coordinates: the
+    /// geodesic ODE evaluates Γ ~170 times per 5×5 pattern, and this form takes fewer
+    /// operations than weighting four nodes (Spot K 9 −3% instructions, K 5 −1%).
+    cell: [[[DVec2; 4]; 3]; (NODES - 1) * (NODES - 1)],
+}
+
+impl GammaStore {
+    /// The cells' coefficients from the nodes' Γ (`nn` nodes per side).
+    fn fill_cells(&mut self, nn: usize) {
+        for iy in 0..nn - 1 {
+            for ix in 0..nn - 1 {
+                let i0 = iy * nn + ix;
+                let (g00, g10, g01, g11) = (
+                    &self.node[i0],
+                    &self.node[i0 + 1],
+                    &self.node[i0 + nn],
+                    &self.node[i0 + nn + 1],
+                );
+                self.cell[iy * (nn - 1) + ix] = std::array::from_fn(|t| {
+                    [
+                        g00[t],
+                        g10[t] - g00[t],
+                        g01[t] - g00[t],
+                        g11[t] - g10[t] - g01[t] + g00[t],
+                    ]
+                });
+            }
+        }
+    }
+}
+
 /// Christoffel symbols of the surface in *pattern* coordinates z = (l, m) on the nodes of
 /// one level of [`Nodes`] (every `stride`-th lattice node: 3, 5 or 9 per side over
 /// [−h, h]²), bilinearly interpolated: the geodesic through the centre with initial
@@ -590,8 +629,7 @@ struct ChristoffelGrid<'n, 'a> {
     step: f64,
     /// Nodes per side.
     n: usize,
-    /// Per node: Γ(e_l, e_l), Γ(e_l, e_m), Γ(e_m, e_m) (the first n² entries).
-    gamma: &'n [[DVec2; 3]; NODES * NODES],
+    gamma: &'n GammaStore,
     /// 1 / step.
     inv_step: f64,
     /// Every node is on the surface (none copied from a neighbour).
@@ -601,11 +639,8 @@ struct ChristoffelGrid<'n, 'a> {
 impl<'n, 'a> ChristoffelGrid<'n, 'a> {
     /// The grid of lattice stride `stride` (its nodes must have been evaluated), its Γ
     /// computed into `gamma`.
-    fn new(
-        nodes: &'n Nodes<'a>,
-        stride: usize,
-        gamma: &'n mut [[DVec2; 3]; NODES * NODES],
-    ) -> Option<Self> {
+    fn new(nodes: &'n Nodes<'a>, stride: usize, store: &'n mut GammaStore) -> Option<Self> {
+        let gamma = &mut store.node;
         let nn = (NODES - 1) / stride + 1;
         let step = nodes.spacing() * stride as f64;
         let at = |i: usize, j: usize| (j * NODES + i) * stride;
@@ -686,7 +721,8 @@ impl<'n, 'a> ChristoffelGrid<'n, 'a> {
         if !gamma[..nn * nn].iter().flatten().all(|v| v.is_finite()) {
             return None;
         }
-        Some(Self::with_gamma(nodes, stride, gamma, complete))
+        store.fill_cells(nn);
+        Some(Self::with_gamma(nodes, stride, store, complete))
     }
 
     /// A grid with Γ already computed (by [`Self::new`] for the same nodes and stride,
@@ -694,7 +730,7 @@ impl<'n, 'a> ChristoffelGrid<'n, 'a> {
     fn with_gamma(
         nodes: &'n Nodes<'a>,
         stride: usize,
-        gamma: &'n [[DVec2; 3]; NODES * NODES],
+        gamma: &'n GammaStore,
         complete: bool,
     ) -> Self {
         let step = nodes.spacing() * stride as f64;
@@ -737,14 +773,7 @@ impl<'n, 'a> ChristoffelGrid<'n, 'a> {
             }
         }
     }
-    /// Cell of pattern point z: lower-left node index and bilinear weights.
-    #[inline]
-    fn cell(&self, z: DVec2) -> (usize, f64, f64) {
-        let (ix, iy, ax, ay) = self.cell_xy(z);
-        (iy * self.n + ix, ax, ay)
-    }
-
-    /// [`Self::cell`] with the cell's column and row.
+    /// Cell of pattern point z: its column and row and the local coordinates in it.
     #[inline]
     fn cell_xy(&self, z: DVec2) -> (usize, usize, f64, f64) {
         let nn = self.n;
@@ -864,22 +893,12 @@ impl<'n, 'a> ChristoffelGrid<'n, 'a> {
     /// The geodesic acceleration −Γ(w, w) at pattern point z.
     #[inline]
     fn accel(&self, z: DVec2, w: DVec2) -> DVec2 {
-        let nn = self.n;
-        let (i0, ax, ay) = self.cell(z);
-        let w00 = (1.0 - ax) * (1.0 - ay);
-        let w10 = ax * (1.0 - ay);
-        let w01 = (1.0 - ax) * ay;
-        let w11 = ax * ay;
-        let (c00, c10, c01, c11) = (
-            &self.gamma[i0],
-            &self.gamma[i0 + 1],
-            &self.gamma[i0 + nn],
-            &self.gamma[i0 + nn + 1],
-        );
+        let (ix, iy, ax, ay) = self.cell_xy(z);
+        let cell = &self.gamma.cell[iy * (self.n - 1) + ix];
         let q = [w.x * w.x, 2.0 * w.x * w.y, w.y * w.y];
         let mut a = DVec2::ZERO;
-        for t in 0..3 {
-            a += (c00[t] * w00 + c10[t] * w10 + c01[t] * w01 + c11[t] * w11) * q[t];
+        for (&[c0, c1, c2, c3], q) in cell.iter().zip(q) {
+            a += (c0 + c1 * ax + (c2 + c3 * ax) * ay) * q;
         }
         -a
     }
