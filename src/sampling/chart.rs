@@ -268,7 +268,7 @@ fn sample_pattern_in(
     None
 }
 
-/// Working memory of [`sample_pattern`], one per thread: zeroing these arrays (~20 KB then; ~60 KB with the per-cell Γ)
+/// Working memory of [`sample_pattern`] (~60 KB), one per thread: zeroing these arrays
 /// for every pattern cost 5–11% of chart sampling (callgrind). Nothing in it carries over
 /// from one pattern to the next (`Nodes::state` says which node values are current), so
 /// results do not depend on which thread sampled what before.
