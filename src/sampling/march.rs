@@ -26,6 +26,7 @@
 //! - degenerate triangles cannot produce NaN: lengths are floored before dividing.
 
 use glam::{DVec2, DVec3};
+use subdiv::surface::LeafHint;
 use subdiv::{BaseLocation, DomainLocation, FaceId, LimitMesh, Surface};
 
 /// Safety cap on edge crossings of one path.
@@ -433,8 +434,10 @@ impl MarchMesh {
         let (f, s, t) = self.face_point(p);
         let mut loc = lm.to_base(f, s, t);
         let target = self.position(lm, p);
+        // Only position and derivatives are needed; successive points share a patch.
+        let mut hint = LeafHint::default();
         for _ in 0..4 {
-            let e = surface.eval_base(loc.quad, loc.s, loc.t);
+            let e = surface.eval_base_derivs(loc.quad, loc.s, loc.t, &mut hint);
             let r = target - e.p;
             // Gauss–Newton step for min |f(s,t) − target|².
             let (a, b, c) = (e.du.dot(e.du), e.du.dot(e.dv), e.dv.dot(e.dv));
