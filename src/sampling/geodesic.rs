@@ -20,6 +20,7 @@
 
 use crate::field::Frame;
 use glam::DVec3;
+use subdiv::surface::{LeafHint, LimitDerivs};
 use subdiv::{BaseLocation, DomainLocation, LimitSample, Surface};
 
 /// Where a geodesic ended.
@@ -29,47 +30,65 @@ pub struct GeodesicPoint {
     pub p: DVec3,
 }
 
-/// Newton's method for the surface point q with (q − x)·a = (q − x)·b = 0 (a, b spanning
-/// the tangent plane at the previous point: q is x moved along the previous normal),
-/// starting at `from` (whose limit sample is `e_from`). `None` if the point is off the
-/// surface (beyond an open boundary) or Newton does not converge.
+/// The constraint of one RATTLE projection: the surface point q with (q − x)·a =
+/// (q − x)·b = 0 (a, b spanning the tangent plane at the previous point: q is x moved along
+/// the previous normal), to within `tol` (mesh units).
+struct Constraint {
+    x: DVec3,
+    a: DVec3,
+    b: DVec3,
+    tol: f64,
+}
+
+impl Constraint {
+    /// The residual of surface point `p`.
+    #[inline]
+    fn residual(&self, p: DVec3) -> (f64, f64) {
+        let r = p - self.x;
+        (r.dot(self.a), r.dot(self.b))
+    }
+}
+
+/// Newton's method for the point of constraint `c`, starting at `from` (whose limit sample
+/// is `e_from`). `None` if the point is off the surface (beyond an open boundary) or Newton
+/// does not converge. The trial points are evaluated without their normal, which only the
+/// point returned needs, through `hint` (the patch of the last trial point).
 ///
 /// `guess` is a predicted parameter move from `from`: Newton starts there instead if its
 /// residual is below half of `from`'s. The flag returned tells whether the point is in
 /// `from`'s base quad with no base-quad edge crossed on the way (the move is then the
 /// difference of the parameters).
-#[allow(clippy::too_many_arguments)]
 fn project_along(
     surface: &Surface,
     from: BaseLocation,
-    e_from: LimitSample,
-    x: DVec3,
-    a: DVec3,
-    b: DVec3,
-    tol: f64,
+    e_from: &LimitSample,
+    c: &Constraint,
     guess: Option<(f64, f64)>,
+    hint: &mut LeafHint,
 ) -> Option<(BaseLocation, LimitSample, bool)> {
+    let eval =
+        |l: BaseLocation, hint: &mut LeafHint| surface.eval_base_derivs(l.quad, l.s, l.t, hint);
     let mut loc = from;
-    let mut e = e_from;
+    let mut e = LimitDerivs::from(*e_from);
     let mut same_quad = true;
     if let Some((ds, dt)) = guess {
         if let Some((next, crossed)) = surface.walk_base(from, ds, dt) {
-            let en = surface.eval_base(next.quad, next.s, next.t);
-            let (r0, r1) = (e.p - x, en.p - x);
-            let g0 = r0.dot(a).powi(2) + r0.dot(b).powi(2);
-            let g1 = r1.dot(a).powi(2) + r1.dot(b).powi(2);
+            let en = eval(next, hint);
+            let (r0, r1) = (c.residual(e.p), c.residual(en.p));
+            let g0 = r0.0.powi(2) + r0.1.powi(2);
+            let g1 = r1.0.powi(2) + r1.1.powi(2);
             if g1 < 0.25 * g0 {
                 (loc, e, same_quad) = (next, en, crossed == 0);
             }
         }
     }
     for _ in 0..60 {
-        let r = e.p - x;
-        let g = (r.dot(a), r.dot(b));
+        let g = c.residual(e.p);
         let gn = (g.0 * g.0 + g.1 * g.1).sqrt();
-        if gn <= tol {
-            return Some((loc, e, same_quad && loc.quad == from.quad));
+        if gn <= c.tol {
+            return Some((loc, e.sample(), same_quad && loc.quad == from.quad));
         }
+        let (a, b) = (c.a, c.b);
         let (j00, j01, j10, j11) = (a.dot(e.du), a.dot(e.dv), b.dot(e.du), b.dot(e.dv));
         let det = j00 * j11 - j01 * j10;
         if !det.is_finite() || det.abs() < 1e-300 {
@@ -87,10 +106,10 @@ fn project_along(
         let mut accepted = false;
         for _ in 0..30 {
             if let Some((next, crossed)) = surface.walk_base(loc, ds, dt) {
-                let en = surface.eval_base(next.quad, next.s, next.t);
-                let rn = en.p - x;
-                let gn2 = (rn.dot(a).powi(2) + rn.dot(b).powi(2)).sqrt();
-                if gn2 < gn || gn2 <= tol {
+                let en = eval(next, hint);
+                let rn = c.residual(en.p);
+                let gn2 = (rn.0.powi(2) + rn.1.powi(2)).sqrt();
+                if gn2 < gn || gn2 <= c.tol {
                     same_quad &= crossed == 0;
                     loc = next;
                     e = en;
@@ -161,6 +180,8 @@ struct State {
     /// per step next to Spot's extraordinary vertices; the third derivatives jump at the
     /// patch boundaries, which are dense there, so the guess is 5x better, not O(Δt³)).
     corr: Option<(f64, f64)>,
+    /// The patch of the last point evaluated (consecutive steps are close).
+    hint: LeafHint,
 }
 
 impl State {
@@ -170,6 +191,7 @@ impl State {
             e,
             v: v - e.n * e.n.dot(v),
             corr: None,
+            hint: LeafHint::default(),
         }
     }
 
@@ -195,7 +217,9 @@ impl State {
                 }
                 _ => None,
             };
-            let (nl, e, same) = project_along(surface, self.loc, self.e, x, a, b, tol, guess)?;
+            let c = Constraint { x, a, b, tol };
+            let (nl, e, same) =
+                project_along(surface, self.loc, &self.e, &c, guess, &mut self.hint)?;
             self.corr = match (lin, same) {
                 (Some(l), true) => Some((nl.s - self.loc.s - l.0, nl.t - self.loc.t - l.1)),
                 _ => None,

@@ -26,6 +26,7 @@
 //! - degenerate triangles cannot produce NaN: lengths are floored before dividing.
 
 use glam::{DVec2, DVec3};
+use subdiv::surface::LeafHint;
 use subdiv::{BaseLocation, DomainLocation, FaceId, LimitMesh, Surface};
 
 /// Safety cap on edge crossings of one path.
@@ -54,6 +55,14 @@ struct TriGeo {
     n: DVec3,
     /// Unit direction of each local edge j (corner j → j + 1), in the 2D frame.
     edge: [DVec2; 3],
+    /// Per local edge: (neighbour triangle << 2) | its local edge, or NONE.
+    adj: [u32; 3],
+    /// Limit normals at the corners (the crossing rule, see the module doc).
+    corner_normals: [DVec3; 3],
+    /// Within [`EXACT_RINGS`] rings of an extraordinary vertex, where the polyhedral mesh
+    /// is a poor stand-in for the limit surface (its cone angles there deflect straightest
+    /// paths by up to the vertex's angle deficit, a few degrees).
+    near_extraordinary: bool,
 }
 
 /// A point of the triangulated mesh.
@@ -66,15 +75,9 @@ pub struct TriPoint {
 /// The triangulated limit mesh with unfolding data.
 #[derive(Clone, Debug)]
 pub struct MarchMesh {
+    /// Per triangle, everything a path crossing it reads (one record: a crossing costs
+    /// ~200 instructions, and separate arrays added a bounds check and an address each).
     geo: Vec<TriGeo>,
-    /// Per triangle and local edge: (neighbour triangle << 2) | its local edge, or NONE.
-    adj: Vec<[u32; 3]>,
-    /// Per triangle: within [`EXACT_RINGS`] rings of an extraordinary vertex, where the
-    /// polyhedral mesh is a poor stand-in for the limit surface (its cone angles there
-    /// deflect straightest paths by up to the vertex's angle deficit, a few degrees).
-    near_extraordinary: Vec<bool>,
-    /// Per triangle: limit normals at its corners (the crossing rule, see the module doc).
-    corner_normals: Vec<[DVec3; 3]>,
 }
 
 /// Rings of level faces around an extraordinary vertex in which paths continue on the
@@ -106,9 +109,7 @@ impl MarchMesh {
     pub fn new(lm: &LimitMesh) -> Self {
         let m = &lm.mesh;
         let nf = m.num_faces();
-        let mut geo = Vec::with_capacity(2 * nf);
-        let mut adj = Vec::with_capacity(2 * nf);
-        let mut corner_normals = Vec::with_capacity(2 * nf);
+        let mut geo: Vec<TriGeo> = Vec::with_capacity(2 * nf);
         for f in 0..nf {
             let fid = FaceId::from_idx(f);
             let vs = m.face_vertices(fid);
@@ -130,6 +131,13 @@ impl MarchMesh {
                 let (x2, y2) = (e2.dot(ex), e2.dot(ey).max(1e-300));
                 let c = [DVec2::ZERO, DVec2::new(x1, 0.0), DVec2::new(x2, y2)];
                 let edge = [0, 1, 2].map(|j| (c[(j + 1) % 3] - c[j]).normalize_or(DVec2::X));
+                let mut adj = [NONE; 3];
+                // The diagonal joins the face's two triangles.
+                if k == 0 {
+                    adj[2] = ((2 * f + 1) as u32) << 2;
+                } else {
+                    adj[0] = (((2 * f) as u32) << 2) | 2;
+                }
                 geo.push(TriGeo {
                     x1,
                     x2,
@@ -138,16 +146,10 @@ impl MarchMesh {
                     ey,
                     n,
                     edge,
+                    adj,
+                    corner_normals: tv.map(|v| lm.normal[v as usize]),
+                    near_extraordinary: false,
                 });
-                corner_normals.push(tv.map(|v| lm.normal[v as usize]));
-                let mut a = [NONE; 3];
-                // The diagonal joins the face's two triangles.
-                if k == 0 {
-                    a[2] = ((2 * f + 1) as u32) << 2;
-                } else {
-                    a[0] = (((2 * f) as u32) << 2) | 2;
-                }
-                adj.push(a);
             }
             for (q, &(k, j)) in QUAD_EDGE.iter().enumerate() {
                 let h = m.face_he(fid) + q as u32;
@@ -155,7 +157,7 @@ impl MarchMesh {
                     let g = m.face_of(t);
                     let q2 = (t - m.face_he(g)) as usize;
                     let (k2, j2) = QUAD_EDGE[q2];
-                    adj[2 * f + k][j] = (((2 * g.idx() + k2) as u32) << 2) | j2 as u32;
+                    geo[2 * f + k].adj[j] = (((2 * g.idx() + k2) as u32) << 2) | j2 as u32;
                 }
             }
         }
@@ -182,23 +184,18 @@ impl MarchMesh {
                 }
             }
         }
-        let mut near_extraordinary = Vec::with_capacity(2 * nf);
         for f in 0..nf {
             let vs = m.face_vertices(FaceId::from_idx(f));
             let near = vs.iter().any(|&v| dist[v as usize] < EXACT_RINGS);
-            near_extraordinary.extend([near, near]);
+            geo[2 * f].near_extraordinary = near;
+            geo[2 * f + 1].near_extraordinary = near;
         }
-        MarchMesh {
-            geo,
-            adj,
-            near_extraordinary,
-            corner_normals,
-        }
+        MarchMesh { geo }
     }
 
     /// Whether `tri` is near an extraordinary vertex (see [`EXACT_RINGS`]).
     pub fn near_extraordinary(&self, tri: u32) -> bool {
-        self.near_extraordinary[tri as usize]
+        self.geo[tri as usize].near_extraordinary
     }
 
     /// 3D direction of a 2D direction in `tri`'s frame.
@@ -313,7 +310,8 @@ impl MarchMesh {
             return Ok((PathEnd::At(start), d));
         }
         for _ in 0..MAX_CROSSINGS {
-            if stop && self.near_extraordinary[tri] {
+            let g = &self.geo[tri];
+            if stop && g.near_extraordinary {
                 return Err(Entered {
                     at: TriPoint {
                         tri: tri as u32,
@@ -323,7 +321,6 @@ impl MarchMesh {
                     rest,
                 });
             }
-            let g = &self.geo[tri];
             // Barycentric rate of change per unit length along d.
             let db2 = d.y / g.y2;
             let db1 = (d.x - g.x2 * db2) / g.x1;
@@ -361,7 +358,7 @@ impl MarchMesh {
             let j1 = (j + 1) % 3;
             let (bj, bj1) = (b[j].max(0.0), b[j1].max(0.0));
             let a = (bj1 / (bj + bj1).max(1e-300)).clamp(VERTEX_EPS, 1.0 - VERTEX_EPS);
-            let link = self.adj[tri][j];
+            let link = g.adj[j];
             if link == NONE {
                 return Ok((PathEnd::Boundary, d));
             }
@@ -376,7 +373,7 @@ impl MarchMesh {
             // (T2 − T1 ∥ N, N interpolated from the limit normals at the edge's ends), as
             // a geodesic's does; exact unfolding (the shared edge runs the other way in the
             // neighbour) only where that fails.
-            let cn = &self.corner_normals[tri];
+            let cn = &g.corner_normals;
             let nc = cn[j] * (1.0 - a) + cn[j1] * a;
             let t1 = g.ex * d.x + g.ey * d.y;
             let den = nc.dot(g2.n);
@@ -390,7 +387,7 @@ impl MarchMesh {
             if inward.is_nan() || inward <= 0.0 {
                 d2 = -alpha * e2 - beta * w2;
             }
-            d = d2.normalize_or(w2);
+            d = unit_or(d2, w2);
             let mut nb = [0.0; 3];
             nb[nj] = a;
             nb[(nj + 1) % 3] = 1.0 - a;
@@ -433,8 +430,10 @@ impl MarchMesh {
         let (f, s, t) = self.face_point(p);
         let mut loc = lm.to_base(f, s, t);
         let target = self.position(lm, p);
+        // Only position and derivatives are needed; successive points share a patch.
+        let mut hint = LeafHint::default();
         for _ in 0..4 {
-            let e = surface.eval_base(loc.quad, loc.s, loc.t);
+            let e = surface.eval_base_derivs(loc.quad, loc.s, loc.t, &mut hint);
             let r = target - e.p;
             // Gauss–Newton step for min |f(s,t) − target|².
             let (a, b, c) = (e.du.dot(e.du), e.du.dot(e.dv), e.dv.dot(e.dv));
@@ -473,6 +472,18 @@ fn edge_axes(g: &TriGeo, j: usize) -> (DVec2, DVec2) {
     let e = g.edge[j];
     // Corners are counter-clockwise, so the interior is to the left of every edge.
     (e, DVec2::new(-e.y, e.x))
+}
+
+/// `d.normalize_or(fallback)` with the finiteness test as two comparisons (the same
+/// results; glam's bit test was ~10 of the ~200 instructions of an edge crossing).
+#[inline]
+fn unit_or(d: DVec2, fallback: DVec2) -> DVec2 {
+    let rcp = 1.0 / d.length();
+    if rcp > 0.0 && rcp < f64::INFINITY {
+        d * rcp
+    } else {
+        fallback
+    }
 }
 
 /// Clamps rounding errors so the coordinates stay a convex combination.
