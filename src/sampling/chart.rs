@@ -46,6 +46,7 @@ use crate::field::Frame;
 use glam::{DMat2, DVec2, DVec3};
 use std::cell::RefCell;
 use std::f64::consts::FRAC_PI_2;
+use subdiv::surface::LeafHint;
 use subdiv::{BaseLocation, ChartHint, Charts, DomainLocation, Surface, VertexChart, VertexId};
 
 /// τ_1, τ_2 of step 2 for a chart point with differential `dphi`.
@@ -416,6 +417,10 @@ struct Nodes<'a> {
     /// The Φ⁻¹ solution per node (`None` where `state` is 2): a warm start for nearby
     /// points. Valid where `state` is not 0.
     hints: &'a mut [Option<ChartHint>; NODES * NODES],
+    /// The patch of the last node's limit evaluation: neighbouring nodes mostly share it,
+    /// and their evaluations then skip the patch-tree descent (and the normal, which no
+    /// node needs).
+    leaf: LeafHint,
 }
 
 impl<'a> Nodes<'a> {
@@ -442,6 +447,7 @@ impl<'a> Nodes<'a> {
             metric,
             state: [0; NODES * NODES],
             hints,
+            leaf: LeafHint::default(),
         }
     }
 
@@ -508,7 +514,9 @@ impl<'a> Nodes<'a> {
             return Some(());
         };
         self.hints[n] = *hint;
-        let e = self.surface.eval_base(x.quad, x.s, x.t);
+        let e = self
+            .surface
+            .eval_base_derivs(x.quad, x.s, x.t, &mut self.leaf);
         let a = chart_differential(e.du, e.dv, cp.jacobian)?;
         let (t1, t2) = (self.t1, self.t2);
         let (gl, gm) = (a[0] * t1.x + a[1] * t1.y, a[0] * t2.x + a[1] * t2.y);
