@@ -156,7 +156,7 @@ pub fn geodesic(
 ) {
     out.clear();
     let e0 = surface.eval_base(start.quad, start.s, start.t);
-    let mut state = Some(State::new(start, e0, v));
+    let mut state = Some(State::new(start, e0, v, LeafHint::default()));
     for _ in 0..segments {
         state = state.and_then(|st| st.advance(surface, substeps, tol));
         out.push(state.map(|st| GeodesicPoint {
@@ -185,13 +185,13 @@ struct State {
 }
 
 impl State {
-    fn new(loc: BaseLocation, e: LimitSample, v: DVec3) -> State {
+    fn new(loc: BaseLocation, e: LimitSample, v: DVec3, hint: LeafHint) -> State {
         State {
             loc,
             e,
             v: v - e.n * e.n.dot(v),
             corr: None,
-            hint: LeafHint::default(),
+            hint,
         }
     }
 
@@ -234,43 +234,78 @@ impl State {
 }
 
 /// The end of the geodesic from `start` with initial tangent `v` (length = arc length),
-/// integrated with steps of at most `max_step`: what marching uses next to extraordinary
-/// vertices. `None` past an open boundary (or if a projection fails).
+/// integrated with steps of at most `max_step`. `None` past an open boundary (or if a
+/// projection fails).
 pub fn geodesic_end(
     surface: &Surface,
     start: BaseLocation,
     v: DVec3,
     max_step: f64,
 ) -> Option<BaseLocation> {
-    let e0 = surface.eval_base(start.quad, start.s, start.t);
-    geodesic_end_from(surface, start, &e0, v, max_step)
+    let mut hint = LeafHint::default();
+    let e0 = surface
+        .eval_base_derivs(start.quad, start.s, start.t, &mut hint)
+        .sample();
+    GeodesicPath::new(start, &e0, v, max_step, hint).advance(surface, v.length())
 }
 
-/// [`geodesic_end`] with the start's limit sample `e0` (`eval_base` at `start`) given:
-/// marching starts many geodesics at the same point.
-pub fn geodesic_end_from(
-    surface: &Surface,
-    start: BaseLocation,
-    e0: &LimitSample,
-    v: DVec3,
+/// A geodesic integrated piece by piece, with steps of at most `max_step`: what marching
+/// uses next to extraordinary vertices, where a path reads off several pattern samples
+/// along one geodesic (integrating each from the start again would cost quadratically in
+/// their number).
+pub struct GeodesicPath {
+    /// `None` from the first point past an open boundary (or a failed projection) on.
+    state: Option<State>,
+    /// Arc length per unit of integration time: the length of the last piece asked for.
+    speed: f64,
     max_step: f64,
-) -> Option<BaseLocation> {
-    let len = v.length();
-    if !(len.is_finite() && max_step > 0.0) {
-        return None;
-    }
-    let steps = ((len / max_step).ceil() as usize).clamp(1, 1 << 16);
-    let tol = PROJECTION_TOL * max_step;
-    let st = State::new(start, *e0, v);
-    st.advance(surface, steps, tol).map(|st| st.loc)
+    tol: f64,
 }
 
-/// The geodesic from `start` (whose limit sample is `e0`) with initial tangent `v`, ended
-/// after each of `segments` segments of arc length |v|: `at(j, end)` for j = 1..=segments,
-/// `end` `None` from the first point past an open boundary (or a failed projection) on.
-/// Each segment is ⌈|v| / `max_step`⌉ RATTLE steps, so the point after j segments is
-/// integrated with steps no longer than [`geodesic_end_from`]'s for j·v. What marching
-/// uses for the multiples (j·l0, j·m0) of a primitive pattern direction (one path each).
+impl GeodesicPath {
+    /// The geodesic from `start` (whose limit sample is `e0`: paths share their starts)
+    /// with initial tangent `v`; `hint` is the patch of `start` (or of a point near it) if
+    /// known.
+    pub fn new(
+        start: BaseLocation,
+        e0: &LimitSample,
+        v: DVec3,
+        max_step: f64,
+        hint: LeafHint,
+    ) -> GeodesicPath {
+        let speed = v.length();
+        GeodesicPath {
+            state: (speed.is_finite() && max_step > 0.0).then(|| State::new(start, *e0, v, hint)),
+            speed,
+            max_step,
+            tol: PROJECTION_TOL * max_step,
+        }
+    }
+
+    /// On by arc length `len`, in ⌈`len` / `max_step`⌉ RATTLE steps: where the path is
+    /// then (`None` from the first point past an open boundary on).
+    pub fn advance(&mut self, surface: &Surface, len: f64) -> Option<BaseLocation> {
+        let mut st = self.state?;
+        if len != self.speed {
+            // RATTLE covers one velocity per unit time: rescale it (the geodesic's speed
+            // is constant; the drift of the velocity's length is the integration error's).
+            st.v *= len / self.speed;
+            self.speed = len;
+        }
+        let steps = ((len / self.max_step).ceil() as usize).clamp(1, 1 << 16);
+        self.state = st.advance(surface, steps, self.tol);
+        self.state.map(|st| st.loc)
+    }
+}
+
+/// The geodesic from `start` (whose limit sample is `e0`, its patch `hint`) with initial
+/// tangent `v`, ended after each of `segments` segments of arc length |v|: `at(j, end)` for
+/// j = 1..=segments, `end` `None` from the first point past an open boundary (or a failed
+/// projection) on. Each segment is ⌈|v| / `max_step`⌉ RATTLE steps, so the point after j
+/// segments is integrated with steps no longer than [`geodesic_end`]'s for j·v. What
+/// marching uses for the multiples (j·l0, j·m0) of a primitive pattern direction (one path
+/// each).
+#[allow(clippy::too_many_arguments)]
 pub fn geodesic_ends_from(
     surface: &Surface,
     start: BaseLocation,
@@ -278,15 +313,13 @@ pub fn geodesic_ends_from(
     v: DVec3,
     segments: usize,
     max_step: f64,
+    hint: LeafHint,
     mut at: impl FnMut(usize, Option<BaseLocation>),
 ) {
     let len = v.length();
-    let mut state = (len.is_finite() && max_step > 0.0).then_some(State::new(start, *e0, v));
-    let steps = ((len / max_step).ceil() as usize).clamp(1, 1 << 16);
-    let tol = PROJECTION_TOL * max_step;
+    let mut path = GeodesicPath::new(start, e0, v, max_step, hint);
     for j in 1..=segments {
-        state = state.and_then(|st| st.advance(surface, steps, tol));
-        at(j, state.map(|st| st.loc));
+        at(j, path.advance(surface, len));
     }
 }
 

@@ -420,20 +420,34 @@ impl MarchMesh {
     /// matters next to extraordinary vertices, where the limit surface's parameterisation
     /// is far from affine across one face (up to 30% of a face at level 5), while the mesh
     /// itself is within a hair of the surface.
-    pub fn to_domain(&self, surface: &Surface, lm: &LimitMesh, p: TriPoint) -> DomainLocation {
-        let loc = self.to_base(surface, lm, p);
+    ///
+    /// `hint` is the patch of the last point evaluated, in and out: the samples of one path
+    /// are close, so a hint carried along it mostly skips the descent of the patch tree.
+    pub fn to_domain(
+        &self,
+        surface: &Surface,
+        lm: &LimitMesh,
+        p: TriPoint,
+        hint: &mut LeafHint,
+    ) -> DomainLocation {
+        let loc = self.to_base(surface, lm, p, hint);
         surface.base_to_domain(loc.quad, loc.s, loc.t)
     }
 
     /// [`Self::to_domain`] as a base-quad point.
-    pub fn to_base(&self, surface: &Surface, lm: &LimitMesh, p: TriPoint) -> BaseLocation {
+    pub fn to_base(
+        &self,
+        surface: &Surface,
+        lm: &LimitMesh,
+        p: TriPoint,
+        hint: &mut LeafHint,
+    ) -> BaseLocation {
         let (f, s, t) = self.face_point(p);
         let mut loc = lm.to_base(f, s, t);
         let target = self.position(lm, p);
         // Only position and derivatives are needed; successive points share a patch.
-        let mut hint = LeafHint::default();
         for _ in 0..4 {
-            let e = surface.eval_base_derivs(loc.quad, loc.s, loc.t, &mut hint);
+            let e = surface.eval_base_derivs(loc.quad, loc.s, loc.t, hint);
             let r = target - e.p;
             // Gauss–Newton step for min |f(s,t) − target|².
             let (a, b, c) = (e.du.dot(e.du), e.du.dot(e.dv), e.dv.dot(e.dv));

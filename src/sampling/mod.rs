@@ -29,6 +29,7 @@ use glam::DVec3;
 use march::{MarchMesh, PathEnd};
 use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
 use std::sync::OnceLock;
+use subdiv::surface::LeafHint;
 use subdiv::{BaseLocation, Charts, DomainLocation, LimitSample, Surface, VertexId};
 
 /// Default relative spacing tolerance of accepted chart patterns (4%: inside the 5% that
@@ -391,20 +392,27 @@ impl<'a> Sampler<'a> {
         let idx = |l: i64, m: i64| ((m + h) as usize) * k + (l + h) as usize;
         out[idx(0, 0)] = Some(centre);
         let mut stalled = 0;
+        // The patch of the last point evaluated, carried from sample to sample: a path's
+        // samples are close, so most evaluations skip the descent of the patch tree.
+        let mut hint = LeafHint::default();
         // A mesh path's end as a domain point (stalled paths are counted).
-        let mut finish = |end: PathEnd| match end {
-            PathEnd::At(p) => Some(mm.to_domain(self.surface, lm, p)),
+        let mut finish = |end: PathEnd, hint: &mut LeafHint| match end {
+            PathEnd::At(p) => Some(mm.to_domain(self.surface, lm, p, hint)),
             PathEnd::Boundary => None,
             PathEnd::Stalled(p) => {
                 stalled += 1;
-                Some(mm.to_domain(self.surface, lm, p))
+                Some(mm.to_domain(self.surface, lm, p, hint))
             }
         };
         if exact_start {
             // Every geodesic starts at the centre: its limit sample once. One geodesic per
             // primitive direction (l0, m0) (gcd 1), its multiples (j·l0, j·m0) read off
             // along the way, as below.
-            let e0 = self.surface.eval_base(loc.quad, loc.s, loc.t);
+            let e0 = self
+                .surface
+                .eval_base_derivs(loc.quad, loc.s, loc.t, &mut hint)
+                .sample();
+            let h0 = hint;
             for m0 in -h..=h {
                 for l0 in -h..=h {
                     if geodesic::gcd(l0.unsigned_abs(), m0.unsigned_abs()) != 1 {
@@ -423,12 +431,13 @@ impl<'a> Sampler<'a> {
                         vt,
                         reps as usize,
                         max_step,
+                        h0,
                         |j, b| {
                             let j = j as i64;
                             out[idx(l0 * j, m0 * j)] = match b {
                                 Some(b) => Some(s.base_to_domain(b.quad, b.s, b.t)),
                                 // Off the surface or a failed projection: the mesh path decides.
-                                None => finish(mm.walk(p0, dir, v.length() * j as f64)),
+                                None => finish(mm.walk(p0, dir, v.length() * j as f64), &mut hint),
                             };
                         },
                     );
@@ -451,51 +460,63 @@ impl<'a> Sampler<'a> {
                 let step = (frame.v1 * l0 as f64 + frame.v2 * m0 as f64).length() * delta;
                 let (mut at, mut d) = (p0, dir);
                 // Where the path entered the neighbourhood of an extraordinary vertex:
-                // (entry, base point there and its limit sample, unit 3D tangent, length
-                // left to the sample).
-                let mut entry: Option<(march::Entered, BaseLocation, LimitSample, DVec3, f64)> =
-                    None;
+                // (entry, base point there, its limit sample and patch, unit 3D tangent,
+                // length left to the sample).
+                #[allow(clippy::type_complexity)]
+                let mut entry: Option<(
+                    march::Entered,
+                    BaseLocation,
+                    LimitSample,
+                    LeafHint,
+                    DVec3,
+                    f64,
+                )> = None;
                 let mut done: Option<PathEnd> = None;
                 for j in 1..=reps {
                     let i = idx(l0 * j, m0 * j);
                     if let Some(end) = done {
-                        out[i] = finish(end);
+                        out[i] = finish(end, &mut hint);
                         continue;
                     }
                     if entry.is_none() {
                         match mm.walk_on(at, d, step) {
                             Ok((PathEnd::At(p), dp)) => {
                                 (at, d) = (p, dp);
-                                out[i] = finish(PathEnd::At(p));
+                                out[i] = finish(PathEnd::At(p), &mut hint);
                                 continue;
                             }
                             Ok((end, _)) => {
                                 done = Some(end);
-                                out[i] = finish(end);
+                                out[i] = finish(end, &mut hint);
                                 continue;
                             }
                             Err(e) => {
-                                let b = mm.to_base(self.surface, lm, e.at);
-                                let eb = self.surface.eval_base(b.quad, b.s, b.t);
+                                let b = mm.to_base(self.surface, lm, e.at, &mut hint);
+                                // Newton's last point was next to b: the hint mostly holds.
+                                let eb = self
+                                    .surface
+                                    .eval_base_derivs(b.quad, b.s, b.t, &mut hint)
+                                    .sample();
                                 let t = mm.to_3d(e.at.tri, e.dir);
                                 let t = (t - eb.n * eb.n.dot(t)).normalize_or_zero();
-                                entry = Some((e, b, eb, t, e.rest));
+                                entry = Some((e, b, eb, hint, t, e.rest));
                             }
                         }
                     } else if let Some(en) = entry.as_mut() {
-                        en.4 += step;
+                        en.5 += step;
                     }
                     // Next to an extraordinary vertex: on along the exact limit surface.
-                    let Some((e, b, eb, t, rest)) = entry else {
+                    let Some((e, b, eb, hb, t, rest)) = entry else {
                         continue;
                     };
-                    out[i] =
-                        match geodesic::geodesic_end_from(self.surface, b, &eb, t * rest, max_step)
-                        {
-                            Some(b) => Some(self.surface.base_to_domain(b.quad, b.s, b.t)),
-                            // Off the surface or a failed projection: the mesh path decides.
-                            None => finish(mm.walk(e.at, e.dir, rest)),
-                        };
+                    let v = t * rest;
+                    out[i] = match geodesic::GeodesicPath::new(b, &eb, v, max_step, hb)
+                        .advance(self.surface, v.length())
+                    {
+                        Some(b) => Some(self.surface.base_to_domain(b.quad, b.s, b.t)),
+                        // Off the surface or a failed projection: the mesh path decides.
+                        None => finish(mm.walk(e.at, e.dir, rest), &mut hint),
+                    };
                 }
             }
         }
