@@ -286,9 +286,13 @@ impl GeodesicPath {
     /// then (`None` from the first point past an open boundary on).
     pub fn advance(&mut self, surface: &Surface, len: f64) -> Option<BaseLocation> {
         let mut st = self.state?;
-        if len != self.speed {
+        if len == 0.0 {
+            return Some(st.loc);
+        }
+        if len != self.speed && self.speed > 0.0 {
             // RATTLE covers one velocity per unit time: rescale it (the geodesic's speed
             // is constant; the drift of the velocity's length is the integration error's).
+            // A zero tangent stays zero: the path stays at its start.
             st.v *= len / self.speed;
             self.speed = len;
         }

@@ -30,7 +30,7 @@ use march::{MarchMesh, PathEnd};
 use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
 use std::sync::OnceLock;
 use subdiv::surface::LeafHint;
-use subdiv::{BaseLocation, Charts, DomainLocation, LimitSample, Surface, VertexId};
+use subdiv::{BaseLocation, Charts, DomainLocation, Surface, VertexId};
 
 /// Default relative spacing tolerance of accepted chart patterns (4%: inside the 5% that
 /// issue 3 asks of every pattern, with room for the 3D-vs-surface distance difference).
@@ -459,18 +459,10 @@ impl<'a> Sampler<'a> {
                 let dir = (a1 * l0 as f64 + a2 * m0 as f64).normalize();
                 let step = (frame.v1 * l0 as f64 + frame.v2 * m0 as f64).length() * delta;
                 let (mut at, mut d) = (p0, dir);
-                // Where the path entered the neighbourhood of an extraordinary vertex:
-                // (entry, base point there, its limit sample and patch, unit 3D tangent,
-                // length left to the sample).
-                #[allow(clippy::type_complexity)]
-                let mut entry: Option<(
-                    march::Entered,
-                    BaseLocation,
-                    LimitSample,
-                    LeafHint,
-                    DVec3,
-                    f64,
-                )> = None;
+                // Where the path entered the neighbourhood of an extraordinary vertex: (entry,
+                // the geodesic on from there, its length to the sample). One geodesic reads
+                // off every further multiple, as from an exact centre.
+                let mut entry: Option<(march::Entered, geodesic::GeodesicPath, f64)> = None;
                 let mut done: Option<PathEnd> = None;
                 for j in 1..=reps {
                     let i = idx(l0 * j, m0 * j);
@@ -478,7 +470,11 @@ impl<'a> Sampler<'a> {
                         out[i] = finish(end, &mut hint);
                         continue;
                     }
-                    if entry.is_none() {
+                    // Arc length of the geodesic from the previous sample (or the entry).
+                    let len = if let Some(en) = entry.as_mut() {
+                        en.2 += step;
+                        step
+                    } else {
                         match mm.walk_on(at, d, step) {
                             Ok((PathEnd::At(p), dp)) => {
                                 (at, d) = (p, dp);
@@ -499,23 +495,21 @@ impl<'a> Sampler<'a> {
                                     .sample();
                                 let t = mm.to_3d(e.at.tri, e.dir);
                                 let t = (t - eb.n * eb.n.dot(t)).normalize_or_zero();
-                                entry = Some((e, b, eb, hint, t, e.rest));
+                                let v = t * e.rest;
+                                let path = geodesic::GeodesicPath::new(b, &eb, v, max_step, hint);
+                                entry = Some((e, path, e.rest));
+                                v.length()
                             }
                         }
-                    } else if let Some(en) = entry.as_mut() {
-                        en.5 += step;
-                    }
+                    };
                     // Next to an extraordinary vertex: on along the exact limit surface.
-                    let Some((e, b, eb, hb, t, rest)) = entry else {
+                    let Some((e, path, rest)) = entry.as_mut() else {
                         continue;
                     };
-                    let v = t * rest;
-                    out[i] = match geodesic::GeodesicPath::new(b, &eb, v, max_step, hb)
-                        .advance(self.surface, v.length())
-                    {
+                    out[i] = match path.advance(self.surface, len) {
                         Some(b) => Some(self.surface.base_to_domain(b.quad, b.s, b.t)),
                         // Off the surface or a failed projection: the mesh path decides.
-                        None => finish(mm.walk(e.at, e.dir, rest), &mut hint),
+                        None => finish(mm.walk(e.at, e.dir, *rest), &mut hint),
                     };
                 }
             }
