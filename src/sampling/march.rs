@@ -445,6 +445,8 @@ impl MarchMesh {
         let (f, s, t) = self.face_point(p);
         let mut loc = lm.to_base(f, s, t);
         let target = self.position(lm, p);
+        // Never move further than the face is wide (a safeguard at singular points).
+        let cap = 1.0 / lm.faces_per_base().isqrt() as f64;
         // Only position and derivatives are needed; successive points share a patch.
         for _ in 0..4 {
             let e = surface.eval_base_derivs(loc.quad, loc.s, loc.t, hint);
@@ -461,8 +463,6 @@ impl MarchMesh {
             if !(ds.is_finite() && dt.is_finite()) {
                 break;
             }
-            // Never move further than the face is wide (a safeguard at singular points).
-            let cap = 1.0 / lm.faces_per_base().isqrt() as f64;
             let len = (ds * ds + dt * dt).sqrt();
             let scale = if len > cap { cap / len } else { 1.0 };
             match surface.walk_base(loc, ds * scale, dt * scale) {
