@@ -5,7 +5,7 @@
 //! sampler's samples compared with marching's.
 mod common;
 
-use common::Lcg;
+use common::{spacing, Lcg};
 use glam::DVec3;
 use serde_json::Value;
 use std::f64::consts::TAU;
@@ -160,7 +160,7 @@ struct Judged {
 fn judge(p: &[Option<DVec3>], k: usize, delta: f64, normal: DVec3) -> Judged {
     let h = k / 2;
     let mut j = Judged {
-        spacing: 0.0,
+        spacing: spacing(p, k, delta).0,
         axes: 0.0,
         folds: 0,
     };
@@ -168,14 +168,6 @@ fn judge(p: &[Option<DVec3>], k: usize, delta: f64, normal: DVec3) -> Judged {
         for l in 0..k {
             let i = m * k + l;
             let Some(a) = p[i] else { continue };
-            for n in [(l + 1 < k).then_some(i + 1), (m + 1 < k).then_some(i + k)]
-                .into_iter()
-                .flatten()
-            {
-                if let Some(b) = p[n] {
-                    j.spacing = j.spacing.max(((b - a).length() / delta - 1.0).abs());
-                }
-            }
             if l + 1 < k && m + 1 < k {
                 if let (Some(x), Some(y)) = (p[i + 1], p[i + k]) {
                     if (x - a).cross(y - a).dot(normal) <= 0.0 {

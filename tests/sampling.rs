@@ -12,7 +12,7 @@ use surfsynth::maps::{FaceMaps, MapLayout};
 use surfsynth::sampling::{Method, Sampler, SamplerKind};
 
 mod common;
-use common::{centres, load, pos, Lcg};
+use common::{centres, load, pos, spacing, Lcg};
 
 /// A planar n×n grid of unit quads at z = 0.
 fn grid(n: usize) -> Surface {
@@ -79,21 +79,14 @@ fn judge(s: &Surface, out: &[Option<DomainLocation>], k: usize, delta: f64, st: 
     let h = k / 2;
     let p: Vec<Option<DVec3>> = out.iter().map(|l| pos(s, l)).collect();
     st.patterns += 1;
+    let (worst, pairs, over5) = spacing(&p, k, delta);
+    st.spacing = st.spacing.max(worst);
+    st.pairs += pairs;
+    st.over5 += over5;
     for m in 0..k {
         for l in 0..k {
             let i = m * k + l;
             let Some(a) = p[i] else { continue };
-            for j in [(l + 1 < k).then_some(i + 1), (m + 1 < k).then_some(i + k)]
-                .into_iter()
-                .flatten()
-            {
-                if let Some(b) = p[j] {
-                    let e = ((b - a).length() / delta - 1.0).abs();
-                    st.spacing = st.spacing.max(e);
-                    st.pairs += 1;
-                    st.over5 += (e > 0.05) as usize;
-                }
-            }
             if l + 1 < k && m + 1 < k {
                 if let (Some(x), Some(y)) = (p[i + 1], p[i + k]) {
                     let loc = out[i].unwrap();

@@ -8,30 +8,7 @@ use surfsynth::sampling::geodesic::exp_pattern;
 use surfsynth::sampling::{Method, Sampler, SamplerKind};
 
 mod common;
-use common::{centres, load, pos};
-
-/// Worst adjacent-pair spacing error of a position grid.
-fn spacing(p: &[Option<DVec3>], k: usize, delta: f64) -> (f64, usize, usize) {
-    let (mut w, mut n, mut over) = (0.0f64, 0, 0);
-    for m in 0..k {
-        for l in 0..k {
-            let i = m * k + l;
-            let Some(a) = p[i] else { continue };
-            for j in [(l + 1 < k).then_some(i + 1), (m + 1 < k).then_some(i + k)]
-                .into_iter()
-                .flatten()
-            {
-                if let Some(b) = p[j] {
-                    let e = ((b - a).length() / delta - 1.0).abs();
-                    w = w.max(e);
-                    n += 1;
-                    over += (e > 0.05) as usize;
-                }
-            }
-        }
-    }
-    (w, n, over)
-}
+use common::{centres, load, pos, spacing};
 
 /// Measurement (prints; run with --ignored --nocapture). SURVEY_MESH selects one mesh.
 #[test]

@@ -87,3 +87,29 @@ pub fn centres(s: &Surface, n: usize, seed: u64) -> Vec<DomainLocation> {
     }
     c
 }
+
+/// Worst |distance/δ − 1| over the adjacent pairs (along rows and columns) of a K×K grid of
+/// positions (row by row, `None` where missing), the number of pairs measured and how many
+/// of them are more than 5% off.
+#[allow(dead_code)]
+pub fn spacing(p: &[Option<DVec3>], k: usize, delta: f64) -> (f64, usize, usize) {
+    let (mut w, mut n, mut over) = (0.0f64, 0, 0);
+    for m in 0..k {
+        for l in 0..k {
+            let i = m * k + l;
+            let Some(a) = p[i] else { continue };
+            for j in [(l + 1 < k).then_some(i + 1), (m + 1 < k).then_some(i + k)]
+                .into_iter()
+                .flatten()
+            {
+                if let Some(b) = p[j] {
+                    let e = ((b - a).length() / delta - 1.0).abs();
+                    w = w.max(e);
+                    n += 1;
+                    over += (e > 0.05) as usize;
+                }
+            }
+        }
+    }
+    (w, n, over)
+}
