@@ -1,10 +1,11 @@
 //! Rate of the patterns that chart sampling marches (near extraordinary vertices), and a
 //! dump of their samples so that a change in evaluation can be checked bit-for-bit.
 //! `cargo test --release --test march_bench -- --ignored --nocapture`
-//! (MB_MESH=spot|dt, MB_K=5|9, MB_DUMP=path, MB_REPS=n).
+//! (MB_MESH=spot|dt|tri|bunny, MB_K=5|9, MB_N=patterns, MB_DUMP=path, MB_REPS=n; unset or
+//! unparsable values take the defaults: Spot, 9, 300, no dump, 1).
 mod common;
 
-use common::data;
+use common::{data, env_or};
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicIsize, Ordering};
 use subdiv::{DomainId, DomainLocation, Surface};
@@ -54,15 +55,11 @@ fn march_bench() {
         Ok("bunny") => "meshes/stanford_bunny.obj",
         _ => "opensubdiv-reference/spot_control_mesh.obj",
     };
-    let k: usize = std::env::var("MB_K")
-        .map(|s| s.parse().unwrap())
-        .unwrap_or(9);
-    let reps: usize = std::env::var("MB_REPS")
-        .map(|s| s.parse().unwrap())
-        .unwrap_or(1);
-    let npat: usize = std::env::var("MB_N")
-        .map(|s| s.parse().unwrap())
-        .unwrap_or(300);
+    let (k, reps, npat) = (
+        env_or("MB_K", 9usize),
+        env_or("MB_REPS", 1usize),
+        env_or("MB_N", 300usize),
+    );
     let h0 = live();
     let s = Surface::load_obj(data(rel)).unwrap();
     println!("surface: {:.3} MB live heap", live() - h0);
