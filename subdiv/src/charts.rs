@@ -998,12 +998,10 @@ mod tests {
     #[test]
     #[ignore]
     fn charts_build_time() {
-        let shared = std::env::var_os("SURFSYNTH_SHARED").map_or_else(
-            || std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared"),
-            std::path::PathBuf::from,
-        );
-        let s = Surface::load_obj(shared.join("data/opensubdiv-reference/spot_control_mesh.obj"))
-            .unwrap();
+        let s = Surface::load_obj(crate::test_data::opensubdiv_reference(
+            "spot_control_mesh.obj",
+        ))
+        .unwrap();
         for _ in 0..3 {
             let t0 = std::time::Instant::now();
             let charts = Charts::new(&s);

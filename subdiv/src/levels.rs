@@ -110,9 +110,10 @@ mod tests {
 
     #[test]
     fn limit_mesh_vertices_lie_on_the_surface_and_locate_inverts() {
-        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../../shared/data/opensubdiv-reference");
-        let s = Surface::new(ControlMesh::load_obj(dir.join("catmark_pole8.obj")).unwrap());
+        let s = Surface::new(
+            ControlMesh::load_obj(crate::test_data::opensubdiv_reference("catmark_pole8.obj"))
+                .unwrap(),
+        );
         let lm = s.limit_mesh(3);
         assert_eq!(lm.mesh.num_faces(), s.num_base_quads() * 16);
         for (v, loc) in lm.vertex_location.iter().enumerate() {

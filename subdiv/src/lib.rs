@@ -21,6 +21,8 @@ pub mod mesh;
 pub mod patch;
 pub mod refine;
 pub mod surface;
+#[cfg(test)]
+mod test_data;
 pub mod topology;
 
 pub use adjacency::BaseLocation;

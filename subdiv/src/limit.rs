@@ -162,10 +162,11 @@ mod tests {
     /// At interior vertices the closed-form masks are exact; the refinement normal must agree.
     #[test]
     fn refinement_normal_agrees_with_interior_masks() {
-        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../../shared/data/opensubdiv-reference");
         for shape in ["catmark_pole8", "spot_control_mesh", "catmark_cube"] {
-            let cm = ControlMesh::load_obj(dir.join(format!("{shape}.obj"))).unwrap();
+            let cm = ControlMesh::load_obj(crate::test_data::opensubdiv_reference(&format!(
+                "{shape}.obj"
+            )))
+            .unwrap();
             let base = refine(&cm.mesh);
             for v in 0..base.num_vertices() {
                 let v = VertexId(v as u32);

@@ -732,10 +732,11 @@ mod tests {
     /// stored to depth 1 must give exactly what a tree stored to depth 10 gives.
     #[test]
     fn on_demand_levels_match_stored_levels() {
-        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../../shared/data/opensubdiv-reference");
         for shape in ["catmark_nonquads", "catmark_edgecorner", "catmark_pole8"] {
-            let cm = crate::ControlMesh::load_obj(dir.join(format!("{shape}.obj"))).unwrap();
+            let cm = crate::ControlMesh::load_obj(crate::test_data::opensubdiv_reference(
+                &format!("{shape}.obj"),
+            ))
+            .unwrap();
             let shallow = Surface::with_options(cm.clone(), SurfaceOptions { max_depth: 1 });
             let deep = Surface::with_options(cm, SurfaceOptions { max_depth: 10 });
             for b in 0..deep.num_base_quads() {
@@ -762,15 +763,16 @@ mod tests {
     /// the cache being emptied when full.
     #[test]
     fn deep_cache_matches_uncached_refinement() {
-        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../../shared/data/opensubdiv-reference");
         for (shape, depth) in [
             ("catmark_nonquads", 1),
             ("catmark_edgecorner", 2),
             ("catmark_pole8", 1),
             ("catmark_cube", 3),
         ] {
-            let cm = crate::ControlMesh::load_obj(dir.join(format!("{shape}.obj"))).unwrap();
+            let cm = crate::ControlMesh::load_obj(crate::test_data::opensubdiv_reference(
+                &format!("{shape}.obj"),
+            ))
+            .unwrap();
             let s = Surface::with_options(cm, SurfaceOptions { max_depth: depth });
             // Points spiralling into every corner (down to 2^-30 of it), the corners
             // themselves and a few interior points: every depth below the stored one.
@@ -817,10 +819,11 @@ mod tests {
     /// remembered patch, on its boundary, in other patches and other base quads.
     #[test]
     fn hinted_derivs_match_eval_base() {
-        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../../shared/data/opensubdiv-reference");
         for shape in ["catmark_pole8", "catmark_nonquads", "catmark_edgecorner"] {
-            let cm = crate::ControlMesh::load_obj(dir.join(format!("{shape}.obj"))).unwrap();
+            let cm = crate::ControlMesh::load_obj(crate::test_data::opensubdiv_reference(
+                &format!("{shape}.obj"),
+            ))
+            .unwrap();
             let s = Surface::with_options(cm, SurfaceOptions { max_depth: 4 });
             let mut hint = LeafHint::default();
             for b in 0..s.num_base_quads() as u32 {
