@@ -233,22 +233,6 @@ impl State {
     }
 }
 
-/// The end of the geodesic from `start` with initial tangent `v` (length = arc length),
-/// integrated with steps of at most `max_step`. `None` past an open boundary (or if a
-/// projection fails).
-pub fn geodesic_end(
-    surface: &Surface,
-    start: BaseLocation,
-    v: DVec3,
-    max_step: f64,
-) -> Option<BaseLocation> {
-    let mut hint = LeafHint::default();
-    let e0 = surface
-        .eval_base_derivs(start.quad, start.s, start.t, &mut hint)
-        .sample();
-    GeodesicPath::new(start, &e0, v, max_step, hint).advance(surface, v.length())
-}
-
 /// A geodesic integrated piece by piece, with steps of at most `max_step`: what marching
 /// uses next to extraordinary vertices, where a path reads off several pattern samples
 /// along one geodesic (integrating each from the start again would cost quadratically in
@@ -306,9 +290,9 @@ impl GeodesicPath {
 /// tangent `v`, ended after each of `segments` segments of arc length |v|: `at(j, end)` for
 /// j = 1..=segments, `end` `None` from the first point past an open boundary (or a failed
 /// projection) on. Each segment is ⌈|v| / `max_step`⌉ RATTLE steps, so the point after j
-/// segments is integrated with steps no longer than [`geodesic_end`]'s for j·v. What
-/// marching uses for the multiples (j·l0, j·m0) of a primitive pattern direction (one path
-/// each).
+/// segments is integrated with steps no longer than a single piece of arc length j·|v|
+/// would take. What marching uses for the multiples (j·l0, j·m0) of a primitive pattern
+/// direction (one path each).
 #[allow(clippy::too_many_arguments)]
 pub fn geodesic_ends_from(
     surface: &Surface,
