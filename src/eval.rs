@@ -533,7 +533,7 @@ fn splitmix(state: &mut u64) -> u64 {
     z ^ (z >> 31)
 }
 
-/// Patch fidelity of a square 2D image (e.g. a [`crate::synth2d`] result, the reference
+/// Patch fidelity of a square 2D image (e.g. a [`crate::synth::synth2d`] result, the reference
 /// issue 5 compares flat-grid results with), measured exactly as for face maps: the image
 /// is one domain. Its first three channels are R, G, B.
 pub fn image_patch_fidelity(image: &crate::pyramid::Image, ex: &Example) -> Option<f64> {

@@ -2,9 +2,9 @@
 //! (Ying, Hertzmann, Biermann, Zorin 2001).
 //!
 //! Data flows one way: `subdiv` (mesh → base quads → exact limit surface → charts) →
-//! [`field`] (orientation) and [`maps`]/[`example`] → [`sampling`] → [`synth`] (coherent),
-//! multiscale ([`pyramid`], [`search`]) → [`io`] writers, [`eval`], [`render`]. See
-//! docs/architecture.md.
+//! [`field`] (orientation) and [`maps`]/[`example`] → [`sampling`] → [`synth`] (every
+//! synthesis method, over the shared matching of [`synth::matching`] and [`pyramid`]) →
+//! [`io`] writers, [`eval`], [`render`]. See docs/architecture.md.
 
 pub mod bake;
 pub mod bench;
@@ -16,16 +16,13 @@ pub mod field;
 pub mod io;
 pub mod maps;
 pub mod memory;
-pub mod multiscale;
 pub mod probe;
 pub mod progress;
 pub mod pyramid;
 pub mod render;
 pub mod report;
 pub mod sampling;
-pub mod search;
 pub mod synth;
-pub mod synth2d;
 pub mod synthesizer;
 pub mod texels;
 

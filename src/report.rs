@@ -92,7 +92,7 @@ pub struct Report {
     pub stats: Stats,
     /// Multiscale levels and counters (`--method multiscale` only).
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub multiscale: Option<crate::multiscale::Stats>,
+    pub multiscale: Option<crate::synth::multiscale::Stats>,
     /// `--displace` amount (displaced.obj written), when given.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub displace: Option<f64>,

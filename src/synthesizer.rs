@@ -60,7 +60,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 use subdiv::Surface;
 
-pub use crate::multiscale::MultiscaleParams;
+pub use crate::synth::multiscale::MultiscaleParams;
 pub use crate::synth::{CoherentParams, Method, Weights};
 
 /// Which way round the example is laid on the surface (`--handedness`).
@@ -100,8 +100,8 @@ pub enum Search {
 
 impl Search {
     /// This search with the default parameters of its kind.
-    pub fn method(self) -> crate::search::model::Method {
-        use crate::search::model::Method as M;
+    pub fn method(self) -> crate::synth::matching::search::model::Method {
+        use crate::synth::matching::search::model::Method as M;
         match self {
             Search::Ann => M::Ann(Default::default()),
             Search::KCoherence => M::KCoherence(Default::default()),
@@ -555,7 +555,7 @@ impl Synthesizer {
         let (mut source, stats, multiscale_stats) = if self.method == Method::Multiscale {
             // Multiscale (000 §4) needs the surface, field and scale, not the texel graph.
             let weights = self.weights.per_channel(synth_example);
-            let inputs = crate::multiscale::Inputs {
+            let inputs = crate::synth::multiscale::Inputs {
                 surface: &surface,
                 field: &field,
                 resolution: n,
@@ -564,7 +564,7 @@ impl Synthesizer {
                 seed: self.seed,
                 weights: &weights,
             };
-            let ms = crate::multiscale::run(
+            let ms = crate::synth::multiscale::run(
                 synth_example,
                 &inputs,
                 &self.multiscale,

@@ -11,11 +11,11 @@ use subdiv::Surface;
 use surfsynth::example::Example;
 use surfsynth::field::{Orientation, OrientationField};
 use surfsynth::io::exr::FaceMaps;
-use surfsynth::multiscale::{self, Inputs, MultiscaleParams, Output};
+use surfsynth::synth::multiscale::{self, Inputs, MultiscaleParams, Output};
 use surfsynth::pyramid::Image;
-use surfsynth::search::ann::AnnParams;
-use surfsynth::search::kcoherence::KParams;
-use surfsynth::search::model::Method;
+use surfsynth::synth::matching::search::ann::AnnParams;
+use surfsynth::synth::matching::search::kcoherence::KParams;
+use surfsynth::synth::matching::search::model::Method;
 use surfsynth::texels::TexelGeometry;
 
 /// A shared texture halved until its width is below `2 * size`, cropped to a square of at
@@ -151,9 +151,9 @@ fn flat_grid_matches_2d_multiscale_patch_fidelity() {
 
 /// 2D multiscale patch fidelity of `ex` at `size`², seed `seed`, one domain.
 fn patch_fidelity_2d(ex: &Example, size: usize, seed: u64) -> f64 {
-    let mut p2 = surfsynth::synth2d::Params2d::new(size, size);
+    let mut p2 = surfsynth::synth::synth2d::Params2d::new(size, size);
     p2.seed = seed;
-    let o = surfsynth::synth2d::synthesize(&Image::from_example(ex), &p2).unwrap();
+    let o = surfsynth::synth::synth2d::synthesize(&Image::from_example(ex), &p2).unwrap();
     surfsynth::eval::image_patch_fidelity(&o.image, ex).unwrap()
 }
 
@@ -455,7 +455,7 @@ fn figures() {
 #[test]
 #[ignore]
 fn pattern_accuracy() {
-    use surfsynth::multiscale::level::{
+    use surfsynth::synth::multiscale::level::{
         parameter_pattern, regular_corners, shift_pattern, spacing_error,
     };
     use surfsynth::sampling::{Method as SMethod, Sampler, SamplerKind};

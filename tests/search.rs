@@ -7,11 +7,11 @@ mod common;
 use common::data;
 use surfsynth::example::Example;
 use surfsynth::pyramid::{Image, Pyramid};
-use surfsynth::search::ann::{AnnIndex, AnnParams, AnnScratch};
-use surfsynth::search::kcoherence::{KParams, KnnLists};
-use surfsynth::search::model::{Method, ModelParams};
-use surfsynth::search::{Features, Prepared, Query, Shape, TopN};
-use surfsynth::synth2d::{self, patch_fidelity, Params2d, Schedule};
+use surfsynth::synth::matching::search::ann::{AnnIndex, AnnParams, AnnScratch};
+use surfsynth::synth::matching::search::kcoherence::{KParams, KnnLists};
+use surfsynth::synth::matching::search::model::{Method, ModelParams};
+use surfsynth::synth::matching::search::{Features, Prepared, Query, Shape, TopN};
+use surfsynth::synth::synth2d::{self, patch_fidelity, Params2d, Schedule};
 
 /// The texture halved until its width is below `2 * scale`, then the `size x size` crop at
 /// (`x0`, `y0`).
@@ -113,7 +113,7 @@ fn kcoherence_lists_match_exhaustive_ranking() {
         let mut d: Vec<(f32, u32)> = (0..f0.len())
             .filter(|&j| j != i)
             .map(|j| {
-                let d = surfsynth::search::dist_bounded(f0.vector(i), f0.vector(j), f32::INFINITY);
+                let d = surfsynth::synth::matching::search::dist_bounded(f0.vector(i), f0.vector(j), f32::INFINITY);
                 (d, j as u32)
             })
             .collect();
@@ -159,7 +159,7 @@ fn patch_fidelity_of_2d_multiscale_synthesis() {
     let mut shuffled = ex.clone();
     let n = ex.width * ex.height;
     for i in 0..n {
-        let j = (surfsynth::search::hash(5, &[i as u64]) % n as u64) as usize;
+        let j = (surfsynth::synth::matching::search::hash(5, &[i as u64]) % n as u64) as usize;
         for c in 0..3 {
             shuffled.data.swap(i * 3 + c, j * 3 + c);
         }

@@ -140,10 +140,10 @@ fn flat_grid_through_the_cli_matches_2d_patch_fidelity_with_default_handedness()
         q.patch_fidelity.unwrap()
     };
     // 2D reference: the same evaluator on one (k·n)² domain.
-    let mut p2 = surfsynth::synth2d::Params2d::new(k * n, k * n);
+    let mut p2 = surfsynth::synth::synth2d::Params2d::new(k * n, k * n);
     p2.seed = 1;
     let img = surfsynth::pyramid::Image::from_example(&example);
-    let o = surfsynth::synth2d::synthesize(&img, &p2).unwrap();
+    let o = surfsynth::synth::synth2d::synthesize(&img, &p2).unwrap();
     let pf2 = surfsynth::eval::image_patch_fidelity(&o.image, &example).unwrap();
     for method in ["multiscale", "coherent"] {
         let tiles = pf(method, "tiles");

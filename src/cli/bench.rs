@@ -173,7 +173,7 @@ fn sampling(a: BenchSamplingArgs) -> anyhow::Result<()> {
 }
 
 fn multiscale(a: BenchMultiscaleArgs) -> anyhow::Result<()> {
-    use surfsynth::multiscale::{bench, MultiscaleParams};
+    use surfsynth::synth::multiscale::{bench, MultiscaleParams};
     if a.domains == 0 || a.domains > 10_000_000 {
         anyhow::bail!("--domains {} must be between 1 and 10000000", a.domains);
     }

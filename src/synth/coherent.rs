@@ -21,7 +21,7 @@
 //!    for having fewer.
 //! 4. Each candidate's neighbourhood {y'_i + e_j} is compared with the colours of the x_j
 //!    by bilinear example lookups; squared l2 over all matched channels with their weights
-//!    ([`super::features`]). The best one is copied: x gets source y' and the features
+//!    ([`super::matching::features`]). The best one is copied: x gets source y' and the features
 //!    there.
 //!
 //! Beyond the paper:
@@ -47,7 +47,7 @@
 //! foreign neighbours is scanned first, lines parallel to it move away from it, and each
 //! line starts at the end whose perpendicular side has more synthesized texture.
 
-use super::features::Features;
+use super::matching::features::Features;
 use super::schedule::Schedule;
 use crate::texels::{TexelGeometry, TexelGraph};
 use glam::Vec3;

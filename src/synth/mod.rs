@@ -2,15 +2,20 @@
 //!
 //! - [`coherent`]: the single-pass coherent method of Ying et al. 2001, §5.
 //! - [`schedule`]: breadth-first order of the domains and the deterministic parallel waves.
-//! - [`features`]: the weighted example table the matcher reads.
+//! - [`multiscale`]: the multiscale method of Ying et al. 2001, §4 (Wei–Levoy on the
+//!   surface), with its 2D reference [`synth2d`].
+//! - [`matching`]: what the methods match with (weighted example tables, neighbourhood
+//!   search).
 //!
 //! The builder in [`crate::synthesizer`] strings these together with loading, the
 //! orientation field and writing; this module is the pure computation (no files).
 
 pub mod bench;
 pub mod coherent;
-pub mod features;
+pub mod matching;
+pub mod multiscale;
 pub mod schedule;
+pub mod synth2d;
 
 pub use coherent::{CoherentParams, Stats};
 
@@ -18,7 +23,7 @@ use crate::example::Example;
 use crate::field::Frame;
 use crate::io::exr::FaceMaps;
 use crate::texels::TexelGeometry;
-use features::Features;
+use matching::features::Features;
 use glam::Vec3;
 use rayon::prelude::*;
 use serde::Serialize;

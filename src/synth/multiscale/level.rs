@@ -252,7 +252,7 @@ impl PatternStats {
     }
 }
 
-/// The K×K pattern around texel `t` at step `delta`, in [`crate::search::Shape`] order
+/// The K×K pattern around texel `t` at step `delta`, in [`crate::synth::matching::search::Shape`] order
 /// (`locs[(dy + h)·K + dx + h]`, dx along v1 = image columns, dy along −v2 = image rows).
 ///
 /// Chart sampling (000 §4.2) with the cheapest chart that passes the check:

@@ -3,7 +3,7 @@
 //! Multiscale synthesis (paper 000 §4, after Wei & Levoy) copies, for every target sample,
 //! the centre of the example neighbourhood that best matches the target's neighbourhood
 //! under a Gaussian-weighted l2 distance. This module owns what is shared by the 2D
-//! reference synthesizer ([`crate::synth2d`]) and the surface one:
+//! reference synthesizer ([`crate::synth::synth2d`]) and the surface one:
 //!
 //! * [`Shape`]: which samples a neighbourhood holds — a square `fine x fine` block from the
 //!   level being synthesized and/or a `coarse x coarse` block from the next coarser level

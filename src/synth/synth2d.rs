@@ -25,8 +25,8 @@
 
 use crate::error::{Error, Result};
 use crate::pyramid::{levels_for, Image};
-use crate::search::model::{ExampleModel, ModelParams, Pass, Scratch};
-use crate::search::{hash, pick, Prepared, Query};
+use crate::synth::matching::search::model::{ExampleModel, ModelParams, Pass, Scratch};
+use crate::synth::matching::search::{hash, pick, Prepared, Query};
 use rayon::prelude::*;
 
 /// Order of pass 2 within a level.
@@ -282,7 +282,7 @@ fn coarsest_level(model: &ExampleModel, level: usize, seed: u64, out: &mut Level
 fn coarse_block(
     q: &mut Query,
     first: usize,
-    offs: &[crate::search::Offset],
+    offs: &[crate::synth::matching::search::Offset],
     coarse: &Level,
     x: usize,
     y: usize,
@@ -328,7 +328,7 @@ fn seeds_from_coarse(
 
 fn kwindow(model: &ExampleModel) -> Option<usize> {
     match model.params.method {
-        crate::search::model::Method::KCoherence(k) => Some(k.window),
+        crate::synth::matching::search::model::Method::KCoherence(k) => Some(k.window),
         _ => None,
     }
 }
@@ -384,7 +384,7 @@ fn refine_pixel<'a>(
     h: usize,
     x: usize,
     y: usize,
-    offs: &[crate::search::Offset],
+    offs: &[crate::synth::matching::search::Offset],
     n_fine: usize,
     read: &dyn Fn(usize) -> (&'a [f32], [u32; 2]),
     wk: &mut Work,
@@ -582,7 +582,7 @@ pub fn patch_fidelity(
             extract(output, x, y, b);
             let mut best = f32::INFINITY;
             for j in 0..ne {
-                let dd = crate::search::dist_bounded(b, &ex[j * d..(j + 1) * d], best);
+                let dd = crate::synth::matching::search::dist_bounded(b, &ex[j * d..(j + 1) * d], best);
                 if dd < best {
                     best = dd;
                 }
@@ -598,7 +598,7 @@ pub fn patch_fidelity(
         if b == a {
             b = (a + 1) % ne;
         }
-        let dd = crate::search::dist_bounded(
+        let dd = crate::synth::matching::search::dist_bounded(
             &ex[a * d..(a + 1) * d],
             &ex[b * d..(b + 1) * d],
             f32::INFINITY,
