@@ -48,6 +48,7 @@ pub fn command(out: &Path) -> SynthCommand {
         seed: SEED,
         search: None,
         displace: None,
+        appearance: Default::default(),
         handedness: Default::default(),
         out: out.to_path_buf(),
     }

@@ -9,7 +9,8 @@
 
 use crate::error::{Error, Result};
 use crate::io::atomic::write_bytes_atomic;
-use crate::synth::{CoherentParams, Method, Stats, Weights};
+use crate::synth::matching::appearance::AppearanceInfo;
+use crate::synth::{Details, Method, Weights};
 use serde::Serialize;
 use std::path::Path;
 
@@ -52,15 +53,6 @@ pub struct Seconds {
     pub total: f64,
 }
 
-/// Schedule shape.
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct ScheduleInfo {
-    /// Breadth-first layers.
-    pub layers: usize,
-    /// Parallel waves.
-    pub waves: usize,
-}
-
 /// The whole report.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Report {
@@ -86,13 +78,13 @@ pub struct Report {
     /// Channels of facemaps.exr.
     pub channels: Vec<String>,
     pub weights: Weights,
-    pub coherent: CoherentParams,
+    /// What the matchers compared (appearance space or raw channels).
+    pub appearance: AppearanceInfo,
+    /// The method's parameters and counters, under a key named after the method
+    /// (`"coherent"`, `"multiscale"`, `"patches"`).
+    #[serde(flatten)]
+    pub details: Details,
     pub threads: usize,
-    pub schedule: ScheduleInfo,
-    pub stats: Stats,
-    /// Multiscale levels and counters (`--method multiscale` only).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub multiscale: Option<crate::synth::multiscale::Stats>,
     /// `--displace` amount (displaced.obj written), when given.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub displace: Option<f64>,
@@ -109,6 +101,14 @@ pub struct Report {
 }
 
 impl Report {
+    /// The coherent method's counters (`None` for other methods).
+    pub fn coherent_stats(&self) -> Option<&crate::synth::coherent::Stats> {
+        match &self.details {
+            Details::Coherent { stats, .. } => Some(stats),
+            _ => None,
+        }
+    }
+
     /// Pretty JSON with a trailing newline.
     pub fn to_json(&self) -> String {
         let mut s = serde_json::to_string_pretty(self).expect("report serializes");

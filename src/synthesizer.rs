@@ -52,16 +52,16 @@ use crate::example::Example;
 use crate::field::{Orientation, OrientationField};
 use crate::io::atomic::prepare_out_dir;
 use crate::io::exr::{write_face_maps, FaceMaps, MAX_RESOLUTION};
-use crate::report::{ExampleInfo, Inputs, Report, ScheduleInfo, Seconds};
-use crate::synth::coherent;
-use crate::synth::schedule::Schedule;
-use crate::texels::{domain_edge_adjacency, TexelGeometry, TexelGraph};
+use crate::report::{ExampleInfo, Inputs, Report, Seconds};
+use crate::synth::footprint::LevelTexels;
+use crate::synth::Target;
+use crate::texels::{TexelGeometry, TexelGraph};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 use subdiv::Surface;
 
-pub use crate::synth::multiscale::MultiscaleParams;
-pub use crate::synth::{CoherentParams, Method, Weights};
+pub use crate::synth::matching::appearance::AppearanceMode;
+pub use crate::synth::{CoherentParams, Method, MultiscaleParams, PatchParams, Settings, Weights};
 
 /// Which way round the example is laid on the surface (`--handedness`).
 ///
@@ -216,15 +216,12 @@ pub struct Synthesizer {
     mesh: MeshSource,
     example: ExampleSource,
     height: Option<PathBuf>,
-    method: Method,
+    settings: Settings,
     resolution: usize,
     scale: Option<f64>,
     orientation: Orientation,
     seed: u64,
     threads: Option<usize>,
-    weights: Weights,
-    params: CoherentParams,
-    multiscale: MultiscaleParams,
     displace: Option<f64>,
     handedness: Handedness,
     progress: Option<std::sync::Arc<Progress>>,
@@ -235,7 +232,7 @@ impl std::fmt::Debug for Synthesizer {
         f.debug_struct("Synthesizer")
             .field("mesh", &self.mesh_label())
             .field("example", &self.example_label())
-            .field("method", &self.method)
+            .field("method", &self.settings.method)
             .field("resolution", &self.resolution)
             .field("scale", &self.scale)
             .field("seed", &self.seed)
@@ -272,15 +269,12 @@ impl Synthesizer {
             mesh: mesh.into(),
             example: example.into(),
             height: None,
-            method: Method::Coherent,
+            settings: Settings::default(),
             resolution: 32,
             scale: None,
             orientation: Orientation::Auto,
             seed: 1,
             threads: None,
-            weights: Weights::default(),
-            params: CoherentParams::default(),
-            multiscale: MultiscaleParams::default(),
             displace: None,
             handedness: Handedness::default(),
             progress: None,
@@ -294,7 +288,7 @@ impl Synthesizer {
     }
     /// Synthesis method: [`Method::Coherent`] (default) or [`Method::Multiscale`].
     pub fn method(mut self, m: Method) -> Self {
-        self.method = m;
+        self.settings.method = m;
         self
     }
     /// Texels per side of every face map (>= 1).
@@ -324,22 +318,37 @@ impl Synthesizer {
     }
     /// Matching weights of colour, alpha and height.
     pub fn weights(mut self, w: Weights) -> Self {
-        self.weights = w;
+        self.settings.weights = w;
         self
     }
     /// Tuning of the coherent method.
     pub fn coherent_params(mut self, p: CoherentParams) -> Self {
-        self.params = p;
+        self.settings.coherent = p;
         self
     }
     /// Tuning of the multiscale method (neighbourhood sizes, search, levels).
     pub fn multiscale_params(mut self, p: MultiscaleParams) -> Self {
-        self.multiscale = p;
+        self.settings.multiscale = p;
+        self
+    }
+    /// Tuning of patch sampling.
+    pub fn patch_params(mut self, p: PatchParams) -> Self {
+        self.settings.patches = p;
+        self
+    }
+    /// What matchers compare (`--appearance`): appearance space (default) or raw channels.
+    pub fn appearance(mut self, a: AppearanceMode) -> Self {
+        self.settings.appearance = a;
+        self
+    }
+    /// All synthesis settings at once.
+    pub fn settings(mut self, s: Settings) -> Self {
+        self.settings = s;
         self
     }
     /// Neighbourhood search of the multiscale method (`--search`), default parameters.
     pub fn search(mut self, s: Search) -> Self {
-        self.multiscale.model.method = s.method();
+        self.settings.multiscale.model.method = s.method();
         self
     }
     /// Shape synthesis (`--displace AMOUNT`, 000 §6): [`SynthResult::write`] also writes
@@ -482,7 +491,7 @@ impl Synthesizer {
         let job = crate::memory::Job::Synth {
             channels: example.num_channels() + 2,
             example_pixels: example.width * example.height,
-            multiscale: self.method == Method::Multiscale,
+            multiscale: self.settings.method == Method::Multiscale,
             displace: self.displace.is_some(),
         };
         let surface = match self.mesh {
@@ -517,16 +526,6 @@ impl Synthesizer {
         progress(Stage::Graph, 0, 1);
         let t0 = Instant::now();
         let graph = TexelGraph::build(&surface, &geometry);
-        // The domain order: the coherent method's (area-weighted by default), else the
-        // paper's breadth-first plan (reported; multiscale plans its own from it).
-        let schedule = match self.method {
-            Method::Coherent => {
-                coherent::schedule_for(self.params.domain_order, &surface, &geometry, &graph)
-            }
-            Method::Multiscale => {
-                Schedule::plan(&domain_edge_adjacency(&surface), &graph.domain_conflicts())
-            }
-        };
         let spacing = geometry.median_spacing(&surface);
         let (scale, scale_source) = match self.scale {
             Some(s) => (s, "given"),
@@ -537,6 +536,12 @@ impl Synthesizer {
                 "{mesh_label}: the surface is degenerate (median texel spacing {scale}); pass --scale"
             )));
         }
+        let texels = LevelTexels {
+            geometry,
+            graph,
+            frames,
+            step: scale,
+        };
         let graph_s = t0.elapsed().as_secs_f64();
         progress(Stage::Graph, 1, 1);
 
@@ -552,53 +557,17 @@ impl Synthesizer {
                 &flipped
             }
         };
-        let (mut source, stats, multiscale_stats) = if self.method == Method::Multiscale {
-            // Multiscale (000 §4) needs the surface, field and scale, not the texel graph.
-            let weights = self.weights.per_channel(synth_example);
-            let inputs = crate::synth::multiscale::Inputs {
-                surface: &surface,
-                field: &field,
-                resolution: n,
-                spacing,
-                scale,
-                seed: self.seed,
-                weights: &weights,
-            };
-            let ms = crate::synth::multiscale::run(
-                synth_example,
-                &inputs,
-                &self.multiscale,
-                &|done, total| {
-                    progress(
-                        Stage::Synthesis,
-                        (done * faces as u64 / total.max(1)) as usize,
-                        faces,
-                    )
-                },
-            )?;
-            (
-                ms.source,
-                crate::synth::coherent::Stats::default(),
-                Some(ms.stats),
-            )
-        } else {
-            let inputs = coherent::Inputs {
-                geometry: &geometry,
-                graph: &graph,
-                frames: &frames,
-                schedule: &schedule,
-                scale,
-                seed: self.seed,
-            };
-            let out = crate::synth::run_coherent(
-                synth_example,
-                &self.weights,
-                inputs,
-                &self.params,
-                &|done| progress(Stage::Synthesis, done, faces),
-            );
-            (out.source, out.stats, None)
+        let target = Target {
+            surface: &surface,
+            field: &field,
+            texels: &texels,
+            spacing,
+            seed: self.seed,
         };
+        let out = crate::synth::synthesize(synth_example, &target, &self.settings, &|d, t| {
+            progress(Stage::Synthesis, d * faces / t.max(1), faces)
+        })?;
+        let mut source = out.source;
         if self.handedness == Handedness::Tiles {
             let h = example.height as f32;
             for s in &mut source {
@@ -606,6 +575,7 @@ impl Synthesizer {
             }
         }
         let synthesis_s = t0.elapsed().as_secs_f64();
+        let geometry = texels.geometry;
 
         progress(Stage::Maps, 0, 1);
         let t0 = Instant::now();
@@ -622,7 +592,7 @@ impl Synthesizer {
                 example: example_label,
                 height: self.height.as_ref().map(|h| h.display().to_string()),
             },
-            method: self.method,
+            method: self.settings.method,
             seed: self.seed,
             scale,
             scale_source: scale_source.into(),
@@ -642,15 +612,10 @@ impl Synthesizer {
                     .collect(),
             },
             channels: maps.names().iter().map(|s| s.to_string()).collect(),
-            weights: self.weights,
-            coherent: self.params.clone(),
+            weights: self.settings.weights,
+            appearance: out.appearance,
+            details: out.details,
             threads: rayon::current_num_threads(),
-            schedule: ScheduleInfo {
-                layers: schedule.layers,
-                waves: schedule.waves.len(),
-            },
-            stats,
-            multiscale: multiscale_stats,
             displace: self.displace,
             handedness: self.handedness,
             seconds: Seconds {
@@ -789,6 +754,8 @@ pub struct SynthCommand {
     pub search: Option<Search>,
     /// `--displace AMOUNT`.
     pub displace: Option<f64>,
+    /// `--appearance`.
+    pub appearance: AppearanceMode,
     /// `--handedness`.
     pub handedness: Handedness,
     pub out: PathBuf,
@@ -805,6 +772,7 @@ impl SynthCommand {
             .orientation(self.orientation.clone())
             .seed(self.seed)
             .displace(self.displace)
+            .appearance(self.appearance)
             .handedness(self.handedness);
         if let Some(h) = &self.height {
             s = s.height(h);

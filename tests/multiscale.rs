@@ -11,11 +11,11 @@ use subdiv::Surface;
 use surfsynth::example::Example;
 use surfsynth::field::{Orientation, OrientationField};
 use surfsynth::io::exr::FaceMaps;
-use surfsynth::synth::multiscale::{self, Inputs, MultiscaleParams, Output};
 use surfsynth::pyramid::Image;
 use surfsynth::synth::matching::search::ann::AnnParams;
 use surfsynth::synth::matching::search::kcoherence::KParams;
 use surfsynth::synth::matching::search::model::Method;
+use surfsynth::synth::multiscale::{self, Inputs, MultiscaleParams, Output};
 use surfsynth::texels::TexelGeometry;
 
 /// A shared texture halved until its width is below `2 * size`, cropped to a square of at
@@ -70,6 +70,7 @@ fn run(
     params.model.method = method;
     let weights = vec![1.0f32; ex.num_channels()];
     let inputs = Inputs {
+        appearance: surfsynth::synth::matching::appearance::AppearanceMode::Rgb,
         surface,
         field: &field,
         resolution: n,
@@ -240,6 +241,7 @@ fn output_is_identical_for_any_thread_count() {
     let spacing = TexelGeometry::compute(&surface, n).median_spacing(&surface);
     let weights = [1.0f32; 3];
     let inputs = Inputs {
+        appearance: surfsynth::synth::matching::appearance::AppearanceMode::Rgb,
         surface: &surface,
         field: &field,
         resolution: n,
@@ -455,10 +457,10 @@ fn figures() {
 #[test]
 #[ignore]
 fn pattern_accuracy() {
+    use surfsynth::sampling::{Method as SMethod, Sampler, SamplerKind};
     use surfsynth::synth::multiscale::level::{
         parameter_pattern, regular_corners, shift_pattern, spacing_error,
     };
-    use surfsynth::sampling::{Method as SMethod, Sampler, SamplerKind};
     let mesh = std::env::var("MS_MESH").unwrap_or_else(|_| "meshes/spot_control_mesh.obj".into());
     let n = 32;
     let surface = surfsynth::bake::load_surface_for(data(&mesh), n).unwrap();

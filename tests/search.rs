@@ -113,7 +113,11 @@ fn kcoherence_lists_match_exhaustive_ranking() {
         let mut d: Vec<(f32, u32)> = (0..f0.len())
             .filter(|&j| j != i)
             .map(|j| {
-                let d = surfsynth::synth::matching::search::dist_bounded(f0.vector(i), f0.vector(j), f32::INFINITY);
+                let d = surfsynth::synth::matching::search::dist_bounded(
+                    f0.vector(i),
+                    f0.vector(j),
+                    f32::INFINITY,
+                );
                 (d, j as u32)
             })
             .collect();

@@ -591,7 +591,7 @@ fn explore_scales() {
                     None,
                 )
                 .unwrap();
-                println!("{mesh} {name} {orient:?}: seam {:.3} (seam {:.5} inner {:.5}) coh {:.3} stats {:?}", q.seam_ratio.unwrap(), q.seam_mean_sq.unwrap(), q.interior_mean_sq.unwrap(), q.coherent_fraction.unwrap(), r.report.stats);
+                println!("{mesh} {name} {orient:?}: seam {:.3} (seam {:.5} inner {:.5}) coh {:.3} stats {:?}", q.seam_ratio.unwrap(), q.seam_mean_sq.unwrap(), q.interior_mean_sq.unwrap(), q.coherent_fraction.unwrap(), r.report.coherent_stats());
             }
         }
     }
@@ -661,7 +661,7 @@ fn seam_tail() {
                 })
                 .run()
                 .unwrap();
-            waves = r.report.stats.waves;
+            waves = r.report.coherent_stats().unwrap().waves;
             let m = measure_result(&r);
             assert_eq!(m.coverage, 1.0);
             assert!((m.scale_median - 1.0).abs() <= 0.05, "{m:?}");
@@ -702,12 +702,13 @@ fn diagnose_seams() {
     let r = Synthesizer::new(data(&mesh), tail_path(&ex))
         .resolution(n)
         .seed(seed)
+        .appearance(surfsynth::synthesizer::AppearanceMode::Rgb)
         .run()
         .unwrap();
     let m = measure_result(&r);
     println!(
         "{mesh} + {ex} seed {seed} N={n}: {m:?} stats {:?}",
-        r.report.stats
+        r.report.coherent_stats()
     );
     let surface = &r.surface;
     let geom = &r.geometry;

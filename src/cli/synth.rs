@@ -12,6 +12,16 @@ pub enum Method {
     Coherent,
     /// Gaussian pyramid, two passes per level (000 §4).
     Multiscale,
+    /// Whole example patches along the field, joined by minimum-error cuts (001 §5.2).
+    Patches,
+}
+
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Appearance {
+    /// PCA of every pixel's 5x5 neighbourhood (8 dimensions; Lefebvre & Hoppe 2006).
+    Pca,
+    /// The weighted channels themselves (colour, alpha, height).
+    Rgb,
 }
 
 #[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
@@ -44,6 +54,9 @@ pub struct SynthArgs {
     /// Synthesis method.
     #[arg(long, value_enum, default_value_t = Method::Coherent)]
     pub method: Method,
+    /// What neighbourhoods are compared in: appearance space (pca) or raw channels (rgb).
+    #[arg(long, value_enum, default_value_t = Appearance::Pca)]
+    pub appearance: Appearance,
     /// Neighbourhood search of the multiscale method (default: kcoherence, the faster at
     /// equal quality).
     #[arg(long, value_enum)]
@@ -92,6 +105,7 @@ pub fn run(a: SynthArgs) -> anyhow::Result<()> {
     let method = match a.method {
         Method::Coherent => surfsynth::synthesizer::Method::Coherent,
         Method::Multiscale => surfsynth::synthesizer::Method::Multiscale,
+        Method::Patches => surfsynth::synthesizer::Method::Patches,
     };
     surfsynth::synthesizer::run_command(&surfsynth::synthesizer::SynthCommand {
         mesh: a.mesh,
@@ -107,6 +121,10 @@ pub fn run(a: SynthArgs) -> anyhow::Result<()> {
             Search::Kcoherence => S::KCoherence,
         }),
         displace: a.displace,
+        appearance: match a.appearance {
+            Appearance::Pca => surfsynth::synthesizer::AppearanceMode::Pca,
+            Appearance::Rgb => surfsynth::synthesizer::AppearanceMode::Rgb,
+        },
         handedness: match a.handedness {
             Handedness::Tiles => surfsynth::synthesizer::Handedness::Tiles,
             Handedness::Outside => surfsynth::synthesizer::Handedness::Outside,

@@ -1,32 +1,56 @@
-//! Texture synthesis on the surface's face maps.
+//! Texture synthesis on the surface's face maps: every method, behind one interface
+//! ([`synthesize`]).
 //!
-//! - [`coherent`]: the single-pass coherent method of Ying et al. 2001, §5.
-//! - [`schedule`]: breadth-first order of the domains and the deterministic parallel waves.
+//! Methods (siblings, each a module):
+//! - [`coherent`]: the single-pass coherent method of Ying et al. 2001, §5 — the fast
+//!   preview.
 //! - [`multiscale`]: the multiscale method of Ying et al. 2001, §4 (Wei–Levoy on the
 //!   surface), with its 2D reference [`synth2d`].
-//! - [`matching`]: what the methods match with (weighted example tables, neighbourhood
-//!   search).
+//! - [`patches`]: patch sampling along the field (paper 001 §5.2).
 //!
-//! The builder in [`crate::synthesizer`] strings these together with loading, the
-//! orientation field and writing; this module is the pure computation (no files).
+//! Below them, what they share:
+//! - [`matching`]: appearance space, example tables, similar-place lists, neighbourhood
+//!   search;
+//! - [`footprint`]: surface patches (texels with their coordinates in an example patch laid
+//!   along the field) and the per-level texel sets; [`mincut`]: seams between patches;
+//! - [`schedule`]: domain orders and deterministic parallel waves; [`per_thread`]: scratch.
+//!
+//! Every method takes the same [`Target`] (the surface's texels at the output resolution,
+//! the field, the scale) and the example, and returns a source position per texel
+//! ([`Output`]): the output channels are then looked up in the example at those positions
+//! ([`face_maps`]), so every channel comes from the same place. The builder in
+//! [`crate::synthesizer`] strings this together with loading and writing; this module is
+//! the pure computation (no files).
 
 pub mod bench;
 pub mod coherent;
+pub mod footprint;
 pub mod matching;
+pub mod mincut;
 pub mod multiscale;
+pub mod patches;
+pub mod per_thread;
 pub mod schedule;
 pub mod synth2d;
 
-pub use coherent::{CoherentParams, Stats};
+pub use coherent::{CoherentParams, DomainOrder, Order};
+pub use multiscale::MultiscaleParams;
+pub use patches::PatchParams;
 
+use crate::error::Result;
 use crate::example::Example;
-use crate::field::Frame;
+use crate::field::{Frame, OrientationField};
 use crate::io::exr::FaceMaps;
+use crate::pyramid::Image;
 use crate::texels::TexelGeometry;
-use matching::features::Features;
+use footprint::LevelTexels;
 use glam::Vec3;
+use matching::appearance::{Appearance, AppearanceInfo, AppearanceMode, DIMS, WINDOW};
+use matching::exemplar::Exemplar;
+use matching::features::Features;
 use rayon::prelude::*;
 use serde::Serialize;
+use subdiv::Surface;
 
 /// Synthesis method (`--method`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
@@ -36,15 +60,257 @@ pub enum Method {
     Coherent,
     /// Ying et al. 2001 §4: multiscale (Wei-Levoy), with k-coherence or ANN search.
     Multiscale,
+    /// Paper 001 §5.2: patch sampling along the field (Liang et al.), joined by cuts.
+    Patches,
 }
 
 impl Method {
+    /// Every method, in the order of docs/synthesis.md's table.
+    pub const ALL: [Method; 3] = [Method::Coherent, Method::Multiscale, Method::Patches];
+
     /// The name used on the command line and in report.json.
     pub fn name(self) -> &'static str {
         match self {
             Method::Coherent => "coherent",
             Method::Multiscale => "multiscale",
+            Method::Patches => "patches",
         }
+    }
+}
+
+impl std::str::FromStr for Method {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        Method::ALL
+            .into_iter()
+            .find(|m| m.name() == s)
+            .ok_or_else(|| {
+                let names: Vec<_> = Method::ALL.iter().map(|m| m.name()).collect();
+                format!(
+                    "unknown method '{s}' (expected one of {})",
+                    names.join(", ")
+                )
+            })
+    }
+}
+
+/// The surface as every method sees it: texels at the output resolution (positions,
+/// normals, neighbourhood graph, field frames), the field itself (for methods that work on
+/// other resolutions too), and the scale.
+pub struct Target<'a> {
+    pub surface: &'a Surface,
+    pub field: &'a OrientationField,
+    /// Texels of the output maps; `texels.step` is the scale S (surface length per example
+    /// pixel).
+    pub texels: &'a LevelTexels,
+    /// h: median distance between adjacent texel centres at the output resolution.
+    pub spacing: f64,
+    pub seed: u64,
+}
+
+impl Target<'_> {
+    /// Surface length per example pixel.
+    pub fn scale(&self) -> f64 {
+        self.texels.step
+    }
+}
+
+/// How to synthesize: the method, what matchers compare, and each method's tuning.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Settings {
+    pub method: Method,
+    pub weights: Weights,
+    pub appearance: AppearanceMode,
+    pub coherent: CoherentParams,
+    pub multiscale: MultiscaleParams,
+    pub patches: PatchParams,
+}
+
+impl Default for Settings {
+    fn default() -> Self {
+        Self {
+            method: Method::Coherent,
+            weights: Weights::default(),
+            appearance: AppearanceMode::default(),
+            coherent: CoherentParams::default(),
+            multiscale: MultiscaleParams::default(),
+            patches: PatchParams::default(),
+        }
+    }
+}
+
+/// What the method did, with the parameters it ran with (report.json: a key named after
+/// the method).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Details {
+    Coherent {
+        params: CoherentParams,
+        schedule: schedule::ScheduleInfo,
+        stats: coherent::Stats,
+    },
+    Multiscale(multiscale::Stats),
+    Patches {
+        params: PatchParams,
+        stats: patches::Stats,
+    },
+}
+
+/// A method's result: the source position of every texel (example pixels, centres at
+/// +0.5; global texel order), what the matchers compared, and the method's details.
+#[derive(Clone, Debug)]
+pub struct Output {
+    pub source: Vec<[f32; 2]>,
+    pub appearance: AppearanceInfo,
+    pub details: Details,
+}
+
+/// The example's channels premultiplied by the square roots of their weights, so that a
+/// plain squared l2 distance is the weighted one.
+pub fn weighted_image(example: &Example, weights: &Weights) -> Image {
+    let mut img = Image::from_example(example);
+    let sw: Vec<f32> = weights
+        .per_channel(example)
+        .iter()
+        .map(|w| w.max(0.0).sqrt())
+        .collect();
+    let c = img.channels;
+    for px in img.data.chunks_exact_mut(c) {
+        for (v, s) in px.iter_mut().zip(&sw) {
+            *v *= s;
+        }
+    }
+    img
+}
+
+/// Calls `$f::<K>(args)` with `K` the matching dimension of `$mode` for an example of
+/// `$channels` channels: [`DIMS`] in appearance space, the channel count for raw channels.
+/// (The inner loops are compiled per `K`.)
+macro_rules! with_dims {
+    ($mode:expr, $channels:expr, $f:ident($($arg:expr),*)) => {
+        match ($mode, $channels) {
+            (AppearanceMode::Pca, _) => $f::<DIMS>($($arg),*),
+            (AppearanceMode::Rgb, 3) => $f::<3>($($arg),*),
+            (AppearanceMode::Rgb, 4) => $f::<4>($($arg),*),
+            (AppearanceMode::Rgb, 5) => $f::<5>($($arg),*),
+            (_, k) => unreachable!("examples have 3 to 5 channels, not {k}"),
+        }
+    };
+}
+
+/// Synthesizes `example` over `target` with `settings` (the one interface of every
+/// method). `progress(done, total)` reports the method's own units (domains, patches,
+/// texel passes).
+pub fn synthesize(
+    example: &Example,
+    target: &Target<'_>,
+    settings: &Settings,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<Output> {
+    let weighted = weighted_image(example, &settings.weights);
+    let mode = settings.appearance;
+    match settings.method {
+        Method::Coherent => Ok(with_dims!(
+            mode,
+            weighted.channels,
+            coherent_output(&weighted, target, settings, progress)
+        )),
+        Method::Multiscale => {
+            let weights = settings.weights.per_channel(example);
+            let inputs = multiscale::Inputs {
+                surface: target.surface,
+                field: target.field,
+                resolution: target.texels.resolution(),
+                spacing: target.spacing,
+                scale: target.scale(),
+                seed: target.seed,
+                weights: &weights,
+                appearance: mode,
+            };
+            let out = multiscale::run(example, &inputs, &settings.multiscale, &|d, t| {
+                progress(d as usize, t as usize)
+            })?;
+            Ok(Output {
+                source: out.source,
+                appearance: out.stats.appearance,
+                details: Details::Multiscale(out.stats),
+            })
+        }
+        Method::Patches => Ok(with_dims!(
+            mode,
+            weighted.channels,
+            run_patches(&weighted, target, settings, progress)
+        )),
+    }
+}
+
+fn coherent_output<const K: usize>(
+    weighted: &Image,
+    target: &Target<'_>,
+    settings: &Settings,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Output {
+    let app = Appearance::build(weighted, settings.appearance, WINDOW, K);
+    let features = Features::<K>::from_image(&app.image);
+    let t = target.texels;
+    let params = &settings.coherent;
+    let schedule =
+        coherent::schedule_for(params.domain_order, target.surface, &t.geometry, &t.graph);
+    let inputs = coherent::Inputs {
+        geometry: &t.geometry,
+        graph: &t.graph,
+        frames: &t.frames,
+        schedule: &schedule,
+        scale: t.step,
+        seed: target.seed,
+    };
+    let faces = t.geometry.faces;
+    let out = coherent::run(&features, inputs, params, &|d| progress(d, faces));
+    Output {
+        source: out.source,
+        appearance: app.info,
+        details: Details::Coherent {
+            params: params.clone(),
+            schedule: schedule.info(),
+            stats: out.stats,
+        },
+    }
+}
+
+fn run_patches<const K: usize>(
+    weighted: &Image,
+    target: &Target<'_>,
+    settings: &Settings,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Output {
+    let ex = Exemplar::<K>::build(weighted, settings.appearance);
+    let out = patches::run(&ex, target.texels, &settings.patches, target.seed, progress);
+    Output {
+        source: out.source,
+        appearance: ex.info,
+        details: Details::Patches {
+            params: settings.patches,
+            stats: out.stats,
+        },
+    }
+}
+
+/// Runs coherent synthesis directly on the raw weighted channels of `example` (any of its
+/// channel layouts), with the caller's own inputs — for diagnostics that need the
+/// per-texel [`coherent::Output::kind`]s (`--appearance rgb` runs match it bit for bit).
+pub fn run_coherent(
+    example: &Example,
+    weights: &Weights,
+    inputs: coherent::Inputs<'_>,
+    params: &CoherentParams,
+    progress: &(dyn Fn(usize) + Sync),
+) -> coherent::Output {
+    let img = weighted_image(example, weights);
+    match img.channels {
+        3 => coherent::run(&Features::<3>::from_image(&img), inputs, params, progress),
+        4 => coherent::run(&Features::<4>::from_image(&img), inputs, params, progress),
+        5 => coherent::run(&Features::<5>::from_image(&img), inputs, params, progress),
+        k => unreachable!("examples have 3 to 5 channels, not {k}"),
     }
 }
 
@@ -93,23 +359,6 @@ pub fn frames_f32(frames: &[Frame]) -> Vec<[Vec3; 2]> {
         .par_iter()
         .map(|f| [f.v1.as_vec3(), f.v2.as_vec3()])
         .collect()
-}
-
-/// Runs coherent synthesis for `example` (any of its channel layouts).
-pub fn run_coherent(
-    example: &Example,
-    weights: &Weights,
-    inputs: coherent::Inputs<'_>,
-    params: &CoherentParams,
-    progress: &(dyn Fn(usize) + Sync),
-) -> coherent::Output {
-    let w = weights.per_channel(example);
-    match example.num_channels() {
-        3 => coherent::run(&Features::<3>::new(example, &w), inputs, params, progress),
-        4 => coherent::run(&Features::<4>::new(example, &w), inputs, params, progress),
-        5 => coherent::run(&Features::<5>::new(example, &w), inputs, params, progress),
-        k => unreachable!("examples have 3 to 5 channels, not {k}"),
-    }
 }
 
 /// Names of the channels of `facemaps.exr` for `example`: R G B \[A\] \[height\] source.u

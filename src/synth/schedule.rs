@@ -33,7 +33,24 @@ pub struct Schedule {
     pub layers: usize,
 }
 
+/// The shape of a schedule (reported).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct ScheduleInfo {
+    /// Breadth-first layers.
+    pub layers: usize,
+    /// Parallel waves.
+    pub waves: usize,
+}
+
 impl Schedule {
+    /// Its shape, for reports.
+    pub fn info(&self) -> ScheduleInfo {
+        ScheduleInfo {
+            layers: self.layers,
+            waves: self.waves.len(),
+        }
+    }
+
     /// Plans the schedule from edge adjacency (for the breadth-first layers) and the
     /// symmetric conflict relation (for colouring and waves). Both are per-domain sorted
     /// lists.

@@ -582,7 +582,8 @@ pub fn patch_fidelity(
             extract(output, x, y, b);
             let mut best = f32::INFINITY;
             for j in 0..ne {
-                let dd = crate::synth::matching::search::dist_bounded(b, &ex[j * d..(j + 1) * d], best);
+                let dd =
+                    crate::synth::matching::search::dist_bounded(b, &ex[j * d..(j + 1) * d], best);
                 if dd < best {
                     best = dd;
                 }

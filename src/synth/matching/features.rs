@@ -48,6 +48,34 @@ impl<const K: usize> Features<K> {
         }
     }
 
+    /// The table of an image whose `K` channels are already the matched values (e.g. an
+    /// [`super::appearance::Appearance`] image, or weighted channels).
+    pub fn from_image(img: &crate::pyramid::Image) -> Self {
+        assert_eq!(
+            img.channels, K,
+            "image has {} channels, not {K}",
+            img.channels
+        );
+        let data = img
+            .data
+            .chunks_exact(K)
+            .map(|c| c.try_into().expect("K channels"))
+            .collect();
+        Self {
+            width: img.width,
+            height: img.height,
+            data,
+            max_x: (img.width - 1) as f32,
+            max_y: (img.height - 1) as f32,
+        }
+    }
+
+    /// The stored vector of pixel (x, y).
+    #[inline(always)]
+    pub fn at(&self, x: usize, y: usize) -> &[f32; K] {
+        &self.data[y * self.width + x]
+    }
+
     /// Bilinear feature at continuous position (x, y) (pixel centres at +0.5), clamped to
     /// the image: outside it the border pixels repeat (see [`Example::bilinear_taps`] for
     /// why clamping, not wrapping).

@@ -1,6 +1,10 @@
-//! What every synthesis method matches with, below the methods themselves: the weighted
-//! example tables ([`features`]), neighbourhood vectors and nearest-neighbour search
-//! ([`search`]: brute force, PCA + kd-tree, k-coherence).
+//! What every synthesis method matches with, below the methods themselves: appearance
+//! space ([`appearance`]), the example tables matchers read ([`features`]), similar-place
+//! lists for k-coherence ([`similar`]), and neighbourhood vectors and nearest-neighbour
+//! search ([`search`]: brute force, PCA + kd-tree, k-coherence).
 
+pub mod appearance;
+pub mod exemplar;
 pub mod features;
 pub mod search;
+pub mod similar;

@@ -94,6 +94,7 @@ pub fn bench_surface(
     let setup_seconds = t0.elapsed().as_secs_f64();
     let weights = crate::synth::Weights::default().per_channel(example);
     let inputs = Inputs {
+        appearance: Default::default(),
         surface,
         field: &field,
         resolution: n,

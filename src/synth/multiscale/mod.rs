@@ -42,6 +42,9 @@ use crate::example::Example;
 use crate::field::OrientationField;
 use crate::pyramid::{levels_for, Image};
 use crate::sampling::{Sampler, SamplerKind, SamplerStats};
+use crate::synth::matching::appearance::{
+    Appearance, AppearanceInfo, AppearanceMode, DIMS, WINDOW,
+};
 use crate::synth::matching::search::model::{ExampleModel, Method, ModelParams, Pass, Scratch};
 use crate::synth::matching::search::{hash, pick, Prepared, Query};
 use crate::synth::schedule::Schedule;
@@ -99,6 +102,9 @@ pub struct Inputs<'a> {
     pub seed: u64,
     /// Matching weight per example channel ([`crate::synth::Weights::per_channel`]).
     pub weights: &'a [f32],
+    /// What neighbourhoods compare: the weighted channels, or every level's appearance
+    /// vectors ([`crate::synth::matching::appearance`]).
+    pub appearance: AppearanceMode,
 }
 
 /// One synthesis level (reported).
@@ -140,6 +146,8 @@ pub struct Stats {
     pub geometry_seconds: f64,
     /// Seconds: searching and copying.
     pub search_seconds: f64,
+    /// What was matched (the finest level's appearance space).
+    pub appearance: AppearanceInfo,
 }
 
 /// Source position per output texel (level-0 example pixels, centres at +0.5) and stats.
@@ -360,7 +368,22 @@ pub fn run(
     for _ in 0..j0 {
         img = img.downsample();
     }
-    let model = ExampleModel::build(img, n_levels, params.model)?;
+    // Appearance space per level: each level's own 5x5 neighbourhoods, projected.
+    let mut pyramid = crate::pyramid::Pyramid::build(img, n_levels);
+    let mut appearance = None;
+    if inputs.appearance == AppearanceMode::Pca {
+        for level in &mut pyramid.levels {
+            let a = Appearance::build(level, AppearanceMode::Pca, WINDOW, DIMS);
+            appearance.get_or_insert(a.info);
+            *level = a.image;
+        }
+    }
+    let appearance = appearance.unwrap_or(AppearanceInfo {
+        dims: c,
+        window: 1,
+        kept_variance: 1.0,
+    });
+    let model = ExampleModel::from_pyramid(pyramid, params.model)?;
     let model_seconds = t0.elapsed().as_secs_f64();
 
     let steps: Vec<f64> = (0..n_levels)
@@ -376,7 +399,7 @@ pub fn run(
             Method::KCoherence(k) => Some(k.window),
             _ => None,
         },
-        channels: c,
+        channels: model.pyramid.level(0).channels,
         pattern_tolerance: params.pattern_tolerance,
     };
     let adj = crate::texels::domain_edge_adjacency(surface);
@@ -406,6 +429,7 @@ pub fn run(
             })
             .collect(),
         model_seconds,
+        appearance,
         ..Stats::default()
     };
 

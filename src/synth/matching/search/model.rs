@@ -128,6 +128,19 @@ impl ExampleModel {
                 "multiscale synthesis needs at least one level",
             ));
         }
+        Self::from_pyramid(Pyramid::build(img, n_levels), params)
+    }
+
+    /// The model of an already built pyramid (e.g. one whose levels were transformed to
+    /// appearance space, [`crate::synth::matching::appearance`]): its levels are what is
+    /// matched and what synthesized texels hold.
+    pub fn from_pyramid(pyramid: Pyramid, params: ModelParams) -> Result<Self> {
+        let n_levels = pyramid.len();
+        if n_levels == 0 {
+            return Err(Error::invalid(
+                "multiscale synthesis needs at least one level",
+            ));
+        }
         for (name, v) in [
             ("fine", params.fine),
             ("coarse", params.coarse),
@@ -139,8 +152,7 @@ impl ExampleModel {
                 )));
             }
         }
-        let c = img.channels;
-        let pyramid = Pyramid::build(img, n_levels);
+        let c = pyramid.level(0).channels;
         let coarsest = n_levels - 1;
         let s1 = Shape::new(0, params.coarse, c);
         let s2 = Shape::new(params.fine, params.coarse, c);

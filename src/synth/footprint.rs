@@ -1,0 +1,361 @@
+//! Surface patches: where the texels of the surface sit inside a square example patch laid
+//! on the surface along the orientation field — the "resampling patches" of paper 001
+//! (§3.2, §4.2), shared by texture optimisation ([`super::optimise`]) and patch sampling
+//! ([`super::patches`]).
+//!
+//! A patch is a centre texel `c` and a half-size `r` in example pixels. Every texel `t`
+//! near `c` gets *local coordinates* `l(t)` ∈ ℝ², in example pixels, such that copying
+//! example pixel `z + l(t)` to every `t` pastes the example patch centred at `z` onto the
+//! surface, undistorted and turned with the field; the footprint is the set of texels with
+//! `|l(t)|∞ ≤ r`.
+//!
+//! **How `l` is found.** Texels are flooded from the centre over the texel graph
+//! ([`crate::texels::TexelGraph`], which crosses domain edges, T-junctions and
+//! extraordinary corners), nearest first by path length (Dijkstra). A texel reached from
+//! `s` gets `l(t) = l(s) + e(s, t)`, `e` the displacement `P(t) − P(s)` expressed in `s`'s
+//! field frame in example pixels, `e = ((P(t) − P(s))·v1, −(P(t) − P(s))·v2) / δ` — the
+//! continuation rule of coherent synthesis (000 §5), applied along a shortest path. The
+//! minus sign makes image rows run along −v2 (docs/synthesis.md, "handedness").
+//! Because each step is a chord of ~one texel projected on the tangent plane, `l` follows
+//! the surface (a geodesic-polar-like map), not the 3D chord from the centre, and it turns
+//! with the field, so two overlapping patches agree on the texture's orientation where
+//! they meet. Where the field curls, coordinates reached along different branches of the
+//! shortest-path tree can disagree slightly; one Jacobi smoothing pass per texel (the mean
+//! of the continuations from all its already-placed neighbours in the footprint) spreads
+//! that disagreement instead of leaving a crack.
+//!
+//! This works on the texels themselves rather than on a K×K grid of surface samples
+//! ([`crate::sampling`]) because the texture is stored per texel: each texel's place in
+//! each patch is then known exactly, so a method can paste a patch or copy a source
+//! position into every texel it covers without resampling, and texel density may vary
+//! freely (denser small faces just get more texels per example pixel).
+//!
+//! Footprints are computed once per level and reused by every iteration.
+
+use crate::field::OrientationField;
+use crate::texels::{TexelGeometry, TexelGraph};
+use glam::Vec3;
+use rayon::prelude::*;
+use std::cmp::Ordering;
+use std::collections::BinaryHeap;
+use subdiv::Surface;
+
+/// The texels of one synthesis level: where they are, who their neighbours are, and the
+/// field's frame at each.
+pub struct LevelTexels {
+    pub geometry: TexelGeometry,
+    pub graph: TexelGraph,
+    /// (v1, v2) per texel.
+    pub frames: Vec<[Vec3; 2]>,
+    /// Surface length of one example pixel of this level (δ).
+    pub step: f64,
+}
+
+impl LevelTexels {
+    /// Evaluates everything for `n`×`n` maps.
+    pub fn new(surface: &Surface, field: &OrientationField, n: usize, step: f64) -> Self {
+        let geometry = TexelGeometry::compute(surface, n);
+        let graph = TexelGraph::build(surface, &geometry);
+        let frames = super::frames_f32(&field.texel_frames(surface, n));
+        Self {
+            geometry,
+            graph,
+            frames,
+            step,
+        }
+    }
+
+    /// Texels per domain side.
+    pub fn resolution(&self) -> usize {
+        self.geometry.resolution
+    }
+
+    /// Number of texels.
+    pub fn len(&self) -> usize {
+        self.geometry.len()
+    }
+
+    /// True without texels.
+    pub fn is_empty(&self) -> bool {
+        self.geometry.is_empty()
+    }
+
+    /// `P(t) − P(s)` in `s`'s frame, in example pixels of this level.
+    #[inline]
+    pub fn offset(&self, s: usize, t: usize) -> [f32; 2] {
+        let d = self.geometry.pos[t] - self.geometry.pos[s];
+        let [v1, v2] = self.frames[s];
+        let k = (1.0 / self.step) as f32;
+        [d.dot(v1) * k, -d.dot(v2) * k]
+    }
+}
+
+/// Patch centres: a maximal Poisson-disk sample of the texels with minimum 3D distance
+/// `spacing` (paper 001 §4.2: "randomly and uniformly select some vertices"), visiting
+/// texels in a seeded hash order. Every texel lies within `spacing` of some centre.
+pub fn centres(level: &LevelTexels, spacing: f64, seed: u64) -> Vec<u32> {
+    use std::collections::HashMap;
+    let pos = &level.geometry.pos;
+    let n = pos.len();
+    let mut order: Vec<(u64, u32)> = (0..n as u32)
+        .map(|t| (super::matching::search::hash(seed, &[0xCE47, t as u64]), t))
+        .collect();
+    order.par_sort_unstable();
+    let cell = spacing.max(1e-30) as f32;
+    let key = |p: Vec3| -> (i64, i64, i64) {
+        (
+            (p.x / cell).floor() as i64,
+            (p.y / cell).floor() as i64,
+            (p.z / cell).floor() as i64,
+        )
+    };
+    let mut grid: HashMap<(i64, i64, i64), Vec<u32>> = HashMap::new();
+    let mut out = Vec::new();
+    let s2 = (spacing * spacing) as f32;
+    for &(_, t) in &order {
+        let p = pos[t as usize];
+        if !p.is_finite() {
+            continue;
+        }
+        let (i, j, k) = key(p);
+        let mut free = true;
+        'search: for a in i - 1..=i + 1 {
+            for b in j - 1..=j + 1 {
+                for c in k - 1..=k + 1 {
+                    if let Some(v) = grid.get(&(a, b, c)) {
+                        if v.iter().any(|&q| pos[q as usize].distance_squared(p) < s2) {
+                            free = false;
+                            break 'search;
+                        }
+                    }
+                }
+            }
+        }
+        if free {
+            grid.entry((i, j, k)).or_default().push(t);
+            out.push(t);
+        }
+    }
+    out
+}
+
+/// The footprints of a set of patches (CSR): texels and their local coordinates.
+pub struct Footprints {
+    /// Half-size r in example pixels: footprints hold the texels with |l|∞ ≤ r.
+    pub half: f32,
+    pub centres: Vec<u32>,
+    start: Vec<usize>,
+    texels: Vec<u32>,
+    coords: Vec<[f32; 2]>,
+}
+
+/// Dijkstra queue entry: path length, texel (min-heap by length, then texel index).
+#[derive(Clone, Copy, PartialEq)]
+struct Entry(f32, u32);
+impl Eq for Entry {}
+impl Ord for Entry {
+    fn cmp(&self, o: &Self) -> Ordering {
+        o.0.total_cmp(&self.0).then(o.1.cmp(&self.1))
+    }
+}
+impl PartialOrd for Entry {
+    fn partial_cmp(&self, o: &Self) -> Option<Ordering> {
+        Some(self.cmp(o))
+    }
+}
+
+/// Per-thread flood state, indexed by texel, reset lazily by generation stamps.
+struct Flood {
+    stamp: Vec<u32>,
+    gen: u32,
+    dist: Vec<f32>,
+    coord: Vec<[f32; 2]>,
+    done: Vec<bool>,
+    heap: BinaryHeap<Entry>,
+    nb: Vec<u32>,
+    reached: Vec<u32>,
+}
+
+impl Flood {
+    fn new(n: usize) -> Self {
+        Self {
+            stamp: vec![0; n],
+            gen: 0,
+            dist: vec![0.0; n],
+            coord: vec![[0.0; 2]; n],
+            done: vec![false; n],
+            heap: BinaryHeap::new(),
+            nb: Vec::with_capacity(32),
+            reached: Vec::new(),
+        }
+    }
+}
+
+impl Footprints {
+    /// Floods every centre's footprint of half-size `half` (example pixels of `level`).
+    pub fn build(level: &LevelTexels, centres: Vec<u32>, half: f32) -> Self {
+        let n = level.len();
+        let scratch = super::per_thread::PerThread::new();
+        let per: Vec<(Vec<u32>, Vec<[f32; 2]>)> = centres
+            .par_iter()
+            .map(|&c| scratch.with(|| Flood::new(n), |fl| flood(level, fl, c as usize, half)))
+            .collect();
+        let mut start = Vec::with_capacity(per.len() + 1);
+        start.push(0);
+        let total: usize = per.iter().map(|p| p.0.len()).sum();
+        let mut texels = Vec::with_capacity(total);
+        let mut coords = Vec::with_capacity(total);
+        for (t, l) in per {
+            texels.extend_from_slice(&t);
+            coords.extend_from_slice(&l);
+            start.push(texels.len());
+        }
+        Self {
+            half,
+            centres,
+            start,
+            texels,
+            coords,
+        }
+    }
+
+    /// Number of patches.
+    pub fn len(&self) -> usize {
+        self.centres.len()
+    }
+
+    /// True without patches.
+    pub fn is_empty(&self) -> bool {
+        self.centres.is_empty()
+    }
+
+    /// Texels and local coordinates of patch `p` (the centre first, at (0, 0)).
+    #[inline]
+    pub fn get(&self, p: usize) -> (&[u32], &[[f32; 2]]) {
+        let (a, b) = (self.start[p], self.start[p + 1]);
+        (&self.texels[a..b], &self.coords[a..b])
+    }
+
+    /// Total (texel, patch) memberships.
+    pub fn memberships(&self) -> usize {
+        self.texels.len()
+    }
+
+    /// Bytes held.
+    pub fn heap_bytes(&self) -> usize {
+        self.texels.len() * 12 + self.start.len() * 8 + self.centres.len() * 4
+    }
+
+    /// For every texel, the patches whose footprint holds it (CSR: starts, patch list),
+    /// each list ascending.
+    pub fn covering(&self, texels: usize) -> (Vec<u32>, Vec<u32>) {
+        let mut count = vec![0u32; texels + 1];
+        for &t in &self.texels {
+            count[t as usize + 1] += 1;
+        }
+        for i in 1..count.len() {
+            count[i] += count[i - 1];
+        }
+        let mut fill = count.clone();
+        let mut list = vec![0u32; self.texels.len()];
+        for p in 0..self.len() {
+            for &t in self.get(p).0 {
+                let k = &mut fill[t as usize];
+                list[*k as usize] = p as u32;
+                *k += 1;
+            }
+        }
+        (count, list)
+    }
+}
+
+/// One footprint (see the module docs).
+fn flood(level: &LevelTexels, fl: &mut Flood, c: usize, half: f32) -> (Vec<u32>, Vec<[f32; 2]>) {
+    fl.gen = fl.gen.wrapping_add(1);
+    if fl.gen == 0 {
+        fl.stamp.iter_mut().for_each(|s| *s = 0);
+        fl.gen = 1;
+    }
+    let gen = fl.gen;
+    let pos = &level.geometry.pos;
+    // Paths longer than the patch's half-diagonal plus a texel cannot end inside it.
+    let limit = ((half * std::f32::consts::SQRT_2 + 2.0) as f64 * level.step) as f32;
+    let keep = half + 1.0;
+    fl.heap.clear();
+    fl.reached.clear();
+    fl.stamp[c] = gen;
+    fl.dist[c] = 0.0;
+    fl.coord[c] = [0.0, 0.0];
+    fl.done[c] = false;
+    fl.heap.push(Entry(0.0, c as u32));
+    while let Some(Entry(d, s)) = fl.heap.pop() {
+        let s = s as usize;
+        if fl.done[s] || d > fl.dist[s] {
+            continue;
+        }
+        fl.done[s] = true;
+        fl.reached.push(s as u32);
+        let ls = fl.coord[s];
+        if ls[0].abs().max(ls[1].abs()) > keep {
+            continue; // outside the patch: not expanded further
+        }
+        fl.nb.clear();
+        level.graph.neighbours(s, &mut fl.nb);
+        for k in 0..fl.nb.len() {
+            let t = fl.nb[k] as usize;
+            let nd = d + pos[s].distance(pos[t]);
+            if nd > limit || !nd.is_finite() {
+                continue;
+            }
+            let fresh = fl.stamp[t] != gen;
+            if fresh || (!fl.done[t] && nd < fl.dist[t]) {
+                if fresh {
+                    fl.stamp[t] = gen;
+                    fl.done[t] = false;
+                }
+                fl.dist[t] = nd;
+                let e = level.offset(s, t);
+                fl.coord[t] = [ls[0] + e[0], ls[1] + e[1]];
+                fl.heap.push(Entry(nd, t as u32));
+            }
+        }
+    }
+    // Smoothing: each texel (in flood order, centre fixed) takes the mean continuation from
+    // its neighbours that were reached before it.
+    let order = std::mem::take(&mut fl.reached);
+    for (rank, &t) in order.iter().enumerate() {
+        fl.dist[t as usize] = rank as f32; // reuse as flood rank
+    }
+    for &t in order.iter().skip(1) {
+        let t = t as usize;
+        fl.nb.clear();
+        level.graph.neighbours(t, &mut fl.nb);
+        let (mut sx, mut sy, mut m) = (0.0f32, 0.0f32, 0.0f32);
+        let rt = fl.dist[t];
+        for k in 0..fl.nb.len().min(8) {
+            let s = fl.nb[k] as usize;
+            if fl.stamp[s] != gen || fl.dist[s] >= rt {
+                continue;
+            }
+            let e = level.offset(s, t);
+            let ls = fl.coord[s];
+            sx += ls[0] + e[0];
+            sy += ls[1] + e[1];
+            m += 1.0;
+        }
+        if m > 0.0 {
+            fl.coord[t] = [sx / m, sy / m];
+        }
+    }
+    let mut texels = Vec::new();
+    let mut coords = Vec::new();
+    for &t in &order {
+        let l = fl.coord[t as usize];
+        if l[0].abs() <= half && l[1].abs() <= half {
+            texels.push(t);
+            coords.push(l);
+        }
+    }
+    fl.reached = order;
+    (texels, coords)
+}

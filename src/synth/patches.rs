@@ -1,0 +1,678 @@
+//! Patch sampling on the surface (paper 001 §5.2, after Liang et al. 2001 and Efros &
+//! Freeman 2001): whole example patches pasted along the orientation field, each chosen by
+//! how well it matches the texture already on the surface where it overlaps, joined to it
+//! along a minimum-error cut. Structure inside a patch is the example's own, so bricks stay
+//! whole and mortar lines straight; only the joins need care.
+//!
+//! 1. **Patches** ([`super::footprint`]): centres a Poisson-disk sample of the texels,
+//!    [`PatchParams::spacing`] × the patch side apart (001: half the patch size, so each
+//!    texel is covered by about two patches); each footprint the texels with their local
+//!    coordinates `l` in example pixels, laid along the field.
+//! 2. **Order**: breadth-first over patches that overlap (001 notes breadth-first works as
+//!    well as random; it needs no coarse estimate of the untextured boundary), so every
+//!    patch but the first of a connected surface overlaps texture already pasted.
+//! 3. **Choice** (001 step 3, "select a patch whose boundary is closest"): the error of an
+//!    example position `z` is the squared appearance-space distance
+//!    ([`super::matching::appearance`]) between the texels already synthesized inside the
+//!    footprint and the example at `z + l`, over up to [`PatchParams::eval_samples`] of
+//!    them. Candidates (k-coherence, paper 003 §5.2, instead of an ANN over boundary
+//!    zones, because the overlap's shape differs from patch to patch on a surface):
+//!    - *continuations*: an overlapped texel `t` with source `s(t)` proposes `s(t) − l(t)`,
+//!      the position that continues `t`'s patch exactly;
+//!    - *similar places*: the [`super::matching::similar`] list of each continuation;
+//!    - a few random positions.
+//!
+//!    As Liang et al., one is drawn at random among those within [`PatchParams::tolerance`]
+//!    of the best error, so the result does not collapse onto one continuation.
+//! 4. **Join** ([`super::mincut`]): over the footprint, texels already synthesized and
+//!    touching the outside are tied to the old texture, texels not yet synthesized and the
+//!    patch's core to the new patch, and every edge of the texel graph inside costs
+//!    `|old − new|` at both its ends (Kwatra et al. 2003); the minimum cut decides which
+//!    texels take the new patch.
+//! 5. Texels no footprint reached (rare: only where the field's charts fold tightly)
+//!    continue a synthesized neighbour.
+//!
+//! Each texel ends with one source position — all channels from the same place, no blur.
+//!
+//! **Determinism and parallelism**: patches run in waves; a patch's wave is one more than
+//! the latest earlier patch (in breadth-first order) whose footprint shares a texel with it,
+//! so each patch sees exactly the patches before it that it overlaps, as in the sequential
+//! order, whatever the thread count. Random draws hash (seed, patch, draw).
+
+use super::footprint::{centres, Footprints, LevelTexels};
+use super::matching::exemplar::Exemplar;
+use super::matching::search::hash;
+use super::mincut::CutGraph;
+use rayon::prelude::*;
+use serde::Serialize;
+
+/// Tuning of patch sampling (defaults measured, see docs/synthesis.md).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct PatchParams {
+    /// Patch side in example pixels (clamped to the example).
+    pub size: usize,
+    /// Distance between patch centres as a fraction of the side.
+    pub spacing: f32,
+    /// A candidate is eligible when its error is at most (1 + tolerance) × the best.
+    pub tolerance: f32,
+    /// Random candidates per patch.
+    pub random: u32,
+    /// Overlapped texels proposing continuations, per patch.
+    pub proposers: u32,
+    /// Overlapped texels the error is measured on, per patch.
+    pub eval_samples: u32,
+    /// Step (example pixels) of the coarse exhaustive search over all positions; 0: none.
+    pub grid_step: u32,
+    /// Overlapped texels the coarse search measures.
+    pub grid_samples: u32,
+    /// Best positions of the coarse search kept as candidates.
+    pub grid_keep: u32,
+    /// Best candidates refined by a local search of ±2 pixels.
+    pub refine: u32,
+}
+
+impl Default for PatchParams {
+    fn default() -> Self {
+        Self {
+            size: 32,
+            spacing: 0.5,
+            tolerance: 0.1,
+            random: 8,
+            proposers: 24,
+            eval_samples: 192,
+            grid_step: 3,
+            grid_samples: 24,
+            grid_keep: 8,
+            refine: 3,
+        }
+    }
+}
+
+/// Counters (reported).
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Stats {
+    /// Patch side actually used (example pixels).
+    pub size: usize,
+    pub patches: u64,
+    pub waves: u64,
+    /// Candidate positions whose error was measured.
+    pub candidates: u64,
+    /// Patches pasted with no texture around (first of a connected surface).
+    pub seeded: u64,
+    /// Texels that took a new patch over texture pasted before (inside cuts).
+    pub replaced: u64,
+    /// Texels no footprint reached, continued from a neighbour.
+    pub filled: u64,
+    /// Bytes of the footprints.
+    pub footprint_bytes: u64,
+}
+
+/// Source position per texel and counters.
+pub struct Output {
+    pub source: Vec<[f32; 2]>,
+    pub stats: Stats,
+}
+
+/// The patch side used for an example of `w x h` pixels: the requested side, at most
+/// the example's shorter side minus 2 (a patch must fit with its bilinear taps), at least 4.
+pub fn effective_size(requested: usize, w: usize, h: usize) -> usize {
+    requested.min(w.min(h).saturating_sub(2)).max(4)
+}
+
+struct Ctx<'a, const K: usize> {
+    ex: &'a Exemplar<K>,
+    level: &'a LevelTexels,
+    fp: &'a Footprints,
+    params: &'a PatchParams,
+    seed: u64,
+    /// Valid patch centres: [lo, hi_x] × [lo, hi_y].
+    lo: f32,
+    hi_x: f32,
+    hi_y: f32,
+}
+
+/// Per-thread scratch.
+struct Scratch {
+    node: Vec<u32>,
+    stamp: Vec<u32>,
+    gen: u32,
+    cands: Vec<[f32; 2]>,
+    errs: Vec<(f32, u32)>,
+    graph: CutGraph,
+    side: Vec<bool>,
+    nb: Vec<u32>,
+    nb2: Vec<u32>,
+    diff: Vec<f32>,
+    class: Vec<u8>,
+    index: Vec<u32>,
+}
+
+impl Scratch {
+    fn new(texels: usize) -> Self {
+        Self {
+            node: vec![0; texels],
+            stamp: vec![0; texels],
+            gen: 0,
+            cands: Vec::new(),
+            errs: Vec::new(),
+            graph: CutGraph::default(),
+            side: Vec::new(),
+            nb: Vec::new(),
+            nb2: Vec::new(),
+            diff: Vec::new(),
+            class: Vec::new(),
+            index: Vec::new(),
+        }
+    }
+}
+
+/// What one patch writes: texels taking the new patch, with their sources.
+struct Paste {
+    texels: Vec<u32>,
+    sources: Vec<[f32; 2]>,
+    candidates: u64,
+    seeded: bool,
+    replaced: u64,
+}
+
+/// Runs patch sampling over the texels of `level` (its step is the surface length of one
+/// pixel of `ex`). `progress(done, total)` counts patches.
+pub fn run<const K: usize>(
+    ex: &Exemplar<K>,
+    level: &LevelTexels,
+    params: &PatchParams,
+    seed: u64,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Output {
+    let size = effective_size(params.size, ex.width(), ex.height());
+    let half = size as f32 / 2.0;
+    let spacing = (params.spacing as f64 * size as f64 * level.step).max(1e-30);
+    let t0 = std::time::Instant::now();
+    let cs = centres(level, spacing, seed);
+    let t1 = t0.elapsed().as_secs_f64();
+    let fp = Footprints::build(level, cs, half);
+    eprintln!(
+        "centres {t1:.3} footprints {:.3}",
+        t0.elapsed().as_secs_f64() - t1
+    );
+    let ctx = Ctx {
+        ex,
+        level,
+        fp: &fp,
+        params,
+        seed,
+        lo: 0.5 + half,
+        hi_x: ex.width() as f32 - 0.5 - half,
+        hi_y: ex.height() as f32 - 0.5 - half,
+    };
+    let n = level.len();
+    let waves = plan_waves(&fp, n);
+    let mut src = vec![[0.0f32; 2]; n];
+    let mut set = vec![false; n];
+    let mut app = vec![[0.0f32; K]; n];
+    let mut stats = Stats {
+        size,
+        patches: fp.len() as u64,
+        waves: waves.len() as u64,
+        footprint_bytes: fp.heap_bytes() as u64,
+        ..Stats::default()
+    };
+    let mut done = 0;
+    let scratch = super::per_thread::PerThread::new();
+    for wave in &waves {
+        let pastes: Vec<Paste> = wave
+            .par_iter()
+            .map(|&p| {
+                scratch.with(
+                    || Scratch::new(n),
+                    |s| paste(&ctx, p as usize, &src, &set, &app, s),
+                )
+            })
+            .collect();
+        for r in pastes {
+            for (&t, &s) in r.texels.iter().zip(&r.sources) {
+                let t = t as usize;
+                src[t] = s;
+                set[t] = true;
+                app[t] = ex.features.sample(s[0], s[1]);
+            }
+            stats.candidates += r.candidates;
+            stats.seeded += r.seeded as u64;
+            stats.replaced += r.replaced;
+        }
+        done += wave.len();
+        progress(done, fp.len());
+    }
+    eprintln!("waves done {:.3}", t0.elapsed().as_secs_f64());
+    stats.filled = fill_uncovered(level, &mut src, &mut set, ex, seed);
+    Output { source: src, stats }
+}
+
+/// Breadth-first order over overlapping patches, grouped into waves (see the module docs).
+fn plan_waves(fp: &Footprints, texels: usize) -> Vec<Vec<u32>> {
+    let np = fp.len();
+    let (start, list) = fp.covering(texels);
+    let overlaps = |p: usize, out: &mut Vec<u32>| {
+        out.clear();
+        for &t in fp.get(p).0 {
+            let t = t as usize;
+            out.extend_from_slice(&list[start[t] as usize..start[t + 1] as usize]);
+        }
+        out.sort_unstable();
+        out.dedup();
+        out.retain(|&q| q as usize != p);
+    };
+    let mut rank = vec![u32::MAX; np];
+    let mut order = Vec::with_capacity(np);
+    let mut buf = Vec::new();
+    for root in 0..np {
+        if rank[root] != u32::MAX {
+            continue;
+        }
+        rank[root] = order.len() as u32;
+        order.push(root as u32);
+        let mut head = order.len() - 1;
+        while head < order.len() {
+            let p = order[head] as usize;
+            head += 1;
+            overlaps(p, &mut buf);
+            for &q in &buf {
+                if rank[q as usize] == u32::MAX {
+                    rank[q as usize] = order.len() as u32;
+                    order.push(q);
+                }
+            }
+        }
+    }
+    let mut wave = vec![0u32; np];
+    let mut waves: Vec<Vec<u32>> = Vec::new();
+    for &p in &order {
+        let p = p as usize;
+        overlaps(p, &mut buf);
+        let w = buf
+            .iter()
+            .filter(|&&q| rank[q as usize] < rank[p])
+            .map(|&q| wave[q as usize] + 1)
+            .max()
+            .unwrap_or(0);
+        wave[p] = w;
+        if waves.len() <= w as usize {
+            waves.resize(w as usize + 1, Vec::new());
+        }
+        waves[w as usize].push(p as u32);
+    }
+    waves
+}
+
+#[inline(always)]
+fn dist2<const K: usize>(a: &[f32; K], b: &[f32; K]) -> f32 {
+    let mut s = 0.0;
+    for k in 0..K {
+        let d = a[k] - b[k];
+        s += d * d;
+    }
+    s
+}
+
+/// Chooses and joins patch `p` (read-only on the state).
+fn paste<const K: usize>(
+    c: &Ctx<'_, K>,
+    p: usize,
+    src: &[[f32; 2]],
+    set: &[bool],
+    app: &[[f32; K]],
+    s: &mut Scratch,
+) -> Paste {
+    let (texels, coords) = c.fp.get(p);
+    let m = texels.len();
+    let f = &c.ex.features;
+    let valid = |z: [f32; 2]| z[0] >= c.lo && z[0] <= c.hi_x && z[1] >= c.lo && z[1] <= c.hi_y;
+    let random = |k: u64| -> [f32; 2] {
+        let h = hash(c.seed, &[0x9A7C, p as u64, k]);
+        let a = (h >> 40) as f32 / (1u64 << 24) as f32;
+        let b = ((h >> 8) & 0xFF_FFFF) as f32 / (1u64 << 24) as f32;
+        [c.lo + a * (c.hi_x - c.lo), c.lo + b * (c.hi_y - c.lo)]
+    };
+    let known: Vec<usize> = (0..m).filter(|&i| set[texels[i] as usize]).collect();
+    if known.is_empty() {
+        let z = random(0);
+        return Paste {
+            texels: texels.to_vec(),
+            sources: coords.iter().map(|l| [z[0] + l[0], z[1] + l[1]]).collect(),
+            candidates: 0,
+            seeded: true,
+            replaced: 0,
+        };
+    }
+    // Candidates.
+    s.cands.clear();
+    let push = |cands: &mut Vec<[f32; 2]>, z: [f32; 2]| {
+        if valid(z)
+            && !cands
+                .iter()
+                .any(|o| (o[0] - z[0]).abs() < 0.5 && (o[1] - z[1]).abs() < 0.5)
+        {
+            cands.push(z);
+        }
+    };
+    let step = known
+        .len()
+        .div_ceil(c.params.proposers.max(1) as usize)
+        .max(1);
+    let mut conts: Vec<[f32; 2]> = Vec::new();
+    for &i in known.iter().step_by(step) {
+        let t = texels[i] as usize;
+        let z = [src[t][0] - coords[i][0], src[t][1] - coords[i][1]];
+        if !conts
+            .iter()
+            .any(|o| (o[0] - z[0]).abs() < 0.5 && (o[1] - z[1]).abs() < 0.5)
+        {
+            conts.push(z);
+        }
+    }
+    for &z in &conts {
+        push(&mut s.cands, z);
+    }
+    let (w, h) = (f.width, f.height);
+    for &z in &conts {
+        let (px, py) = (z[0].floor(), z[1].floor());
+        if !(px >= 0.0 && py >= 0.0 && (px as usize) < w && (py as usize) < h) {
+            continue;
+        }
+        let (fx, fy) = (z[0] - px, z[1] - py);
+        for (jx, jy) in c.ex.similar.of(px as usize, py as usize) {
+            push(&mut s.cands, [jx as f32 + fx, jy as f32 + fy]);
+        }
+    }
+    for k in 0..c.params.random as u64 {
+        push(&mut s.cands, random(k + 1));
+    }
+    if c.params.grid_step > 0 {
+        let gstep = known
+            .len()
+            .div_ceil(c.params.grid_samples.max(1) as usize)
+            .max(1);
+        let gsub: Vec<(usize, [f32; 2])> = known
+            .iter()
+            .step_by(gstep)
+            .map(|&i| (texels[i] as usize, coords[i]))
+            .collect();
+        let keep = c.params.grid_keep as usize;
+        let mut top: Vec<(f32, [f32; 2])> = Vec::with_capacity(keep + 1);
+        let g = c.params.grid_step as f32;
+        let mut y = c.lo;
+        while y <= c.hi_y {
+            let mut x = c.lo;
+            while x <= c.hi_x {
+                let bound = if top.len() == keep {
+                    top[keep - 1].0
+                } else {
+                    f32::INFINITY
+                };
+                let mut e = 0.0f32;
+                for &(t, l) in &gsub {
+                    let (px, py) = ((x + l[0]) as usize, (y + l[1]) as usize);
+                    e += dist2(&app[t], f.at(px.min(w - 1), py.min(h - 1)));
+                    if e >= bound {
+                        break;
+                    }
+                }
+                if e < bound {
+                    let pos = top.partition_point(|o| o.0 <= e);
+                    top.insert(pos, (e, [x, y]));
+                    top.truncate(keep);
+                }
+                x += g;
+            }
+            y += g;
+        }
+        for (_, z) in top {
+            push(&mut s.cands, z);
+        }
+    }
+    if s.cands.is_empty() {
+        s.cands.push(random(0));
+    }
+    // Errors on a strided subset of the overlap.
+    let estep = known
+        .len()
+        .div_ceil(c.params.eval_samples.max(1) as usize)
+        .max(1);
+    let sub: Vec<usize> = known.iter().copied().step_by(estep).collect();
+    s.errs.clear();
+    let mut best = f32::INFINITY;
+    for (ci, z) in s.cands.iter().enumerate() {
+        let mut e = 0.0f32;
+        // Bound: anything beyond (1 + tol) × best can never be eligible.
+        let bound = best * (1.0 + c.params.tolerance);
+        for &i in &sub {
+            let l = coords[i];
+            e += dist2(
+                &app[texels[i] as usize],
+                &f.sample(z[0] + l[0], z[1] + l[1]),
+            );
+            if e > bound {
+                break;
+            }
+        }
+        if e <= bound {
+            s.errs.push((e, ci as u32));
+            best = best.min(e);
+        }
+    }
+    // Local refinement of the best few: ±2 pixels.
+    if c.params.refine > 0 {
+        let mut order: Vec<(f32, u32)> = s.errs.clone();
+        order.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        for &(_, ci) in order.iter().take(c.params.refine as usize) {
+            let z0 = s.cands[ci as usize];
+            for dy in -2i32..=2 {
+                for dx in -2i32..=2 {
+                    if dx == 0 && dy == 0 {
+                        continue;
+                    }
+                    let z = [z0[0] + dx as f32, z0[1] + dy as f32];
+                    if !valid(z) {
+                        continue;
+                    }
+                    let bound = best * (1.0 + c.params.tolerance);
+                    let mut e = 0.0f32;
+                    for &i in &sub {
+                        let l = coords[i];
+                        e += dist2(
+                            &app[texels[i] as usize],
+                            &f.sample(z[0] + l[0], z[1] + l[1]),
+                        );
+                        if e > bound {
+                            break;
+                        }
+                    }
+                    if e <= bound {
+                        s.cands.push(z);
+                        s.errs.push((e, (s.cands.len() - 1) as u32));
+                        best = best.min(e);
+                    }
+                }
+            }
+        }
+    }
+    let limit = best * (1.0 + c.params.tolerance) + 1e-12;
+    s.errs.retain(|&(e, _)| e <= limit);
+    s.errs
+        .sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    let pick = (hash(c.seed, &[0x51C7, p as u64]) % s.errs.len() as u64) as usize;
+    let z = s.cands[s.errs[pick].1 as usize];
+    let candidates = s.cands.len() as u64;
+
+    // Minimum-error cut over the footprint.
+    s.gen = s.gen.wrapping_add(1);
+    if s.gen == 0 {
+        s.stamp.iter_mut().for_each(|x| *x = 0);
+        s.gen = 1;
+    }
+    for (i, &t) in texels.iter().enumerate() {
+        s.stamp[t as usize] = s.gen;
+        s.node[t as usize] = i as u32;
+    }
+    s.diff.clear();
+    for (&t, &l) in texels.iter().zip(coords) {
+        let t = t as usize;
+        s.diff.push(if set[t] {
+            dist2(&app[t], &f.sample(z[0] + l[0], z[1] + l[1])).sqrt()
+        } else {
+            f32::NAN
+        });
+    }
+    // Terminal-tied texels are contracted into their terminal, so the max-flow only
+    // sees the free part of the overlap: texels already synthesized that touch the
+    // outside keep the old texture (source); texels not yet synthesized and the patch's
+    // core take the new one (sink).
+    const FREE: u8 = 0;
+    const OLD: u8 = 1;
+    const NEW: u8 = 2;
+    let core = 0.25 * c.fp.half;
+    s.class.clear();
+    s.index.clear();
+    let mut free = 0usize;
+    for i in 0..m {
+        let t = texels[i] as usize;
+        let l = coords[i];
+        let class = if !set[t] || (l[0].abs() <= core && l[1].abs() <= core) {
+            NEW
+        } else {
+            s.nb.clear();
+            c.level.graph.neighbours(t, &mut s.nb);
+            if s.nb.iter().take(8).any(|&u| s.stamp[u as usize] != s.gen) {
+                OLD
+            } else {
+                FREE
+            }
+        };
+        s.class.push(class);
+        s.index.push(free as u32);
+        if class == FREE {
+            free += 1;
+        }
+    }
+    s.graph.reset(free);
+    let (src_node, sink_node) = (s.graph.source(), s.graph.sink());
+    for i in 0..m {
+        let ci = s.class[i];
+        let t = texels[i] as usize;
+        s.nb.clear();
+        c.level.graph.neighbours(t, &mut s.nb);
+        for k in 0..s.nb.len().min(8) {
+            let u = s.nb[k] as usize;
+            if s.stamp[u] != s.gen {
+                continue;
+            }
+            let j = s.node[u] as usize;
+            let cj = s.class[j];
+            if j == i || (ci != FREE && cj != FREE) {
+                continue; // within one terminal, or a constant cost between the two
+            }
+            // One edge per pair: from the lower index, or from whichever lists the other
+            // when only one does.
+            if j < i {
+                s.nb2.clear();
+                c.level.graph.neighbours(u, &mut s.nb2);
+                if s.nb2.iter().take(8).any(|&x| x as usize == t) {
+                    continue;
+                }
+            }
+            let (da, db) = (s.diff[i], s.diff[j]);
+            let cap = match (da.is_nan(), db.is_nan()) {
+                (false, false) => da + db,
+                (false, true) => 2.0 * da,
+                (true, false) => 2.0 * db,
+                (true, true) => 0.0,
+            };
+            let node = |x: usize, cx: u8| match cx {
+                OLD => src_node,
+                NEW => sink_node,
+                _ => s.index[x] as usize,
+            };
+            let (na, nb) = (node(i, ci), node(j, cj));
+            s.graph.edge(na, nb, cap + 1e-6);
+        }
+    }
+    let mut side = std::mem::take(&mut s.side);
+    s.graph.solve(&mut side);
+    let mut out_t = Vec::new();
+    let mut out_s = Vec::new();
+    let mut replaced = 0;
+    for i in 0..m {
+        let keep_old = match s.class[i] {
+            OLD => true,
+            NEW => false,
+            _ => side[s.index[i] as usize],
+        };
+        if !keep_old {
+            let t = texels[i];
+            if set[t as usize] {
+                replaced += 1;
+            }
+            out_t.push(t);
+            out_s.push([z[0] + coords[i][0], z[1] + coords[i][1]]);
+        }
+    }
+    s.side = side;
+    Paste {
+        texels: out_t,
+        sources: out_s,
+        candidates,
+        seeded: false,
+        replaced,
+    }
+}
+
+/// Gives every texel no footprint reached the continuation of a synthesized neighbour
+/// (breadth-first, nearest neighbour first); isolated texels get the example's centre.
+/// Returns how many were filled.
+fn fill_uncovered<const K: usize>(
+    level: &LevelTexels,
+    src: &mut [[f32; 2]],
+    set: &mut [bool],
+    ex: &Exemplar<K>,
+    _seed: u64,
+) -> u64 {
+    let n = src.len();
+    let mut filled = 0u64;
+    let mut frontier: Vec<usize> = (0..n).filter(|&t| !set[t]).collect();
+    let mut nb = Vec::new();
+    let (w, h) = (ex.width() as f32, ex.height() as f32);
+    while !frontier.is_empty() {
+        let mut next = Vec::new();
+        let mut updates = Vec::new();
+        for &t in &frontier {
+            nb.clear();
+            level.graph.neighbours(t, &mut nb);
+            match nb.iter().map(|&u| u as usize).find(|&u| set[u]) {
+                Some(u) => {
+                    let e = level.offset(u, t);
+                    let s = [
+                        (src[u][0] + e[0]).clamp(0.5, w - 0.5),
+                        (src[u][1] + e[1]).clamp(0.5, h - 0.5),
+                    ];
+                    updates.push((t, s));
+                }
+                None => next.push(t),
+            }
+        }
+        if updates.is_empty() {
+            for &t in &next {
+                src[t] = [w / 2.0, h / 2.0];
+                set[t] = true;
+                filled += 1;
+            }
+            break;
+        }
+        for (t, s) in updates {
+            src[t] = s;
+            set[t] = true;
+            filled += 1;
+        }
+        frontier = next;
+    }
+    filled
+}
