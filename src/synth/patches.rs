@@ -44,6 +44,7 @@ use super::matching::exemplar::Exemplar;
 use super::matching::search::hash;
 use super::mincut::CutGraph;
 use rayon::prelude::*;
+
 use serde::Serialize;
 
 /// Tuning of patch sampling (defaults measured, see docs/synthesis.md).
@@ -88,11 +89,17 @@ impl Default for PatchParams {
     }
 }
 
+/// Smallest patch side of the hole-filling passes (example pixels).
+pub const MIN_SIZE: usize = 8;
+
 /// Counters (reported).
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct Stats {
-    /// Patch side actually used (example pixels).
+    /// Patch side of the first pass (example pixels).
     pub size: usize,
+    /// (patch side, patches) of every pass: later passes cover what larger patches could
+    /// not reach.
+    pub passes: Vec<(usize, u64)>,
     pub patches: u64,
     pub waves: u64,
     /// Candidate positions whose error was measured.
@@ -140,8 +147,6 @@ struct Scratch {
     errs: Vec<(f32, u32)>,
     graph: CutGraph,
     side: Vec<bool>,
-    nb: Vec<u32>,
-    nb2: Vec<u32>,
     diff: Vec<f32>,
     class: Vec<u8>,
     index: Vec<u32>,
@@ -157,8 +162,6 @@ impl Scratch {
             errs: Vec::new(),
             graph: CutGraph::default(),
             side: Vec::new(),
-            nb: Vec::new(),
-            nb2: Vec::new(),
             diff: Vec::new(),
             class: Vec::new(),
             index: Vec::new(),
@@ -184,66 +187,83 @@ pub fn run<const K: usize>(
     seed: u64,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Output {
-    let size = effective_size(params.size, ex.width(), ex.height());
-    let half = size as f32 / 2.0;
-    let spacing = (params.spacing as f64 * size as f64 * level.step).max(1e-30);
-    let t0 = std::time::Instant::now();
-    let cs = centres(level, spacing, seed);
-    let t1 = t0.elapsed().as_secs_f64();
-    let fp = Footprints::build(level, cs, half);
-    eprintln!(
-        "centres {t1:.3} footprints {:.3}",
-        t0.elapsed().as_secs_f64() - t1
-    );
-    let ctx = Ctx {
-        ex,
-        level,
-        fp: &fp,
-        params,
-        seed,
-        lo: 0.5 + half,
-        hi_x: ex.width() as f32 - 0.5 - half,
-        hi_y: ex.height() as f32 - 0.5 - half,
-    };
     let n = level.len();
-    let waves = plan_waves(&fp, n);
+    let mut size = effective_size(params.size, ex.width(), ex.height());
     let mut src = vec![[0.0f32; 2]; n];
     let mut set = vec![false; n];
     let mut app = vec![[0.0f32; K]; n];
+    let mut covered = vec![false; n];
     let mut stats = Stats {
         size,
-        patches: fp.len() as u64,
-        waves: waves.len() as u64,
-        footprint_bytes: fp.heap_bytes() as u64,
         ..Stats::default()
     };
-    let mut done = 0;
     let scratch = super::per_thread::PerThread::new();
-    for wave in &waves {
-        let pastes: Vec<Paste> = wave
-            .par_iter()
-            .map(|&p| {
-                scratch.with(
-                    || Scratch::new(n),
-                    |s| paste(&ctx, p as usize, &src, &set, &app, s),
-                )
-            })
-            .collect();
-        for r in pastes {
-            for (&t, &s) in r.texels.iter().zip(&r.sources) {
-                let t = t as usize;
-                src[t] = s;
-                set[t] = true;
-                app[t] = ex.features.sample(s[0], s[1]);
-            }
-            stats.candidates += r.candidates;
-            stats.seeded += r.seeded as u64;
-            stats.replaced += r.replaced;
+    // Passes of halving patch size: each covers what the larger patches could not reach
+    // (open boundaries, thin curved parts where a large patch would fold).
+    for pass in 0u64.. {
+        let half = size as f32 / 2.0;
+        let spacing = (params.spacing as f64 * size as f64 * level.step).max(1e-30);
+        let mask = (pass > 0).then(|| covered.iter().map(|&c| !c).collect::<Vec<bool>>());
+        let cs = centres(
+            level,
+            spacing,
+            seed ^ pass.wrapping_mul(0x9E37),
+            mask.as_deref(),
+        );
+        if cs.is_empty() {
+            break;
         }
-        done += wave.len();
-        progress(done, fp.len());
+        let fp = Footprints::build(level, cs, half);
+        for p in 0..fp.len() {
+            for &t in fp.get(p).0 {
+                covered[t as usize] = true;
+            }
+        }
+        let ctx = Ctx {
+            ex,
+            level,
+            fp: &fp,
+            params,
+            seed: seed ^ pass.wrapping_mul(0x51ED),
+            lo: 0.5 + half,
+            hi_x: ex.width() as f32 - 0.5 - half,
+            hi_y: ex.height() as f32 - 0.5 - half,
+        };
+        let waves = plan_waves(&fp, n);
+        stats.patches += fp.len() as u64;
+        stats.waves += waves.len() as u64;
+        stats.passes.push((size, fp.len() as u64));
+        stats.footprint_bytes = stats.footprint_bytes.max(fp.heap_bytes() as u64);
+        let mut done = 0;
+        for wave in &waves {
+            let pastes: Vec<Paste> = wave
+                .par_iter()
+                .map(|&p| {
+                    scratch.with(
+                        || Scratch::new(n),
+                        |s| paste(&ctx, p as usize, &src, &set, &app, s),
+                    )
+                })
+                .collect();
+            for r in pastes {
+                for (&t, &s) in r.texels.iter().zip(&r.sources) {
+                    let t = t as usize;
+                    src[t] = s;
+                    set[t] = true;
+                    app[t] = ex.features.sample(s[0], s[1]);
+                }
+                stats.candidates += r.candidates;
+                stats.seeded += r.seeded as u64;
+                stats.replaced += r.replaced;
+            }
+            done += wave.len();
+            progress(done, fp.len());
+        }
+        if covered.iter().all(|&c| c) || size <= MIN_SIZE {
+            break;
+        }
+        size = (size / 2).max(MIN_SIZE);
     }
-    eprintln!("waves done {:.3}", t0.elapsed().as_secs_f64());
     stats.filled = fill_uncovered(level, &mut src, &mut set, ex, seed);
     Output { source: src, stats }
 }
@@ -530,7 +550,8 @@ fn paste<const K: usize>(
     const FREE: u8 = 0;
     const OLD: u8 = 1;
     const NEW: u8 = 2;
-    let core = 0.25 * c.fp.half;
+    let edges = c.level.edges();
+    let core = core_fraction() * c.fp.half;
     s.class.clear();
     s.index.clear();
     let mut free = 0usize;
@@ -539,14 +560,10 @@ fn paste<const K: usize>(
         let l = coords[i];
         let class = if !set[t] || (l[0].abs() <= core && l[1].abs() <= core) {
             NEW
+        } else if edges.of(t).iter().any(|&u| s.stamp[u as usize] != s.gen) {
+            OLD
         } else {
-            s.nb.clear();
-            c.level.graph.neighbours(t, &mut s.nb);
-            if s.nb.iter().take(8).any(|&u| s.stamp[u as usize] != s.gen) {
-                OLD
-            } else {
-                FREE
-            }
+            FREE
         };
         s.class.push(class);
         s.index.push(free as u32);
@@ -555,30 +572,19 @@ fn paste<const K: usize>(
         }
     }
     s.graph.reset(free);
-    let (src_node, sink_node) = (s.graph.source(), s.graph.sink());
     for i in 0..m {
         let ci = s.class[i];
         let t = texels[i] as usize;
-        s.nb.clear();
-        c.level.graph.neighbours(t, &mut s.nb);
-        for k in 0..s.nb.len().min(8) {
-            let u = s.nb[k] as usize;
-            if s.stamp[u] != s.gen {
+        for &u in edges.of(t) {
+            let u = u as usize;
+            // Each edge once (from its lower texel), inside the footprint.
+            if u < t || s.stamp[u] != s.gen {
                 continue;
             }
             let j = s.node[u] as usize;
             let cj = s.class[j];
-            if j == i || (ci != FREE && cj != FREE) {
+            if ci != FREE && cj != FREE {
                 continue; // within one terminal, or a constant cost between the two
-            }
-            // One edge per pair: from the lower index, or from whichever lists the other
-            // when only one does.
-            if j < i {
-                s.nb2.clear();
-                c.level.graph.neighbours(u, &mut s.nb2);
-                if s.nb2.iter().take(8).any(|&x| x as usize == t) {
-                    continue;
-                }
             }
             let (da, db) = (s.diff[i], s.diff[j]);
             let cap = match (da.is_nan(), db.is_nan()) {
@@ -587,17 +593,27 @@ fn paste<const K: usize>(
                 (true, false) => 2.0 * db,
                 (true, true) => 0.0,
             };
-            let node = |x: usize, cx: u8| match cx {
-                OLD => src_node,
-                NEW => sink_node,
-                _ => s.index[x] as usize,
-            };
-            let (na, nb) = (node(i, ci), node(j, cj));
-            s.graph.edge(na, nb, cap + 1e-6);
+            let cap = cap + 1e-6;
+            let (a, b) = (s.index[i] as usize, s.index[j] as usize);
+            match (ci, cj) {
+                (FREE, FREE) => s.graph.edge(a, b, cap),
+                (FREE, OLD) => s.graph.terminal(a, cap, 0.0),
+                (FREE, _) => s.graph.terminal(a, 0.0, cap),
+                (OLD, _) => s.graph.terminal(b, cap, 0.0),
+                _ => s.graph.terminal(b, 0.0, cap),
+            }
         }
     }
     let mut side = std::mem::take(&mut s.side);
+    let tq = std::time::Instant::now();
     s.graph.solve(&mut side);
+    if std::env::var("PP_DBG").is_ok() {
+        eprintln!(
+            "cut m={m} free={free} arcs={} secs={:.6}",
+            s.graph.arcs(),
+            tq.elapsed().as_secs_f64()
+        );
+    }
     let mut out_t = Vec::new();
     let mut out_s = Vec::new();
     let mut replaced = 0;
@@ -675,4 +691,12 @@ fn fill_uncovered<const K: usize>(
         frontier = next;
     }
     filled
+}
+
+// DEV
+fn core_fraction() -> f32 {
+    std::env::var("PP_CORE")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(0.25)
 }
