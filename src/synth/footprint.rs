@@ -41,6 +41,12 @@ use std::collections::BinaryHeap;
 use std::sync::OnceLock;
 use subdiv::Surface;
 
+/// Local stretch beyond which a texel ends its patch: |Δl| / |ΔP| (in example pixels)
+/// between it and an already placed neighbour must lie in this range (scale fidelity's
+/// p10–p90 target is 0.9–1.1).
+const STRETCH_MIN: f32 = 0.9;
+const STRETCH_MAX: f32 = 1.1;
+
 /// The texels of one synthesis level: where they are, who their neighbours are, and the
 /// field's frame at each.
 pub struct LevelTexels {
@@ -278,7 +284,6 @@ struct Flood {
     e1: Vec<Vec3>,
     parent: Vec<u32>,
     done: Vec<bool>,
-    contrib: Vec<[f32; 2]>,
     heap: BinaryHeap<Entry>,
     nb: Vec<u32>,
     reached: Vec<u32>,
@@ -294,7 +299,6 @@ impl Flood {
             e1: vec![Vec3::ZERO; n],
             parent: vec![0; n],
             done: vec![false; n],
-            contrib: Vec::new(),
             heap: BinaryHeap::new(),
             nb: Vec::with_capacity(32),
             reached: Vec::new(),
@@ -458,10 +462,9 @@ fn flood(level: &LevelTexels, fl: &mut Flood, c: usize, half: f32) -> (Vec<u32>,
             fl.nb.clear();
             level.graph.neighbours(s, &mut fl.nb);
             let (mut sx, mut sy, mut sw) = (0.0f32, 0.0f32, 0.0f32);
-            fl.contrib.clear();
             for k in 0..fl.nb.len().min(8) {
                 let q = fl.nb[k] as usize;
-                if fl.stamp[q] != gen || !fl.done[q] {
+                if fl.stamp[q] != gen || !fl.done[q] || !fl.coord[q][0].is_finite() {
                     continue;
                 }
                 let dp = pos[s] - pos[q];
@@ -474,7 +477,6 @@ fn flood(level: &LevelTexels, fl: &mut Flood, c: usize, half: f32) -> (Vec<u32>,
                 let lq = fl.coord[q];
                 let cx = lq[0] + dp.dot(e1) * inv_step;
                 let cy = lq[1] - dp.dot(e2) * inv_step;
-                fl.contrib.push([cx, cy]);
                 sx += w * cx;
                 sy += w * cy;
                 sw += w;
@@ -484,16 +486,26 @@ fn flood(level: &LevelTexels, fl: &mut Flood, c: usize, half: f32) -> (Vec<u32>,
             } else {
                 fl.coord[p]
             };
-            // Where paths around a strongly curved part (a thin fin, an ear) meet from two
-            // sides, their continuations disagree: the patch would fold there. Such
-            // texels end the patch (another patch covers them).
+            // Where paths around a strongly curved part (a thin fin, an ear, a saddle) meet
+            // from two sides, their continuations disagree, and the averaged coordinates
+            // are squeezed or stretched against the surface: the patch would fold or smear
+            // there. Such texels end the patch (smaller patches cover them later).
             let l = fl.coord[s];
-            let dev = fl
-                .contrib
-                .iter()
-                .map(|c| (c[0] - l[0]).abs().max((c[1] - l[1]).abs()))
-                .fold(0.0f32, f32::max);
-            if dev > fold_tolerance() {
+            let mut bad = false;
+            for k in 0..fl.nb.len().min(8) {
+                let q = fl.nb[k] as usize;
+                if fl.stamp[q] != gen || !fl.done[q] || !fl.coord[q][0].is_finite() {
+                    continue;
+                }
+                let dp = pos[s].distance(pos[q]) * inv_step;
+                let lq = fl.coord[q];
+                let dl = (l[0] - lq[0]).hypot(l[1] - lq[1]);
+                if dp > 0.0 && !(STRETCH_MIN..=STRETCH_MAX).contains(&(dl / dp)) {
+                    bad = true;
+                    break;
+                }
+            }
+            if bad {
                 fl.done[s] = true;
                 fl.coord[s] = [f32::INFINITY, f32::INFINITY];
                 continue;
@@ -539,10 +551,3 @@ fn flood(level: &LevelTexels, fl: &mut Flood, c: usize, half: f32) -> (Vec<u32>,
     (texels, coords)
 }
 
-// DEV
-fn fold_tolerance() -> f32 {
-    std::env::var("PP_FOLD")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(0.75)
-}
