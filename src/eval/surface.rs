@@ -24,8 +24,9 @@
 //!    its nearest texel and a, b are projected onto that plane (lengths kept): a discrete
 //!    parallel transport, so a window on a curved surface is geodesic-like, not a chord.
 //!    Row and column walks go on ⌊S/2⌋ pixels past the outer samples (their discs). A walk
-//!    point farther than [`OFF_SURFACE`] local spacings from its nearest texel, measured in
-//!    that texel's tangent plane, has left the surface: the window is skipped.
+//!    point farther than [`OFF_SURFACE`] local spacings (the largest distance from the
+//!    nearest texel to its in-face neighbours) from its nearest texel, measured in that
+//!    texel's tangent plane, has left the surface: the window is skipped.
 //! 3. **Samples.** S = 1: the colour of the texel nearest to the sample point. S > 1: the
 //!    mean colour of the texels whose offset from the sample point, written as αa + βb in
 //!    the transported directions, has α² + β² ≤ (S/2)² — the disc of diameter S example
@@ -57,9 +58,13 @@ const MAX_STRETCH: f64 = 4.0;
 /// Largest RMS residual of a usable fit, in pixels.
 const MAX_RESIDUAL_PX: f64 = 1.0;
 /// A walk point farther than this many local spacings from its nearest texel (in the
-/// texel's tangent plane) is off the surface. On the surface a point is at most ~0.71
-/// spacings from a texel centre; past an open boundary it is ≥ 0.5 + its distance beyond.
-pub const OFF_SURFACE: f64 = 1.25;
+/// texel's tangent plane) is off the surface. On the surface a point is at most √2/2 of
+/// the larger spacing from a texel centre (a cell's centre, or a corner of the half-cell
+/// strip between the outer texels and the boundary); a point past an open boundary is at
+/// least half a spacing plus its distance beyond from every texel. So a sample that the
+/// pixel grid would not have (a full spacing beyond the last texel) is refused, as on the
+/// lattice.
+pub const OFF_SURFACE: f64 = 0.75;
 /// Largest relative deviation of a lattice (texel positions, axes, spacing vs scale).
 const LATTICE_TOL: f64 = 0.02;
 /// Largest deviation of the median source step from one pixel per texel along the axes.
@@ -199,16 +204,14 @@ impl<'a> Cloud<'a> {
         v
     }
 
-    /// Mean distance to the texel's valid in-face 4-neighbours (h when it has none).
+    /// Largest distance to the texel's valid in-face 4-neighbours (h when it has none).
     fn local_spacing(&self, i: usize) -> f64 {
         let n = self.n;
         let (x, y) = (i % n, (i / n) % n);
-        let mut sum = 0.0;
-        let mut cnt = 0;
+        let mut max = 0f64;
         let mut add = |j: usize| {
             if self.valid[j] {
-                sum += (self.pos[j] - self.pos[i]).length();
-                cnt += 1;
+                max = max.max((self.pos[j] - self.pos[i]).length());
             }
         };
         if x > 0 {
@@ -223,8 +226,8 @@ impl<'a> Cloud<'a> {
         if y + 1 < n {
             add(i + n);
         }
-        if cnt > 0 && sum > 0.0 {
-            sum / cnt as f64
+        if max > 0.0 {
+            max
         } else {
             self.h
         }
