@@ -98,6 +98,10 @@ pub(crate) struct Cloud<'a> {
     tree: ImmutableKdTree<f64, 3>,
     /// Tree item → texel index.
     items: Vec<usize>,
+    /// Per texel, the spacing that decides whether a point nearest to it is on the
+    /// surface: its own [`Cloud::local_spacing`], and at a face border the largest of
+    /// those of the texels across (see [`Cloud::build`]).
+    cover: Vec<f32>,
     /// Median adjacent spacing h.
     pub h: f64,
     /// Surface length per example pixel.
@@ -162,7 +166,7 @@ impl<'a> Cloud<'a> {
         let tree = ImmutableKdTree::new_from_slice(&points).ok()?;
         let h = median_spacing(&pos, &valid, f, n)?;
         let scale = scale.filter(|s| s.is_finite() && *s > 0.0).unwrap_or(h);
-        Some(Self {
+        let mut cloud = Self {
             n,
             pos,
             col,
@@ -171,9 +175,54 @@ impl<'a> Cloud<'a> {
             src,
             tree,
             items,
+            cover: Vec::new(),
             h,
             scale,
-        })
+        };
+        // Where faces of different texel density meet, the gap between their outer texel
+        // rows is half of each spacing: a point in it may be farther from the denser
+        // face's texel than that face's own spacing allows; around a vertex where many
+        // faces meet, the vertex is farther from the corner texels than they are from
+        // each other. So a border texel takes the largest of its spacing and, per other
+        // domain within 4 of its spacings (none at an open boundary), the distance to
+        // that domain's nearest texel and its spacing — the nearest domain for an edge
+        // texel, every domain for a corner texel.
+        let own: Vec<f64> = (0..total).map(|i| cloud.local_spacing(i)).collect();
+        let nn = n * n;
+        let cover: Vec<f32> = (0..total)
+            .into_par_iter()
+            .map(|i| {
+                let (x, y) = (i % n, (i / n) % n);
+                let (bx, by) = (x == 0 || x + 1 == n, y == 0 || y + 1 == n);
+                if !(bx || by) || !cloud.valid[i] {
+                    return own[i] as f32;
+                }
+                // Nearest texel of each other domain: (domain, distance, texel).
+                let mut per: Vec<(usize, f64, usize)> = Vec::new();
+                for j in cloud.within(cloud.pos[i], 4.0 * own[i]) {
+                    if j / nn == i / nn {
+                        continue;
+                    }
+                    let d = (cloud.pos[j] - cloud.pos[i]).length();
+                    match per.iter_mut().find(|e| e.0 == j / nn) {
+                        Some(e) if d < e.1 => *e = (j / nn, d, j),
+                        Some(_) => {}
+                        None => per.push((j / nn, d, j)),
+                    }
+                }
+                let take = |e: &(usize, f64, usize)| e.1.max(own[e.2]);
+                let c = if bx && by {
+                    per.iter().map(take).fold(own[i], f64::max)
+                } else {
+                    per.iter()
+                        .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)))
+                        .map_or(own[i], |e| own[i].max(take(e)))
+                };
+                c as f32
+            })
+            .collect();
+        cloud.cover = cover;
+        Some(cloud)
     }
 
     /// Texels that can be window centres.
@@ -377,7 +426,7 @@ impl<'a> Cloud<'a> {
             let nk = self.nrm[k];
             let off = p - self.pos[k];
             let dn = off.dot(nk);
-            if (off - nk * dn).length() > OFF_SURFACE * self.local_spacing(k) {
+            if (off - nk * dn).length() > OFF_SURFACE * self.cover[k] as f64 {
                 return None;
             }
             cur.p = p - nk * dn;
