@@ -38,6 +38,45 @@ pub use pf::{
 };
 pub use surface::patch_fidelities_with;
 
+/// The pfS figures `synth` prints at the end of a run and records in report.json
+/// (`patch_fidelity`): measured like `eval`'s, on fewer drawn texels.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PfSummary {
+    pub pf1: Option<f64>,
+    pub pf4: Option<f64>,
+    pub pf8: Option<f64>,
+    pub method: PfMethod,
+    /// Texels drawn ([`PF_SUMMARY_SAMPLES`] unless the maps have fewer).
+    pub samples: usize,
+    /// Wall-clock seconds of the measurement (not part of the run's `seconds`).
+    pub seconds: f64,
+}
+
+/// [`PfSummary`] of maps in memory: [`PF_SUMMARY_SAMPLES`] drawn texels, so that it costs
+/// a fraction of a second next to a synthesis run (the figures differ from `eval`'s
+/// 1024-texel ones by sampling noise, a few percent).
+pub fn summary_fidelity(
+    colour: &FaceMaps,
+    geometry: &FaceMaps,
+    example: &Example,
+    scale: f64,
+) -> PfSummary {
+    let t0 = std::time::Instant::now();
+    let opts = PfOptions {
+        samples: PF_SUMMARY_SAMPLES,
+        ..Default::default()
+    };
+    let p = patch_fidelities_with(colour, geometry, example, Some(scale), &opts);
+    PfSummary {
+        pf1: p.pf1,
+        pf4: p.pf4,
+        pf8: p.pf8,
+        method: p.detail.method,
+        samples: p.detail.drawn,
+        seconds: t0.elapsed().as_secs_f64(),
+    }
+}
+
 /// pf1, pf4, pf8 of face maps in memory (BRIEF's pfS; docs/eval.md) with `eval`'s
 /// settings: [`PF_SAMPLES`] drawn texels, the lattice on flat aligned grids, else the
 /// surface method. `colour` needs R, G, B (and `source.u/v` for the surface method's
