@@ -22,6 +22,7 @@
 //! - sums are accumulated per domain and added in domain order, so the output does not
 //!   depend on the number of threads.
 
+pub mod peer;
 pub mod pf;
 pub mod surface;
 
