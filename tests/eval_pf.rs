@@ -267,8 +267,13 @@ fn noise_scores_about_one_or_more() {
 }
 
 /// An open cylinder of `sides` quads around and `rows` quads high (unit radius, square
-/// quads), axis +z.
+/// quads), axis +z; `triangles` splits every quad into two triangles (three quad
+/// sub-faces each, an extraordinary vertex at every centre).
 fn cylinder(sides: usize, rows: usize) -> Surface {
+    cylinder_mesh(sides, rows, false)
+}
+
+fn cylinder_mesh(sides: usize, rows: usize, triangles: bool) -> Surface {
     let edge = 2.0 * (std::f64::consts::PI / sides as f64).sin();
     let mut p = Vec::new();
     for r in 0..=rows {
@@ -286,7 +291,15 @@ fn cylinder(sides: usize, rows: usize) -> Surface {
             })
         })
         .collect();
-    let refs: Vec<&[u32]> = faces.iter().map(|f| f.as_slice()).collect();
+    let tris: Vec<[u32; 3]> = faces
+        .iter()
+        .flat_map(|f| [[f[0], f[1], f[2]], [f[0], f[2], f[3]]])
+        .collect();
+    let refs: Vec<&[u32]> = if triangles {
+        tris.iter().map(|f| f.as_slice()).collect()
+    } else {
+        faces.iter().map(|f| f.as_slice()).collect()
+    };
     Surface::new(ControlMesh::from_faces(p, &refs).unwrap())
 }
 
@@ -353,6 +366,43 @@ fn a_smooth_isometric_continuation_on_a_cylinder_scores_low() {
             .install(|| patch_fidelities_with(&maps, &geo, &ex, Some(h), &opts(false)))
     };
     assert_eq!(run(1), run(2));
+}
+
+#[test]
+fn triangles_work_too() {
+    // The cylinder as triangles: every domain is a quad sub-face, texel density varies and
+    // the limit surface is only nearly a cylinder, so the continuation is nearly isometric.
+    let surface = cylinder_mesh(16, 4, true);
+    let n = 12;
+    let geo = geometry(&surface, n);
+    let (px, py) = (geo.channel("P.X").unwrap(), geo.channel("P.Y").unwrap());
+    let radius = px
+        .iter()
+        .zip(py)
+        .map(|(&x, &y)| (x as f64).hypot(y as f64))
+        .sum::<f64>()
+        / px.len() as f64;
+    let h = std::f64::consts::TAU * radius / (16 * 2 * n) as f64;
+    let pu = (16 * 2 * n) as f64 / 20.0;
+    let ex = Example::from_linear(
+        160,
+        160,
+        (0..160 * 160)
+            .map(|i| smooth((i % 160) as f64 + 0.5, (i / 160) as f64 + 0.5, pu))
+            .collect(),
+    );
+    let maps = colour_maps(&geo, |_, _, _, p| {
+        let theta = p.y.atan2(p.x).rem_euclid(std::f64::consts::TAU);
+        let (u, v) = (radius * theta / h, p.z / h + 20.0);
+        (smooth(u, v, pu), [u as f32, v as f32])
+    });
+    let r = patch_fidelities_with(&maps, &geo, &ex, Some(h), &opts(false));
+    show("triangulated cylinder", &r);
+    assert_eq!(r.detail.method, PfMethod::Surface);
+    assert!(r.detail.fallbacks <= r.detail.drawn / 20, "{:?}", r.detail);
+    for v in all(&r) {
+        assert!(v < 0.1, "{v}");
+    }
 }
 
 #[test]
