@@ -64,14 +64,15 @@ ratio() { awk -v a="$1" -v b="$2" 'BEGIN { if (a == "" || b == "" || b + 0 == 0)
 fmt() { awk -v a="$1" 'BEGIN { if (a == "") print "–"; else printf "%.3f", a }'; }
 fmt2() { awk -v a="$1" 'BEGIN { if (a == "") print "–"; else printf "%.2f", a }'; }
 secs() { awk '{ print $1 }' "$1"; }
+cpu() { awk '{ print $2 }' "$1"; }
 
 table="$OUT/peer.md"
 {
     echo "Peer comparison ($(date -u +%Y-%m-%d), $(nproc) cores, commit $(git -C "$ROOT" rev-parse --short HEAD 2>/dev/null || echo '?'))."
-    echo "Ratios are ours / peer: below 1 is better for pfS and seconds."
+    echo "Ratios are ours / peer: below 1 is better for pfS and seconds. Load average at start: $(cut -d' ' -f1-3 /proc/loadavg 2>/dev/null || echo '?')."
     echo
-    echo "| example | method | eval | pf1 ours | pf1 peer | pf4 ours | pf4 peer | **pf4 ratio** | pf8 ours | pf8 peer | **pf8 ratio** | s ours | s peer | **s ratio** |"
-    echo "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
+    echo "| example | method | eval | pf1 ours | pf1 peer | pf4 ours | pf4 peer | **pf4 ratio** | pf8 ours | pf8 peer | **pf8 ratio** | s ours | s peer | **s ratio** | CPU-s ratio |"
+    echo "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
 } > "$table"
 
 for spec in "${examples[@]}"; do
@@ -94,10 +95,10 @@ for spec in "${examples[@]}"; do
         "$PEER" --out-size 512 --out "$work/peer.png" generate "$ex" > "$work/peer.log" 2>&1 \
         && "$SURF" eval --image "$work/peer.png" --example "$ex" > "$work/peer.json"; then
         p1=$(get "$work/peer.json" pf1); p4=$(get "$work/peer.json" pf4); p8=$(get "$work/peer.json" pf8)
-        ps=$(secs "$work/peer.time")
+        ps=$(secs "$work/peer.time"); pc=$(cpu "$work/peer.time")
     else
         echo "  peer failed (see $work/peer.log)" >&2
-        p1=; p4=; p8=; ps=
+        p1=; p4=; p8=; ps=; pc=
     fi
 
     for m in "${methods[@]}"; do
@@ -108,12 +109,12 @@ for spec in "${examples[@]}"; do
                 --method "$m" --out "$res" > "$work/$m.log" 2>&1 \
             && "$SURF" eval "$res" --example "$ex" > "$work/$m.json"; then
             o1=$(get "$work/$m.json" pf1); o4=$(get "$work/$m.json" pf4); o8=$(get "$work/$m.json" pf8)
-            os=$(secs "$work/$m.time"); how_=$(how "$work/$m.json")
+            os=$(secs "$work/$m.time"); oc=$(cpu "$work/$m.time"); how_=$(how "$work/$m.json")
         else
             echo "  $m failed (see $work/$m.log)" >&2
-            o1=; o4=; o8=; os=; how_="failed"
+            o1=; o4=; o8=; os=; oc=; how_="failed"
         fi
-        echo "| $name | $m | $how_ | $(fmt "$o1") | $(fmt "$p1") | $(fmt "$o4") | $(fmt "$p4") | **$(ratio "$o4" "$p4")** | $(fmt "$o8") | $(fmt "$p8") | **$(ratio "$o8" "$p8")** | $(fmt2 "$os") | $(fmt2 "$ps") | **$(ratio "$os" "$ps")** |" >> "$table"
+        echo "| $name | $m | $how_ | $(fmt "$o1") | $(fmt "$p1") | $(fmt "$o4") | $(fmt "$p4") | **$(ratio "$o4" "$p4")** | $(fmt "$o8") | $(fmt "$p8") | **$(ratio "$o8" "$p8")** | $(fmt2 "$os") | $(fmt2 "$ps") | **$(ratio "$os" "$ps")** | $(ratio "$oc" "$pc") |" >> "$table"
     done
 done
 
