@@ -3,7 +3,8 @@
 //!
 //! Submodules: [`pf`] (patch fidelity pfS on a pixel grid: disc blur, windows, the exact
 //! nearest-window search, result types) and [`surface`] (pfS windows walked on any
-//! surface, and the lattice test that sends flat aligned grids to the pixel-grid code).
+//! surface, and the lattice test that sends flat aligned grids to the pixel-grid code), and
+//! [`peer`] (inputs of the peer benchmark, bench/peer.sh).
 //!
 //! Everything is measured on the written files — `facemaps.exr` (colour, `source.u/v`) and
 //! `geometry.exr` (`P.X/Y/Z`, `N.X/Y/Z`) — never on in-memory state of the synthesizer, so

@@ -20,7 +20,7 @@
 //!    on a flat grid with `--orient +x`, exactly the pixel grid.
 //! 2. **Walk.** The centre row is walked from t along ±a, 3 samples S pixels apart each way,
 //!    then from every row sample the column along ±b. Each walk advances in steps of at most
-//!    one texel spacing; after each step the point is projected onto the tangent plane of
+//!    one texel spacing (at most 64 steps per sample spacing); after each step the point is projected onto the tangent plane of
 //!    its nearest texel and a, b are projected onto that plane (lengths kept): a discrete
 //!    parallel transport, so a window on a curved surface is geodesic-like, not a chord.
 //!    Row and column walks go on ⌊S/2⌋ pixels past the outer samples (their discs). A walk
@@ -65,6 +65,8 @@ const MAX_RESIDUAL_PX: f64 = 1.0;
 /// pixel grid would not have (a full spacing beyond the last texel) is refused, as on the
 /// lattice.
 pub const OFF_SURFACE: f64 = 0.75;
+/// Most sub-steps of one walk call (one sample spacing or one disc radius).
+const MAX_STEPS: usize = 64;
 /// Largest relative deviation of a lattice (texel positions, axes, spacing vs scale).
 const LATTICE_TOL: f64 = 0.02;
 /// Largest deviation of the median source step from one pixel per texel along the axes.
@@ -416,7 +418,9 @@ impl<'a> Cloud<'a> {
     fn walk(&self, st: &State, along_b: bool, sign: f64, px: f64) -> Option<State> {
         let (la, lb) = (st.a.length(), st.b.length());
         let len = px * if along_b { lb } else { la };
-        let steps = (len / self.h).ceil().max(1.0) as usize;
+        // Steps of at most one spacing, but at most MAX_STEPS per call (a scale far above
+        // the texel spacing would otherwise cost thousands of steps per sample).
+        let steps = (len / self.h).ceil().clamp(1.0, MAX_STEPS as f64) as usize;
         let d = len / steps as f64;
         let mut cur = *st;
         for _ in 0..steps {
