@@ -98,6 +98,10 @@ pub struct Report {
     pub synthesis_texels_per_second: f64,
     /// Peak resident memory of the process (bytes), where the OS tells it.
     pub peak_memory_bytes: Option<u64>,
+    /// pf1/pf4/pf8 of the result (`surfsynth synth` measures them after writing;
+    /// [`crate::eval::summary_fidelity`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub patch_fidelity: Option<crate::eval::PfSummary>,
 }
 
 impl Report {

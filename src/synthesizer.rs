@@ -626,6 +626,7 @@ impl Synthesizer {
             texels_per_second: 0.0,
             synthesis_texels_per_second: 0.0,
             peak_memory_bytes: None,
+            patch_fidelity: None,
         };
         report.update_rates();
         Ok(SynthResult {
@@ -780,22 +781,35 @@ impl SynthCommand {
 }
 
 /// Runs a [`SynthCommand`] with a progress bar per stage on stderr (when it is a
-/// terminal) and prints the end summary on stdout.
+/// terminal), measures pf1/pf4/pf8 of the result in memory (recorded in report.json as
+/// `patch_fidelity`, outside the run's `seconds`) and prints the end summary on stdout.
 pub fn run_command(c: &SynthCommand) -> Result<Report> {
     let bars = StageBars::default();
-    let (_, report) = c
+    let (result, mut report) = c
         .synthesizer()
         .on_progress(move |s, d, t| bars.update(s, d, t))
         .run_to(&c.out)?;
+    report.patch_fidelity = Some(crate::eval::summary_fidelity(
+        &result.maps,
+        &result.geometry_maps(),
+        &result.example,
+        report.scale,
+    ));
+    report.write(&c.out)?;
     println!("{}", summary_line(&report, &c.out));
     Ok(report)
 }
 
-/// One line: domains, texels, seconds, texels/s (whole run and synthesis alone).
+/// One line: domains, texels, seconds, texels/s (whole run and synthesis alone), and
+/// pf1/pf4/pf8 when measured.
 pub fn summary_line(r: &Report, out: &Path) -> String {
     use crate::progress::si;
+    let pf = r.patch_fidelity.as_ref().map_or(String::new(), |p| {
+        let f = |v: Option<f64>| v.map_or("n/a".to_string(), |v| format!("{v:.3}"));
+        format!("; pf1 {} pf4 {} pf8 {}", f(p.pf1), f(p.pf4), f(p.pf8))
+    });
     format!(
-        "synth: {} domains, {} texels ({n}x{n} each) in {:.2} s ({} texels/s; synthesis {:.2} s, {} texels/s) -> {}",
+        "synth: {} domains, {} texels ({n}x{n} each) in {:.2} s ({} texels/s; synthesis {:.2} s, {} texels/s){pf} -> {}",
         r.faces,
         r.texels,
         r.seconds.total,

@@ -1,7 +1,8 @@
 //! `eval` on hand-built result directories whose answers are known: a hand-computed tiny
 //! case (every number exact), a flat grid with an exact affine copy of an example (scale
 //! fidelity exactly 1), texel noise (seam ratio 1 in expectation), per-face colour jumps
-//! (seam ratio far above 1), patch fidelity 0 for copied patches, and the error cases.
+//! (seam ratio far above 1), the legacy patch fidelity 0 for copied patches, and the error
+//! cases. pf1/pf4/pf8 have their own file, tests/eval_pf.rs.
 
 mod common;
 
@@ -392,21 +393,29 @@ fn bad_inputs_give_one_line_errors_naming_the_file() {
     let grey = FaceMaps::new(s.num_domains(), 4, &["Y"]);
     write_face_maps(d.join("facemaps.exr"), &grey).unwrap();
     assert!(err(&d, &none).contains("'R'"));
-    // Patch fidelity on a curved mesh is refused.
+    // Patch fidelity on a curved mesh: pfS by the surface method, no legacy measure.
     let cube = Surface::load_obj(data("opensubdiv-reference/catmark_cube.obj")).unwrap();
     let cg = geometry(&cube, 8);
-    let cc = colour_maps(&cube, &cg, |_, _, _, _| ([0.5; 3], [0.0, 0.0]));
+    let cc = colour_maps(&cube, &cg, |_, x, _, _| {
+        ([x as f32 / 8.0, 0.5, 0.5], [0.0, 0.0])
+    });
     write_dir(&d, &cc, &cg, Some(1.0));
     let png = tmp.path().join("e.png");
     write_png(&png, 16, 16, |x, _| [x as u8 * 10, 0, 0]);
-    let e = err(
+    let q = evaluate_with(
         &d,
         &EvalOptions {
             scale: None,
             example: Some(png),
         },
+    )
+    .unwrap();
+    assert_eq!(q.patch_fidelity, None);
+    assert!(q.pf1.is_some(), "{q:?}");
+    assert_eq!(
+        q.pf_detail.as_ref().unwrap().method,
+        surfsynth::eval::PfMethod::Surface
     );
-    assert!(e.contains("flat") && e.contains("geometry.exr"), "{e}");
     let e = err(
         &d,
         &EvalOptions {

@@ -27,6 +27,36 @@ pub enum BenchCommand {
     /// Neighbourhood sampling (000 §4): chart sampling and marching, samples/s on one
     /// thread, K×K patterns at texel centres spread over the surface.
     Sampling(BenchSamplingArgs),
+    /// Writes the flat K×K unit-quad grid OBJ of the peer comparison (bench/peer.sh).
+    Grid(BenchGridArgs),
+    /// Writes a square crop of an image as PNG, values unchanged (bench/peer.sh).
+    Crop(BenchCropArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct BenchGridArgs {
+    /// Quads per side (BRIEF: 16).
+    #[arg(long, value_name = "K", default_value_t = 16, value_parser = clap::value_parser!(u32).range(1..=4096))]
+    pub size: u32,
+    /// Output OBJ.
+    #[arg(long, value_name = "grid.obj")]
+    pub out: PathBuf,
+}
+
+#[derive(Args, Debug)]
+pub struct BenchCropArgs {
+    /// Input image (PNG or JPEG).
+    #[arg(value_name = "IMAGE")]
+    pub image: PathBuf,
+    /// Top-left pixel of the crop.
+    #[arg(long, value_name = "X,Y", value_delimiter = ',', default_values_t = [0u32, 0])]
+    pub at: Vec<u32>,
+    /// Side of the square crop in pixels.
+    #[arg(long, value_name = "S", value_parser = super::parse_pixels)]
+    pub size: u32,
+    /// Output PNG.
+    #[arg(long, value_name = "OUT.png")]
+    pub out: PathBuf,
 }
 
 #[derive(Args, Debug)]
@@ -124,6 +154,19 @@ pub fn run(a: BenchArgs) -> anyhow::Result<()> {
         BenchCommand::Synth(b) => synth(b),
         BenchCommand::Multiscale(b) => multiscale(b),
         BenchCommand::Sampling(b) => sampling(b),
+        BenchCommand::Grid(b) => {
+            let obj = surfsynth::eval::peer::grid_obj(b.size as usize);
+            surfsynth::io::atomic::write_bytes_atomic(&b.out, obj.as_bytes())?;
+            Ok(())
+        }
+        BenchCommand::Crop(b) => {
+            let [x, y] = b.at[..] else {
+                anyhow::bail!("--at takes two numbers X,Y, got {}", b.at.len());
+            };
+            Ok(surfsynth::eval::peer::crop_image(
+                &b.image, &b.out, x, y, b.size,
+            )?)
+        }
     }
 }
 

@@ -1,23 +1,41 @@
-//! `surfsynth eval DIR`: quality measures as JSON (issue 4); the work is in
-//! `surfsynth::eval`.
+//! `surfsynth eval DIR` (quality measures of a result as JSON, issue 4) and
+//! `surfsynth eval --image OUT.png --example E.png` (pfS of a 2D image, e.g. a peer's
+//! output, measured by the same code as a flat grid); the work is in `surfsynth::eval`.
 
 use super::parse_positive;
+use anyhow::bail;
 use clap::Args;
 use std::path::PathBuf;
 
 #[derive(Args, Debug)]
 pub struct EvalArgs {
-    /// A synthesis output directory.
-    #[arg(value_name = "DIR")]
-    pub dir: PathBuf,
-    /// Scale S used for scale fidelity (default: the one in DIR/report.json).
+    /// A synthesis output directory (not with --image).
+    #[arg(
+        value_name = "DIR",
+        required_unless_present = "image",
+        conflicts_with = "image"
+    )]
+    pub dir: Option<PathBuf>,
+    /// Scale S used for scale fidelity and the pfS windows (default: the one in
+    /// DIR/report.json).
     #[arg(long, value_name = "S", value_parser = parse_positive, allow_negative_numbers = true)]
     pub scale: Option<f64>,
-    /// Example image: also report patch fidelity (flat meshes only; see docs/eval.md).
+    /// Example image for pf1/pf4/pf8 (default: report.json's inputs.example when that file
+    /// exists; see docs/eval.md).
     #[arg(long, value_name = "E.png")]
     pub example: Option<PathBuf>,
+    /// Measure a 2D image instead of a result directory (needs --example).
+    #[arg(long, value_name = "OUT.png", requires = "example")]
+    pub image: Option<PathBuf>,
 }
 
 pub fn run(a: EvalArgs) -> anyhow::Result<()> {
-    surfsynth::eval::run_cli(&a.dir, a.scale, a.example)
+    match (&a.image, &a.dir) {
+        (Some(img), _) => match &a.example {
+            Some(e) => surfsynth::eval::run_image_cli(img, e),
+            None => bail!("--image needs --example E.png"),
+        },
+        (None, Some(dir)) => surfsynth::eval::run_cli(dir, a.scale, a.example),
+        (None, None) => bail!("give a result directory DIR or --image OUT.png"),
+    }
 }

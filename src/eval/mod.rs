@@ -1,6 +1,10 @@
 //! `surfsynth eval`: the quality measures of BRIEF ("Quality measures"), computed from a
-//! result directory alone (docs/eval.md has the definitions, conventions and when patch
-//! fidelity applies).
+//! result directory alone (docs/eval.md has the definitions and conventions).
+//!
+//! Submodules: [`pf`] (patch fidelity pfS on a pixel grid: disc blur, windows, the exact
+//! nearest-window search, result types) and [`surface`] (pfS windows walked on any
+//! surface, and the lattice test that sends flat aligned grids to the pixel-grid code), and
+//! [`peer`] (inputs of the peer benchmark, bench/peer.sh).
 //!
 //! Everything is measured on the written files — `facemaps.exr` (colour, `source.u/v`) and
 //! `geometry.exr` (`P.X/Y/Z`, `N.X/Y/Z`) — never on in-memory state of the synthesizer, so
@@ -19,12 +23,75 @@
 //! - sums are accumulated per domain and added in domain order, so the output does not
 //!   depend on the number of threads.
 
+pub mod peer;
+pub mod pf;
+pub mod surface;
+
 use crate::error::{Error, Result};
 use crate::example::Example;
 use crate::io::exr::{read_face_maps, FaceMaps};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
+
+pub use pf::{
+    image_patch_fidelities, PatchFidelity, PfDetail, PfMethod, PfOptions, PfScale, Rgb, PF_SAMPLES,
+    PF_SCALES, PF_SUMMARY_SAMPLES,
+};
+pub use surface::patch_fidelities_with;
+
+/// The pfS figures `synth` prints at the end of a run and records in report.json
+/// (`patch_fidelity`): measured like `eval`'s, on fewer drawn texels.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PfSummary {
+    pub pf1: Option<f64>,
+    pub pf4: Option<f64>,
+    pub pf8: Option<f64>,
+    pub method: PfMethod,
+    /// Texels drawn ([`PF_SUMMARY_SAMPLES`] unless the maps have fewer).
+    pub samples: usize,
+    /// Wall-clock seconds of the measurement (not part of the run's `seconds`).
+    pub seconds: f64,
+}
+
+/// [`PfSummary`] of maps in memory: [`PF_SUMMARY_SAMPLES`] drawn texels, so that it costs
+/// a fraction of a second next to a synthesis run (the figures differ from `eval`'s
+/// 1024-texel ones by sampling noise, a few percent).
+pub fn summary_fidelity(
+    colour: &FaceMaps,
+    geometry: &FaceMaps,
+    example: &Example,
+    scale: f64,
+) -> PfSummary {
+    let t0 = std::time::Instant::now();
+    let opts = PfOptions {
+        samples: PF_SUMMARY_SAMPLES,
+        ..Default::default()
+    };
+    let p = patch_fidelities_with(colour, geometry, example, Some(scale), &opts);
+    PfSummary {
+        pf1: p.pf1,
+        pf4: p.pf4,
+        pf8: p.pf8,
+        method: p.detail.method,
+        samples: p.detail.drawn,
+        seconds: t0.elapsed().as_secs_f64(),
+    }
+}
+
+/// pf1, pf4, pf8 of face maps in memory (BRIEF's pfS; docs/eval.md) with `eval`'s
+/// settings: [`PF_SAMPLES`] drawn texels, the lattice on flat aligned grids, else the
+/// surface method. `colour` needs R, G, B (and `source.u/v` for the surface method's
+/// directions), `geometry` needs P.X/Y/Z (N.X/Y/Z used when present); `scale` is the
+/// surface length per example pixel (`None`: the median texel spacing).
+pub fn patch_fidelities(
+    colour: &FaceMaps,
+    geometry: &FaceMaps,
+    example: &Example,
+    scale: Option<f64>,
+) -> PatchFidelity {
+    patch_fidelities_with(colour, geometry, example, scale, &PfOptions::default())
+}
 
 /// Colour maps file in a result directory.
 pub const FACEMAPS_FILE: &str = "facemaps.exr";
@@ -36,15 +103,14 @@ pub const REPORT_FILE: &str = "report.json";
 /// Adjacent texels whose source positions differ by at most this many example pixels
 /// continue one patch (BRIEF).
 pub const COHERENT_PIXELS: f64 = 4.0;
-/// Side of the patches compared by patch fidelity (BRIEF: 7x7).
+/// Side of the patches compared by the legacy `patch_fidelity` (BRIEF: 7x7).
 pub const PATCH: usize = 7;
-/// Output patches sampled for patch fidelity (each is compared against every example
-/// patch, so this bounds the cost; see docs/eval.md).
+/// Output patches sampled for the legacy `patch_fidelity`.
 pub const PATCH_SAMPLES: usize = 1024;
-/// Random example patch pairs averaged for patch fidelity's denominator.
+/// Random example patch pairs averaged for the legacy `patch_fidelity`'s denominator.
 pub const PATCH_PAIRS: usize = 4096;
 /// Largest angle (degrees) between any normal and the mean normal for a mesh to count as
-/// flat for patch fidelity.
+/// flat for the legacy `patch_fidelity`.
 pub const FLAT_DEGREES: f64 = 1.0;
 
 /// Median and 10th/90th percentiles of a sample, with its size.
@@ -90,9 +156,25 @@ pub struct Quality {
     pub scale_fidelity: Option<Spread>,
     /// Share of adjacent pairs (finite sources) whose sources are at most 4 px apart.
     pub coherent_fraction: Option<f64>,
-    /// Mean distance of 7x7 output patches to their nearest example patch over the mean
-    /// distance between random example patches; only when an example is given (flat
-    /// meshes; see docs/eval.md).
+    /// BRIEF's patch fidelity at S = 1 (pixel noise); `None` without an example or
+    /// when no window could be laid (docs/eval.md).
+    pub pf1: Option<f64>,
+    /// pfS at S = 4 (structure).
+    pub pf4: Option<f64>,
+    /// pfS at S = 8 (larger structure).
+    pub pf8: Option<f64>,
+    /// How pf1/pf4/pf8 were measured: method (`lattice` or `surface`), texels drawn,
+    /// fallback directions, and per S the windows laid and skipped and both means.
+    #[serde(default)]
+    pub pf_detail: Option<PfDetail>,
+    /// The example the pfS were measured against (`--example`, or report.json's
+    /// `inputs.example` when that file exists).
+    #[serde(default)]
+    pub example: Option<String>,
+    /// Legacy (issue 5) measure, kept while tests compare against it: mean l2 (not
+    /// squared) distance of 7x7 texel windows inside one domain to their nearest example
+    /// window over the same mean for random example windows. Flat meshes only (`None` on
+    /// curved ones); superseded by pf1/pf4/pf8.
     pub patch_fidelity: Option<f64>,
 }
 
@@ -102,7 +184,8 @@ pub struct EvalOptions {
     /// Scale S; `None` reads `scale` from DIR/report.json (only needed when the maps carry
     /// source positions).
     pub scale: Option<f64>,
-    /// Example image for patch fidelity (flat meshes only).
+    /// Example image for patch fidelity; `None` takes report.json's `inputs.example`
+    /// when that file exists.
     pub example: Option<PathBuf>,
 }
 
@@ -171,17 +254,38 @@ pub fn evaluate_with(dir: &Path, opts: &EvalOptions) -> Result<Quality> {
         None if has_source => Some(report_scale(&dir.join(REPORT_FILE))?),
         None => None,
     };
-    let example = match &opts.example {
+    let example_path = match &opts.example {
+        Some(p) => Some(p.clone()),
+        None => report_example(dir),
+    };
+    let example = match &example_path {
         Some(p) => Some(Example::load(p)?),
         None => None,
     };
-    if example.is_some() {
-        check_flat(&geometry, &geometry_path)?;
-    }
     let mut q = evaluate_maps(&colour, &geometry, scale, example.as_ref())
         .map_err(|e| Error::file(&colour_path, e))?;
     q.scale = scale;
+    q.example = example_path.map(|p| p.display().to_string());
     Ok(q)
+}
+
+/// The example named by DIR/report.json (`inputs.example`), when that file exists: as
+/// written (relative to the current directory), else relative to DIR. `None` when the
+/// report is missing or unreadable (the scale's own check reports that when it matters),
+/// names an in-memory example, or the file is gone.
+pub fn report_example(dir: &Path) -> Option<PathBuf> {
+    let text = std::fs::read_to_string(dir.join(REPORT_FILE)).ok()?;
+    let v: serde_json::Value = serde_json::from_str(&text).ok()?;
+    let name = v.get("inputs")?.get("example")?.as_str()?;
+    if name.is_empty() || name.starts_with('<') {
+        return None;
+    }
+    let p = PathBuf::from(name);
+    if p.is_file() {
+        return Some(p);
+    }
+    let q = dir.join(&p);
+    (p.is_relative() && q.is_file()).then_some(q)
 }
 
 fn check_scale(s: f64) -> Result<()> {
@@ -213,18 +317,15 @@ fn report_scale(path: &Path) -> Result<f64> {
     }
 }
 
-/// Refuses patch fidelity on curved meshes, where 7x7 texel windows are not comparable
-/// with flat example patches.
-fn check_flat(geometry: &FaceMaps, path: &Path) -> Result<()> {
+/// Whether the legacy `patch_fidelity` applies: every normal within [`FLAT_DEGREES`] of
+/// the mean normal, or no normals to tell (maps built in memory without them).
+fn is_flat(geometry: &FaceMaps) -> bool {
     let (Some(x), Some(y), Some(z)) = (
         geometry.channel("N.X"),
         geometry.channel("N.Y"),
         geometry.channel("N.Z"),
     ) else {
-        return Err(Error::file(
-            path,
-            "has no normals (N.X, N.Y, N.Z) to check flatness for patch fidelity",
-        ));
+        return true;
     };
     let mut mean = [0f64; 3];
     for i in 0..x.len() {
@@ -236,24 +337,17 @@ fn check_flat(geometry: &FaceMaps, path: &Path) -> Result<()> {
         }
     }
     let len = (mean[0] * mean[0] + mean[1] * mean[1] + mean[2] * mean[2]).sqrt();
-    let mut worst: f64 = 0.0;
-    for i in 0..x.len() {
+    if len.is_nan() || len <= 0.0 {
+        return false;
+    }
+    let cos_limit = FLAT_DEGREES.to_radians().cos();
+    (0..x.len()).all(|i| {
         let n = [x[i] as f64, y[i] as f64, z[i] as f64];
         let l = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-        if l > 0.0 && len > 0.0 {
-            let c = (n[0] * mean[0] + n[1] * mean[1] + n[2] * mean[2]) / (l * len);
-            worst = worst.max(c.clamp(-1.0, 1.0).acos().to_degrees());
-        }
-    }
-    if len.is_nan() || len <= 0.0 || worst > FLAT_DEGREES {
-        return Err(Error::file(
-            path,
-            format!(
-                "patch fidelity needs a flat mesh, but normals vary by {worst:.1} degrees (limit {FLAT_DEGREES})"
-            ),
-        ));
-    }
-    Ok(())
+        l.is_nan()
+            || l <= 0.0
+            || (n[0] * mean[0] + n[1] * mean[1] + n[2] * mean[2]) / (l * len) >= cos_limit
+    })
 }
 
 /// Linear-interpolation percentile of sorted values, q in [0, 1].
@@ -294,7 +388,8 @@ struct FacePass {
 
 /// The measures on maps in memory: `colour` needs R, G, B (and `source.u`/`source.v` for
 /// scale fidelity and coherence), `geometry` needs P.X, P.Y, P.Z. `scale` is required for
-/// scale fidelity; `example` enables patch fidelity (the caller checks flatness).
+/// scale fidelity; `example` enables pf1/pf4/pf8 (any mesh) and the legacy
+/// `patch_fidelity` (flat meshes).
 pub fn evaluate_maps(
     colour: &FaceMaps,
     geometry: &FaceMaps,
@@ -433,7 +528,10 @@ pub fn evaluate_maps(
         None
     };
 
-    let patch_fidelity = example.map(|e| patch_fidelity(colour, e));
+    let pfs = example.map(|e| patch_fidelities(colour, geometry, e, scale));
+    let patch_fidelity = example
+        .filter(|_| is_flat(geometry))
+        .and_then(|e| patch_fidelity(colour, e));
     Ok(Quality {
         faces: f,
         resolution: n,
@@ -450,7 +548,12 @@ pub fn evaluate_maps(
         coherent_fraction: src
             .filter(|_| source_pairs > 0)
             .map(|_| coherent_pairs as f64 / source_pairs as f64),
-        patch_fidelity: patch_fidelity.flatten(),
+        pf1: pfs.as_ref().and_then(|p| p.pf1),
+        pf4: pfs.as_ref().and_then(|p| p.pf4),
+        pf8: pfs.as_ref().and_then(|p| p.pf8),
+        pf_detail: pfs.map(|p| p.detail),
+        example: None,
+        patch_fidelity,
     })
 }
 
@@ -524,15 +627,6 @@ fn seam_pairs_sum(
         .fold((0.0, 0), |(s, c), &(ps, pc)| (s + ps, c + pc))
 }
 
-/// SplitMix64: a tiny deterministic generator for sampling (no statistical demands).
-fn splitmix(state: &mut u64) -> u64 {
-    *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    let mut z = *state;
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
-}
-
 /// Patch fidelity of a square 2D image (e.g. a [`crate::synth::synth2d`] result, the reference
 /// issue 5 compares flat-grid results with), measured exactly as for face maps: the image
 /// is one domain. Its first three channels are R, G, B.
@@ -596,49 +690,26 @@ fn patch_fidelity(colour: &FaceMaps, ex: &Example) -> Option<f64> {
             }
         }
     };
-    // All example patches, laid out contiguously for a cache-friendly scan.
-    let (ew, eh) = (w - PATCH + 1, hgt - PATCH + 1);
-    let mut bank = Vec::with_capacity(ew * eh * dims);
-    let mut tmp = Vec::with_capacity(dims);
-    for y in 0..eh {
-        for x in 0..ew {
-            ex_patch(x, y, &mut tmp);
-            bank.extend_from_slice(&tmp);
-        }
-    }
+    // The nearest example window: pfS's exact search at S = 1 (the same windows: every
+    // 7x7 window of the example; the same f32 row sums, so the same minimum).
+    let bank = pf::Bank::build(&Rgb::from_example(ex), 1, 0, 0)?;
     let nearest: Vec<f64> = outputs
         .par_iter()
-        .map(|o| {
-            let mut best = f32::INFINITY;
-            for p in bank.chunks_exact(dims) {
-                // Early exit once the partial sum exceeds the best so far.
-                let mut s = 0f32;
-                for (chunk_o, chunk_p) in o.chunks(21).zip(p.chunks(21)) {
-                    for (a, b) in chunk_o.iter().zip(chunk_p) {
-                        s += (a - b) * (a - b);
-                    }
-                    if s >= best {
-                        break;
-                    }
-                }
-                best = best.min(s);
-            }
-            (best as f64).sqrt()
-        })
+        .map(|o| (bank.nearest_sq(o).max(0.0) as f64).sqrt())
         .collect();
     let numerator = nearest.iter().sum::<f64>() / nearest.len() as f64;
+    let (ew, eh) = (w - PATCH + 1, hgt - PATCH + 1);
     let mut state = 0x5EED_0F7A_7C4E_5A11_u64;
     let mut sum = 0.0;
+    let (mut pa, mut pb) = (Vec::with_capacity(dims), Vec::with_capacity(dims));
     for _ in 0..PATCH_PAIRS {
-        let a = (splitmix(&mut state) % (ew * eh) as u64) as usize;
-        let b = (splitmix(&mut state) % (ew * eh) as u64) as usize;
-        let (pa, pb) = (
-            &bank[a * dims..(a + 1) * dims],
-            &bank[b * dims..(b + 1) * dims],
-        );
+        let a = (pf::splitmix(&mut state) % (ew * eh) as u64) as usize;
+        let b = (pf::splitmix(&mut state) % (ew * eh) as u64) as usize;
+        ex_patch(a % ew, a / ew, &mut pa);
+        ex_patch(b % ew, b / ew, &mut pb);
         sum += pa
             .iter()
-            .zip(pb)
+            .zip(&pb)
             .map(|(x, y)| ((x - y) as f64).powi(2))
             .sum::<f64>()
             .sqrt();
@@ -647,10 +718,53 @@ fn patch_fidelity(colour: &FaceMaps, ex: &Example) -> Option<f64> {
     (denominator > 0.0).then(|| numerator / denominator)
 }
 
+/// pfS of a 2D image (`eval --image`): the JSON keys of [`Quality`] that apply to an image.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ImageQuality {
+    pub width: usize,
+    pub height: usize,
+    pub pf1: Option<f64>,
+    pub pf4: Option<f64>,
+    pub pf8: Option<f64>,
+    pub pf_detail: Option<PfDetail>,
+    pub example: Option<String>,
+}
+
+/// Measures a 2D image (PNG/JPEG, sRGB-decoded like every example) against an example:
+/// windows on its pixel grid, exactly as the lattice of a flat grid result.
+pub fn evaluate_image(image: &Path, example: &Path) -> Result<ImageQuality> {
+    let img = Example::load(image)?;
+    let ex = Example::load(example)?;
+    let pf = image_patch_fidelities(
+        &Rgb::from_example(&img),
+        &Rgb::from_example(&ex),
+        &PfOptions::default(),
+    );
+    Ok(ImageQuality {
+        width: img.width,
+        height: img.height,
+        pf1: pf.pf1,
+        pf4: pf.pf4,
+        pf8: pf.pf8,
+        pf_detail: Some(pf.detail),
+        example: Some(example.display().to_string()),
+    })
+}
+
 /// `surfsynth eval`: evaluates `dir` and prints the measures as pretty JSON on stdout.
 pub fn run_cli(dir: &Path, scale: Option<f64>, example: Option<PathBuf>) -> anyhow::Result<()> {
     let q = evaluate_with(dir, &EvalOptions { scale, example })?;
     println!("{}", to_json(&q));
+    Ok(())
+}
+
+/// `surfsynth eval --image OUT.png --example E.png`: prints [`ImageQuality`] as JSON.
+pub fn run_image_cli(image: &Path, example: &Path) -> anyhow::Result<()> {
+    let q = evaluate_image(image, example)?;
+    println!(
+        "{}",
+        serde_json::to_string_pretty(&q).expect("ImageQuality serialises")
+    );
     Ok(())
 }
 

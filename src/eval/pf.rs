@@ -1,0 +1,925 @@
+//! Patch fidelity pfS (BRIEF, "Quality measures"; docs/eval.md has the full definition):
+//! the 2D half — disc-blurred images, 7x7 windows on a pixel grid, the bank of example
+//! windows with its exact nearest-window search — and the public result types.
+//!
+//! The same code measures a 2D image (a peer's PNG output), the lattice image of a flat
+//! grid result, and the windows the surface method ([`super::surface`]) lays on a curved
+//! surface: only where the window samples come from differs.
+//!
+//! Why the search is built this way: the brute-force nearest window costs
+//! 147 multiply-adds × ~60,000 example windows per output window (9 GFLOP for 1024 windows
+//! at three scales). Every example window is PCA-projected onto [`PCA_DIMS`] orthonormal
+//! directions plus one more coordinate, the norm of its residual outside them. For any
+//! query q and window y, |q − y|² = |P(q − y)|² + |R(q − y)|² ≥ |Pq − Py|² + (|Rq| − |Ry|)²,
+//! which is exactly the squared distance of the two 9-D points: a true lower bound. A k-d
+//! tree over the 9-D points gives candidates in increasing bound; the exact distance of
+//! every candidate is computed, and the search stops once the best exact distance is no
+//! more than the bound of the last candidate (no window left out can beat it). The
+//! residual coordinate is what keeps this fast for windows far from every example window
+//! (noise): their bound is dominated by the residual norm, which the tree sees.
+
+use crate::example::Example;
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::num::NonZeroUsize;
+
+/// The sample spacings S of BRIEF's pfS, in example pixels.
+pub const PF_SCALES: [usize; 3] = [1, 4, 8];
+/// Windows are `WINDOW` x `WINDOW` samples (BRIEF: 7x7).
+pub const WINDOW: usize = 7;
+/// Samples either side of the centre.
+const HALF: isize = (WINDOW / 2) as isize;
+/// Values per window: 7x7 samples x RGB.
+pub const DIMS: usize = WINDOW * WINDOW * 3;
+/// Texels (or pixels) drawn per measurement by `eval`.
+pub const PF_SAMPLES: usize = 1024;
+/// Texels drawn for the end-of-run summary of `synth` (cheaper; see docs/eval.md).
+pub const PF_SUMMARY_SAMPLES: usize = 256;
+/// Random pairs of example windows averaged for the denominator.
+pub const PF_PAIRS: usize = 4096;
+/// Seed of the texel draw and of the pairs (fixed: the measure is deterministic).
+pub const PF_SEED: u64 = 0x9F5E_ED00_2026_0001;
+/// Principal directions stored per example window for the scan's second bound.
+pub const SCAN_DIMS: usize = 32;
+/// Principal directions of the k-d tree (plus the residual norm: a 9-D tree).
+pub const TREE_PCA: usize = 8;
+const TREE_DIMS: usize = TREE_PCA + 1;
+/// Candidates taken from the tree before falling back to the pruned scan.
+const TREE_CANDIDATES: NonZeroUsize = NonZeroUsize::new(32).unwrap();
+/// Example windows used to fit the PCA (evenly strided).
+const PCA_WINDOWS: usize = 2048;
+/// Block power iterations of the PCA.
+const PCA_ITERATIONS: usize = 30;
+
+/// Where the windows of a measurement were laid.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PfMethod {
+    /// A 2D image (`eval --image`): windows on its pixel grid.
+    Image,
+    /// A flat grid whose texel centres form a regular lattice aligned with the example's
+    /// pixel grid: the maps assembled into one image, then as `Image`.
+    Lattice,
+    /// Windows walked over the surface along each texel's source directions.
+    Surface,
+}
+
+/// One scale's figures.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PfScale {
+    /// Sample spacing S in example pixels.
+    pub s: usize,
+    /// pfS = `nearest_mean_sq / pairs_mean_sq`; `None` when no window was laid or the
+    /// example has no window at this S (or no variation).
+    pub value: Option<f64>,
+    /// Output windows laid (and compared).
+    pub windows: usize,
+    /// Drawn texels whose window could not be laid (leaves the surface or the image, or
+    /// holds a non-finite colour).
+    pub skipped: usize,
+    /// Example windows at this S (every position where the window fits).
+    pub example_windows: usize,
+    /// Mean squared l2 distance of an output window to its nearest example window.
+    pub nearest_mean_sq: Option<f64>,
+    /// Mean squared l2 distance between random pairs of example windows.
+    pub pairs_mean_sq: Option<f64>,
+}
+
+/// How the pfS figures were obtained (the `pf_detail` object of `eval`'s JSON).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PfDetail {
+    pub method: PfMethod,
+    /// Texels (pixels) drawn as window centres.
+    pub drawn: usize,
+    /// Drawn texels whose directions came from the fallback rule (no usable least-squares
+    /// fit of their source positions: no source channels, isolated texel, noise); always 0
+    /// for `image` and `lattice`, where the window is the pixel grid.
+    pub fallbacks: usize,
+    /// Per S (1, 4, 8).
+    pub scales: Vec<PfScale>,
+}
+
+/// pf1, pf4, pf8 of one result and how they were obtained.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PatchFidelity {
+    pub pf1: Option<f64>,
+    pub pf4: Option<f64>,
+    pub pf8: Option<f64>,
+    pub detail: PfDetail,
+}
+
+impl PatchFidelity {
+    /// Assembles the result from per-scale figures (in [`PF_SCALES`] order).
+    pub(crate) fn from_scales(
+        method: PfMethod,
+        drawn: usize,
+        fallbacks: usize,
+        scales: Vec<PfScale>,
+    ) -> Self {
+        let get = |s: usize| scales.iter().find(|x| x.s == s).and_then(|x| x.value);
+        Self {
+            pf1: get(1),
+            pf4: get(4),
+            pf8: get(8),
+            detail: PfDetail {
+                method,
+                drawn,
+                fallbacks,
+                scales,
+            },
+        }
+    }
+
+    /// An all-`None` result (nothing measurable).
+    pub(crate) fn empty(method: PfMethod) -> Self {
+        let scales = PF_SCALES
+            .iter()
+            .map(|&s| PfScale {
+                s,
+                value: None,
+                windows: 0,
+                skipped: 0,
+                example_windows: 0,
+                nearest_mean_sq: None,
+                pairs_mean_sq: None,
+            })
+            .collect();
+        Self::from_scales(method, 0, 0, scales)
+    }
+}
+
+/// Knobs of the measurement. The defaults are what `eval` uses.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PfOptions {
+    /// Texels (pixels) drawn as window centres.
+    pub samples: usize,
+    /// Seed of the draw and of the example pairs.
+    pub seed: u64,
+    /// Example window pairs of the denominator.
+    pub pairs: usize,
+    /// Use the surface method even where the lattice applies (for comparing the two).
+    pub force_surface: bool,
+}
+
+impl Default for PfOptions {
+    fn default() -> Self {
+        Self {
+            samples: PF_SAMPLES,
+            seed: PF_SEED,
+            pairs: PF_PAIRS,
+            force_surface: false,
+        }
+    }
+}
+
+/// SplitMix64: a tiny deterministic generator for sampling (no statistical demands).
+pub(crate) fn splitmix(state: &mut u64) -> u64 {
+    *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    let mut z = *state;
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// `count` distinct indices drawn uniformly from `candidates` (all of them, in order, when
+/// there are no more): a partial Fisher–Yates shuffle with [`splitmix`], so the draw
+/// depends only on the candidates and the seed.
+pub(crate) fn draw(mut candidates: Vec<usize>, count: usize, seed: u64) -> Vec<usize> {
+    if candidates.len() <= count {
+        return candidates;
+    }
+    let mut state = seed;
+    for i in 0..count {
+        let j = i + (splitmix(&mut state) % (candidates.len() - i) as u64) as usize;
+        candidates.swap(i, j);
+    }
+    candidates.truncate(count);
+    candidates
+}
+
+/// Integer offsets of the disc of diameter `s` pixels: pixel centres within s/2 of the
+/// centre, inclusive (S = 1: the pixel alone; S = 4: 13 pixels; S = 8: 49 pixels).
+pub fn disc_offsets(s: usize) -> Vec<(isize, isize)> {
+    let r = (s / 2) as isize;
+    let r2 = (s * s) as f64 / 4.0;
+    let mut v = Vec::new();
+    for dy in -r..=r {
+        for dx in -r..=r {
+            if ((dx * dx + dy * dy) as f64) <= r2 {
+                v.push((dx, dy));
+            }
+        }
+    }
+    v
+}
+
+/// Margin (pixels) a window centre keeps from the image border at spacing `s`: the outer
+/// samples 3S away, and their discs (radius ⌊S/2⌋ in whole pixels) inside the image.
+pub fn margin(s: usize) -> usize {
+    HALF as usize * s + s / 2
+}
+
+/// An RGB image (linear), row-major, top row first.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Rgb {
+    pub width: usize,
+    pub height: usize,
+    pub px: Vec<[f32; 3]>,
+}
+
+impl Rgb {
+    pub fn from_example(e: &Example) -> Self {
+        Self {
+            width: e.width,
+            height: e.height,
+            px: e.rgb.clone(),
+        }
+    }
+}
+
+/// The image blurred with the disc of diameter `s` where the disc fits (other pixels are
+/// NaN: no window uses them). Each value is the mean over [`disc_offsets`], summed in
+/// their fixed order.
+pub fn disc_blur(img: &Rgb, s: usize) -> Vec<[f32; 3]> {
+    let (w, h) = (img.width, img.height);
+    if s <= 1 {
+        return img.px.clone();
+    }
+    let offs = disc_offsets(s);
+    let r = s / 2;
+    let inv = 1.0 / offs.len() as f64;
+    let mut out = vec![[f32::NAN; 3]; w * h];
+    if w <= 2 * r || h <= 2 * r {
+        return out;
+    }
+    out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        if y < r || y + r >= h {
+            return;
+        }
+        for (x, o) in row.iter_mut().enumerate().take(w - r).skip(r) {
+            let mut acc = [0f64; 3];
+            for &(dx, dy) in &offs {
+                let p = img.px[(y as isize + dy) as usize * w + (x as isize + dx) as usize];
+                for c in 0..3 {
+                    acc[c] += p[c] as f64;
+                }
+            }
+            *o = [
+                (acc[0] * inv) as f32,
+                (acc[1] * inv) as f32,
+                (acc[2] * inv) as f32,
+            ];
+        }
+    });
+    out
+}
+
+/// The window centred at pixel (cx, cy) of a blurred image (the caller checks the margin).
+#[inline]
+fn image_window(blur: &[[f32; 3]], w: usize, cx: usize, cy: usize, s: usize, out: &mut [f32]) {
+    let mut k = 0;
+    for j in -HALF..=HALF {
+        let y = (cy as isize + j * s as isize) as usize;
+        for i in -HALF..=HALF {
+            let x = (cx as isize + i * s as isize) as usize;
+            out[k..k + 3].copy_from_slice(&blur[y * w + x]);
+            k += 3;
+        }
+    }
+}
+
+/// Squared distance, stopping early (returning a value ≥ `bound`) once it exceeds `bound`.
+#[cfg(test)]
+fn dist_sq_bounded(a: &[f32], b: &[f32], bound: f32) -> f32 {
+    let mut s = 0f32;
+    for (ra, rb) in a.chunks_exact(WINDOW * 3).zip(b.chunks_exact(WINDOW * 3)) {
+        for (x, y) in ra.iter().zip(rb) {
+            let d = x - y;
+            s += d * d;
+        }
+        if s >= bound {
+            return s;
+        }
+    }
+    s
+}
+
+/// The windows of one disc-blurred example at one S: every centre where the window fits.
+struct Windows {
+    s: usize,
+    width: usize,
+    blur: Vec<[f32; 3]>,
+    /// First centre coordinate (the margin) and number of centres per row.
+    m: usize,
+    nx: usize,
+    count: usize,
+}
+
+impl Windows {
+    #[inline]
+    fn centre(&self, j: usize) -> (usize, usize) {
+        (self.m + j % self.nx, self.m + j / self.nx)
+    }
+
+    #[inline]
+    fn window(&self, j: usize, out: &mut [f32]) {
+        let (cx, cy) = self.centre(j);
+        image_window(&self.blur, self.width, cx, cy, self.s, out);
+    }
+
+    /// Exact squared distance of `q` to window `j`, early exit above `bound` after any
+    /// row. Summed in a fixed order (per channel and sample parity, then per row), so the
+    /// value depends only on the two windows.
+    #[inline]
+    fn exact(&self, q: &[f32], j: usize, bound: f32) -> f32 {
+        let (cx, cy) = self.centre(j);
+        let s = self.s as isize;
+        let w = self.width;
+        let mut total = 0f32;
+        let mut k = 0;
+        for jj in -HALF..=HALF {
+            let y = (cy as isize + jj * s) as usize;
+            let row = &self.blur[y * w..(y + 1) * w];
+            let mut acc = [[0f32; 3]; 2];
+            for (n, ii) in (-HALF..=HALF).enumerate() {
+                let p = &row[(cx as isize + ii * s) as usize];
+                let a = &mut acc[n & 1];
+                for c in 0..3 {
+                    let d = q[k + c] - p[c];
+                    a[c] += d * d;
+                }
+                k += 3;
+            }
+            total += (acc[0][0] + acc[1][0]) + (acc[0][1] + acc[1][1]) + (acc[0][2] + acc[1][2]);
+            if total >= bound {
+                return total;
+            }
+        }
+        total
+    }
+}
+
+/// All example windows at one S, with the exact nearest-window search (module docs).
+pub(crate) struct Bank {
+    win: Windows,
+    mean: Vec<f32>,
+    /// [`SCAN_DIMS`] orthonormal rows of [`DIMS_PAD`] values (zero-padded), leading
+    /// principal directions first.
+    basis: Vec<f32>,
+    /// The windows' [`ROWS`] values in blocks of [`LANES`] windows, row-major inside a
+    /// block (one row = one value of 8 windows), rows in [`row_order`] order. Padding
+    /// windows of the last block hold huge values, so no bound lets them through.
+    blocks: Vec<[f32; LANES]>,
+    tree: ImmutableKdTree<f32, TREE_DIMS>,
+    /// Mean squared distance between random pairs of windows.
+    pub pairs_mean_sq: f64,
+}
+
+/// Windows per block of the scan (one SIMD-friendly row of lanes).
+const LANES: usize = 8;
+/// Values per window in the scan: [`SCAN_DIMS`] coordinates and one residual norm per
+/// stage.
+const ROWS: usize = SCAN_DIMS + STAGES.len();
+/// The scan's stages: coordinates up to this many, then the residual norm outside them.
+const STAGES: [usize; 3] = [TREE_PCA, 16, SCAN_DIMS];
+/// Queries scanned together, so each block of the bank is read once per batch.
+const BATCH: usize = 16;
+/// [`DIMS`] rounded up to a multiple of 8 (vectorisable dot products).
+const DIMS_PAD: usize = DIMS.div_ceil(8) * 8;
+/// A bound only prunes when it exceeds the best distance by this relative margin, so
+/// f32 rounding of the projections never prunes the true nearest window.
+const SAFETY: f32 = 1.0 - 1e-4;
+
+/// Row of coordinate `k` (`k < SCAN_DIMS`) or of stage `st`'s residual (`SCAN_DIMS + st`)
+/// in a block: each stage's new coordinates, then its residual.
+const fn row_order(v: usize) -> usize {
+    if v >= SCAN_DIMS {
+        let st = v - SCAN_DIMS;
+        STAGES[st] + st
+    } else {
+        let mut st = 0;
+        while v >= STAGES[st] {
+            st += 1;
+        }
+        v + st
+    }
+}
+
+impl Bank {
+    /// The bank of `example` at spacing `s`; `None` when no window fits the example (or
+    /// its values are not finite).
+    pub fn build(example: &Rgb, s: usize, pairs: usize, seed: u64) -> Option<Self> {
+        let m = margin(s);
+        let (w, h) = (example.width, example.height);
+        if w <= 2 * m || h <= 2 * m {
+            return None;
+        }
+        let (nx, ny) = (w - 2 * m, h - 2 * m);
+        let win = Windows {
+            s,
+            width: w,
+            blur: disc_blur(example, s),
+            m,
+            nx,
+            count: nx * ny,
+        };
+        let (mean, basis) = fit_pca(&win);
+        let count = win.count;
+        let nblocks = count.div_ceil(LANES);
+        let mut blocks = vec![[1e30f32; LANES]; nblocks * ROWS];
+        blocks.par_chunks_mut(ROWS).enumerate().for_each_init(
+            || (vec![0f32; DIMS], [0f32; ROWS]),
+            |(buf, vals), (b, blk)| {
+                for (l, j) in (b * LANES..count.min((b + 1) * LANES)).enumerate() {
+                    win.window(j, buf);
+                    project(&mean, &basis, buf, vals);
+                    for (v, &x) in vals.iter().enumerate() {
+                        blk[row_order(v)][l] = x;
+                    }
+                }
+            },
+        );
+        if blocks.iter().flatten().any(|v| !v.is_finite()) {
+            return None;
+        }
+        let points: Vec<[f32; TREE_DIMS]> = (0..count)
+            .map(|j| {
+                let blk = &blocks[(j / LANES) * ROWS..];
+                let mut p = [0f32; TREE_DIMS];
+                for (k, x) in p.iter_mut().enumerate() {
+                    // Rows 0..TREE_PCA are the first coordinates, then their residual.
+                    *x = blk[k][j % LANES];
+                }
+                p
+            })
+            .collect();
+        let tree = ImmutableKdTree::new_from_slice(&points).ok()?;
+        // Denominator: random pairs of distinct windows.
+        let mut state = seed ^ 0x0A11_BA1C_0000_0000 ^ s as u64;
+        let mut sum = 0f64;
+        let (mut a, mut b) = (vec![0f32; DIMS], vec![0f32; DIMS]);
+        let mut n = 0usize;
+        for _ in 0..pairs {
+            let i = (splitmix(&mut state) % count as u64) as usize;
+            let mut j = (splitmix(&mut state) % count as u64) as usize;
+            if j == i {
+                j = (i + 1) % count;
+            }
+            win.window(i, &mut a);
+            win.window(j, &mut b);
+            sum += a
+                .iter()
+                .zip(&b)
+                .map(|(x, y)| ((x - y) as f64).powi(2))
+                .sum::<f64>();
+            n += 1;
+        }
+        let pairs_mean_sq = if n > 0 { sum / n as f64 } else { 0.0 };
+        Some(Self {
+            win,
+            mean,
+            basis,
+            blocks,
+            tree,
+            pairs_mean_sq,
+        })
+    }
+
+    /// Number of example windows.
+    pub fn len(&self) -> usize {
+        self.win.count
+    }
+
+    /// The query's values in block row order.
+    fn query_rows(&self, q: &[f32]) -> [f32; ROWS] {
+        let mut vals = [0f32; ROWS];
+        project(&self.mean, &self.basis, q, &mut vals);
+        let mut rows = [0f32; ROWS];
+        for (v, &x) in vals.iter().enumerate() {
+            rows[row_order(v)] = x;
+        }
+        rows
+    }
+
+    /// Phase 1: the tree's nearest candidates. Returns the best exact distance among them
+    /// and whether it is provably the nearest (no other window's bound is below it).
+    fn tree_phase(&self, q: &[f32], rows: &[f32; ROWS]) -> (f32, bool) {
+        let mut qt = [0f32; TREE_DIMS];
+        qt.copy_from_slice(&rows[..TREE_DIMS]);
+        let res = self
+            .tree
+            .query(&qt)
+            .nearest_n::<SquaredEuclidean<f32>>(TREE_CANDIDATES)
+            .execute();
+        let mut best = f32::INFINITY;
+        let mut kth = 0f32;
+        for r in res.iter() {
+            kth = kth.max(r.distance);
+            if r.distance * SAFETY < best {
+                let d = self.win.exact(q, r.item as usize, best);
+                if d < best {
+                    best = d;
+                }
+            }
+        }
+        (best, res.len() >= self.win.count || best <= kth * SAFETY)
+    }
+
+    /// Phase 2 for a batch of queries: every block of the bank once, each query pruning
+    /// with its stages' bounds and computing exact distances only for what survives.
+    fn scan(&self, qs: &[&[f32]], rows: &[[f32; ROWS]], best: &mut [f32]) {
+        for (b, blk) in self.blocks.chunks_exact(ROWS).enumerate() {
+            for (qi, qr) in rows.iter().enumerate() {
+                let bound = best[qi];
+                let mut coord = [0f32; LANES];
+                let mut alive = [0f32; LANES];
+                let mut r0 = 0;
+                let mut start = 0;
+                let mut any = false;
+                for &end in &STAGES {
+                    let n = end - start;
+                    for (row, &qv) in blk[r0..r0 + n].iter().zip(&qr[r0..r0 + n]) {
+                        for l in 0..LANES {
+                            let d = row[l] - qv;
+                            coord[l] += d * d;
+                        }
+                    }
+                    let (row, qv) = (&blk[r0 + n], qr[r0 + n]);
+                    let mut lb = [0f32; LANES];
+                    for l in 0..LANES {
+                        let d = row[l] - qv;
+                        lb[l] = (coord[l] + d * d) * SAFETY;
+                    }
+                    // alive: the smallest bound over the stages so far (pruned ≥ bound).
+                    any = false;
+                    for l in 0..LANES {
+                        alive[l] = if start == 0 {
+                            lb[l]
+                        } else {
+                            alive[l].max(lb[l])
+                        };
+                        any |= alive[l] < bound;
+                    }
+                    if !any {
+                        break;
+                    }
+                    r0 += n + 1;
+                    start = end;
+                }
+                if !any {
+                    continue;
+                }
+                for (l, &a) in alive.iter().enumerate() {
+                    let j = b * LANES + l;
+                    if a < best[qi] && j < self.win.count {
+                        let d = self.win.exact(qs[qi], j, best[qi]);
+                        if d < best[qi] {
+                            best[qi] = d;
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// Squared distance of each query to its nearest example window, exact up to f32
+    /// rounding: the tree phase, then the batched scan for the queries it cannot settle.
+    pub fn nearest_all(&self, qs: &[&[f32]]) -> Vec<f32> {
+        let rows: Vec<[f32; ROWS]> = qs.par_iter().map(|q| self.query_rows(q)).collect();
+        let first: Vec<(f32, bool)> = qs
+            .par_iter()
+            .zip(rows.par_iter())
+            .map(|(q, r)| self.tree_phase(q, r))
+            .collect();
+        let mut best: Vec<f32> = first.iter().map(|f| f.0).collect();
+        let open: Vec<usize> = (0..qs.len()).filter(|&i| !first[i].1).collect();
+        let results: Vec<(usize, f32)> = open
+            .par_chunks(BATCH)
+            .flat_map_iter(|batch| {
+                let bq: Vec<&[f32]> = batch.iter().map(|&i| qs[i]).collect();
+                let br: Vec<[f32; ROWS]> = batch.iter().map(|&i| rows[i]).collect();
+                let mut bb: Vec<f32> = batch.iter().map(|&i| best[i]).collect();
+                self.scan(&bq, &br, &mut bb);
+                batch.iter().copied().zip(bb).collect::<Vec<_>>()
+            })
+            .collect();
+        for (i, d) in results {
+            best[i] = d;
+        }
+        best
+    }
+
+    /// One query ([`Bank::nearest_all`] of one).
+    pub fn nearest_sq(&self, q: &[f32]) -> f32 {
+        self.nearest_all(&[q])[0]
+    }
+}
+
+/// Mean and [`SCAN_DIMS`] leading principal directions of an even subsample of the
+/// windows (block power iteration from a fixed start; any orthonormal basis keeps the
+/// bounds valid, so convergence only affects speed).
+fn fit_pca(win: &Windows) -> (Vec<f32>, Vec<f32>) {
+    let step = win.count.div_ceil(PCA_WINDOWS).max(1);
+    let mut buf = vec![0f32; DIMS];
+    let mut rows: Vec<[f64; DIMS]> = Vec::with_capacity(PCA_WINDOWS + 1);
+    for j in (0..win.count).step_by(step) {
+        win.window(j, &mut buf);
+        let mut r = [0f64; DIMS];
+        for (d, v) in r.iter_mut().zip(&buf) {
+            *d = *v as f64;
+        }
+        rows.push(r);
+    }
+    let n = rows.len() as f64;
+    let mut mean = vec![0f64; DIMS];
+    for r in &rows {
+        for (m, v) in mean.iter_mut().zip(r) {
+            *m += v;
+        }
+    }
+    for m in &mut mean {
+        *m /= n;
+    }
+    for r in &mut rows {
+        for (v, m) in r.iter_mut().zip(&mean) {
+            *v -= m;
+        }
+    }
+    // Covariance (upper triangle), in fixed-size chunks summed in order.
+    let parts: Vec<Vec<f64>> = rows
+        .par_chunks(256)
+        .map(|rs| {
+            let mut c = vec![0f64; DIMS * DIMS];
+            for r in rs {
+                for i in 0..DIMS {
+                    let ri = r[i];
+                    let row = &mut c[i * DIMS..(i + 1) * DIMS];
+                    for j in i..DIMS {
+                        row[j] += ri * r[j];
+                    }
+                }
+            }
+            c
+        })
+        .collect();
+    let mut cov = vec![0f64; DIMS * DIMS];
+    for p in &parts {
+        for (c, v) in cov.iter_mut().zip(p) {
+            *c += v;
+        }
+    }
+    for i in 0..DIMS {
+        for j in 0..i {
+            cov[i * DIMS + j] = cov[j * DIMS + i];
+        }
+    }
+    let mut basis: Vec<[f64; DIMS]> = (0..SCAN_DIMS)
+        .map(|k| {
+            let mut v = [0f64; DIMS];
+            let mut st = 0x00C0_FFEE_u64 + k as u64;
+            for x in v.iter_mut() {
+                *x = (splitmix(&mut st) >> 11) as f64 / (1u64 << 53) as f64 - 0.5;
+            }
+            v
+        })
+        .collect();
+    orthonormalise(&mut basis);
+    for _ in 0..PCA_ITERATIONS {
+        for v in basis.iter_mut() {
+            let mut nv = [0f64; DIMS];
+            for (i, o) in nv.iter_mut().enumerate() {
+                let row = &cov[i * DIMS..(i + 1) * DIMS];
+                *o = row.iter().zip(v.iter()).map(|(a, b)| a * b).sum();
+            }
+            *v = nv;
+        }
+        orthonormalise(&mut basis);
+    }
+    let mut flat = vec![0f32; SCAN_DIMS * DIMS_PAD];
+    for (row, b) in flat.chunks_exact_mut(DIMS_PAD).zip(&basis) {
+        for (o, &x) in row.iter_mut().zip(b.iter()) {
+            *o = x as f32;
+        }
+    }
+    (mean.iter().map(|&m| m as f32).collect(), flat)
+}
+
+/// A window's [`ROWS`] values in natural order: the [`SCAN_DIMS`] coordinates, then per
+/// stage the residual norm outside its coordinates. Coordinates are f32 dot products in
+/// eight fixed lanes (vectorisable, deterministic); residual norms come from f64 sums.
+fn project(mean: &[f32], basis: &[f32], q: &[f32], out: &mut [f32; ROWS]) {
+    let mut c = [0f32; DIMS_PAD];
+    let mut total = 0f64;
+    for (i, o) in c.iter_mut().take(DIMS).enumerate() {
+        *o = q[i] - mean[i];
+        total += (*o as f64) * (*o as f64);
+    }
+    let mut kept = 0f64;
+    let mut stage = 0;
+    for (k, b) in basis.chunks_exact(DIMS_PAD).enumerate() {
+        let mut acc = [0f32; 8];
+        for (bx, cx) in b.chunks_exact(8).zip(c.chunks_exact(8)) {
+            for l in 0..8 {
+                acc[l] += bx[l] * cx[l];
+            }
+        }
+        let p = ((acc[0] + acc[1]) + (acc[2] + acc[3])) + ((acc[4] + acc[5]) + (acc[6] + acc[7]));
+        out[k] = p;
+        kept += (p as f64) * (p as f64);
+        if k + 1 == STAGES[stage] {
+            out[SCAN_DIMS + stage] = (total - kept).max(0.0).sqrt() as f32;
+            stage += 1;
+        }
+    }
+}
+
+/// Modified Gram–Schmidt; a vector that vanishes is replaced by a unit axis.
+fn orthonormalise(vs: &mut [[f64; DIMS]]) {
+    for i in 0..vs.len() {
+        for j in 0..i {
+            let d: f64 = vs[i].iter().zip(&vs[j]).map(|(a, b)| a * b).sum();
+            let vj = vs[j];
+            for (a, b) in vs[i].iter_mut().zip(&vj) {
+                *a -= d * b;
+            }
+        }
+        let n = vs[i].iter().map(|a| a * a).sum::<f64>().sqrt();
+        if n > 1e-300 {
+            for a in vs[i].iter_mut() {
+                *a /= n;
+            }
+        } else {
+            let mut axis = [0f64; DIMS];
+            axis[i % DIMS] = 1.0;
+            vs[i] = axis;
+            // Re-orthogonalise the replacement once against the earlier vectors.
+            for j in 0..i {
+                let d: f64 = vs[i].iter().zip(&vs[j]).map(|(a, b)| a * b).sum();
+                let vj = vs[j];
+                for (a, b) in vs[i].iter_mut().zip(&vj) {
+                    *a -= d * b;
+                }
+            }
+            let n = vs[i].iter().map(|a| a * a).sum::<f64>().sqrt().max(1e-300);
+            for a in vs[i].iter_mut() {
+                *a /= n;
+            }
+        }
+    }
+}
+
+/// Compares output windows against the example at spacing `s`: `windows[k]` is `None`
+/// for a drawn texel whose window was not laid.
+pub(crate) fn score_scale(
+    s: usize,
+    windows: &[Option<Vec<f32>>],
+    example: &Rgb,
+    opts: &PfOptions,
+) -> PfScale {
+    let laid: Vec<&Vec<f32>> = windows
+        .iter()
+        .flatten()
+        .filter(|w| w.iter().all(|v| v.is_finite()))
+        .collect();
+    let skipped = windows.len() - laid.len();
+    let mut out = PfScale {
+        s,
+        value: None,
+        windows: laid.len(),
+        skipped,
+        example_windows: 0,
+        nearest_mean_sq: None,
+        pairs_mean_sq: None,
+    };
+    let Some(bank) = Bank::build(example, s, opts.pairs, opts.seed) else {
+        return out;
+    };
+    out.example_windows = bank.len();
+    out.pairs_mean_sq = Some(bank.pairs_mean_sq);
+    if laid.is_empty() {
+        return out;
+    }
+    let qs: Vec<&[f32]> = laid.iter().map(|w| w.as_slice()).collect();
+    let nearest = bank.nearest_all(&qs);
+    let num = nearest.iter().map(|&d| d.max(0.0) as f64).sum::<f64>() / nearest.len() as f64;
+    out.nearest_mean_sq = Some(num);
+    if bank.pairs_mean_sq > 0.0 {
+        out.value = Some(num / bank.pairs_mean_sq);
+    }
+    out
+}
+
+/// pf1/pf4/pf8 of a 2D image against an example: centres drawn among the finite pixels,
+/// windows on the pixel grid of the disc-blurred image.
+pub fn image_patch_fidelities(image: &Rgb, example: &Rgb, opts: &PfOptions) -> PatchFidelity {
+    image_patch_fidelities_as(image, example, opts, PfMethod::Image)
+}
+
+pub(crate) fn image_patch_fidelities_as(
+    image: &Rgb,
+    example: &Rgb,
+    opts: &PfOptions,
+    method: PfMethod,
+) -> PatchFidelity {
+    let (w, h) = (image.width, image.height);
+    let candidates: Vec<usize> = (0..w * h)
+        .filter(|&i| image.px[i].iter().all(|c| c.is_finite()))
+        .collect();
+    let drawn = draw(candidates, opts.samples, opts.seed);
+    let scales = PF_SCALES
+        .iter()
+        .map(|&s| {
+            let blur = disc_blur(image, s);
+            let m = margin(s);
+            let windows: Vec<Option<Vec<f32>>> = drawn
+                .iter()
+                .map(|&i| {
+                    let (x, y) = (i % w, i / w);
+                    if x < m || y < m || x + m >= w || y + m >= h {
+                        return None;
+                    }
+                    let mut v = vec![0f32; DIMS];
+                    image_window(&blur, w, x, y, s, &mut v);
+                    Some(v)
+                })
+                .collect();
+            score_scale(s, &windows, example, opts)
+        })
+        .collect();
+    PatchFidelity::from_scales(method, drawn.len(), 0, scales)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn noise(w: usize, h: usize, seed: u64) -> Rgb {
+        let mut st = seed;
+        let px = (0..w * h)
+            .map(|_| {
+                let mut c = [0f32; 3];
+                for v in &mut c {
+                    *v = (splitmix(&mut st) >> 40) as f32 / (1u64 << 24) as f32;
+                }
+                c
+            })
+            .collect();
+        Rgb {
+            width: w,
+            height: h,
+            px,
+        }
+    }
+
+    #[test]
+    fn discs_have_the_documented_sizes() {
+        assert_eq!(disc_offsets(1).len(), 1);
+        assert_eq!(disc_offsets(4).len(), 13);
+        assert_eq!(disc_offsets(8).len(), 49);
+        assert_eq!((margin(1), margin(4), margin(8)), (3, 14, 28));
+    }
+
+    #[test]
+    fn search_is_exact() {
+        // Smooth-ish example (noise blurred by the S = 4 disc) and noisy queries: the
+        // bound-pruned search agrees with brute force on every query.
+        let ex = noise(48, 40, 1);
+        for s in [1usize, 4] {
+            let bank = Bank::build(&ex, s, 256, 3).unwrap();
+            let mut q = vec![0f32; DIMS];
+            let mut st = 99u64;
+            for t in 0..40 {
+                let j = (splitmix(&mut st) % bank.len() as u64) as usize;
+                bank.win.window(j, &mut q);
+                for v in q.iter_mut() {
+                    let e = (splitmix(&mut st) >> 40) as f32 / (1u64 << 24) as f32 - 0.5;
+                    *v += e * (t as f32 / 20.0);
+                }
+                let fast = bank.nearest_sq(&q);
+                let mut brute = f32::INFINITY;
+                let mut w = vec![0f32; DIMS];
+                for k in 0..bank.len() {
+                    bank.win.window(k, &mut w);
+                    brute = brute.min(dist_sq_bounded(&q, &w, f32::INFINITY));
+                }
+                assert!(
+                    (fast - brute).abs() <= 1e-5 * brute.max(1.0),
+                    "s {s} t {t}: {fast} vs {brute}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn draw_is_distinct_and_deterministic() {
+        let a = draw((0..1000).collect(), 100, 5);
+        let b = draw((0..1000).collect(), 100, 5);
+        assert_eq!(a, b);
+        let mut s = a.clone();
+        s.sort();
+        s.dedup();
+        assert_eq!(s.len(), 100);
+        assert_eq!(draw((0..10).collect(), 100, 5), (0..10).collect::<Vec<_>>());
+    }
+}

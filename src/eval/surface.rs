@@ -1,0 +1,757 @@
+//! The surface half of pfS (docs/eval.md, "Patch fidelity"): windows laid on any mesh —
+//! curved, with n-gon sub-faces, with open boundaries — and the lattice test that sends
+//! flat aligned grids to the 2D code instead.
+//!
+//! Why a point cloud: the texel centres of all domains, in one k-d tree, are the surface as
+//! the maps sample it. A window that crosses a face edge simply finds the next face's
+//! texels; no domain adjacency or chart is needed, and any program that writes the same
+//! maps is measured the same way.
+//!
+//! For a drawn texel t:
+//! 1. **Directions.** A least-squares fit of t's source position against the limit
+//!    positions of its *coherent* neighbours (texels within [`FIT_RADIUS`] local spacings,
+//!    in any face, whose source is within 4 px per unit of grid distance of t's, BRIEF's
+//!    threshold) gives the 2x2 Jacobian M = d(source)/d(tangent coordinates); the columns
+//!    of M⁻¹ are a and b, the tangent vectors along which t's source advances by one pixel
+//!    in u and in v. A fit is usable when it has ≥ 3 neighbours spanning the plane, an RMS
+//!    residual ≤ 1 px, anisotropy σ₁/σ₂ ≤ 4 and pixel lengths within a factor 4 of the
+//!    scale. Otherwise (no source channels, isolated texel, noise) the **fallback**: the
+//!    face's own texel directions (x and y neighbours in t's domain) scaled to the scale —
+//!    on a flat grid with `--orient +x`, exactly the pixel grid.
+//! 2. **Walk.** The centre row is walked from t along ±a, 3 samples S pixels apart each way,
+//!    then from every row sample the column along ±b. Each walk advances in steps of at most
+//!    one texel spacing (at most 64 steps per sample spacing); after each step the point is projected onto the tangent plane of
+//!    its nearest texel and a, b are projected onto that plane (lengths kept): a discrete
+//!    parallel transport, so a window on a curved surface is geodesic-like, not a chord.
+//!    Row and column walks go on ⌊S/2⌋ pixels past the outer samples (their discs). A walk
+//!    point farther than [`OFF_SURFACE`] local spacings (the largest distance from the
+//!    nearest texel to its in-face neighbours) from its nearest texel, measured in that
+//!    texel's tangent plane, has left the surface: the window is skipped.
+//! 3. **Samples.** S = 1: the colour of the texel nearest to the sample point. S > 1: the
+//!    mean colour of the texels whose offset from the sample point, written as αa + βb in
+//!    the transported directions, has α² + β² ≤ (S/2)² — the disc of diameter S example
+//!    pixels as t's source map sees it — leaving out texels of other sheets (normal offset
+//!    above half the disc radius plus half a spacing, or normal turned by more than 60°).
+//!    An empty disc takes the nearest texel.
+
+use super::pf::{
+    draw, image_patch_fidelities_as, score_scale, PatchFidelity, PfMethod, PfOptions, Rgb, DIMS,
+    PF_SCALES, WINDOW,
+};
+use crate::example::Example;
+use crate::io::exr::FaceMaps;
+use glam::DVec3;
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use rayon::prelude::*;
+
+/// Neighbours within this many local texel spacings enter a texel's fit (its 5x5 block
+/// without the corners on a regular grid).
+pub const FIT_RADIUS: f64 = 2.05;
+/// BRIEF's coherence threshold: source positions within 4 px per unit of grid distance.
+pub const COHERENT_PER_TEXEL: f64 = 4.0;
+/// Fewest coherent neighbours of a usable fit.
+const MIN_FIT_NEIGHBOURS: usize = 3;
+/// Largest ratio of the fit's singular values.
+const MAX_ANISOTROPY: f64 = 4.0;
+/// Largest factor between a fitted pixel length and the scale (either way).
+const MAX_STRETCH: f64 = 4.0;
+/// Largest RMS residual of a usable fit, in pixels.
+const MAX_RESIDUAL_PX: f64 = 1.0;
+/// A walk point farther than this many local spacings from its nearest texel (in the
+/// texel's tangent plane) is off the surface. On the surface a point is at most √2/2 of
+/// the larger spacing from a texel centre (a cell's centre, or a corner of the half-cell
+/// strip between the outer texels and the boundary); a point past an open boundary is at
+/// least half a spacing plus its distance beyond from every texel. So a sample that the
+/// pixel grid would not have (a full spacing beyond the last texel) is refused, as on the
+/// lattice.
+pub const OFF_SURFACE: f64 = 0.75;
+/// Most sub-steps of one walk call (one sample spacing or one disc radius).
+const MAX_STEPS: usize = 64;
+/// Largest relative deviation of a lattice (texel positions, axes, spacing vs scale).
+const LATTICE_TOL: f64 = 0.02;
+/// Largest deviation of the median source step from one pixel per texel along the axes.
+const LATTICE_SOURCE_TOL: f64 = 0.05;
+
+/// Tangent directions of one pixel step in u (`a`) and v (`b`) at a texel.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Frame {
+    pub a: DVec3,
+    pub b: DVec3,
+    pub fallback: bool,
+}
+
+/// A point walked on the surface with its transported frame.
+#[derive(Clone, Copy, Debug)]
+struct State {
+    p: DVec3,
+    a: DVec3,
+    b: DVec3,
+    n: DVec3,
+}
+
+/// The texel point cloud of one result.
+pub(crate) struct Cloud<'a> {
+    n: usize,
+    pos: Vec<DVec3>,
+    col: Vec<[f32; 3]>,
+    nrm: Vec<DVec3>,
+    valid: Vec<bool>,
+    src: Option<(&'a [f32], &'a [f32])>,
+    tree: ImmutableKdTree<f64, 3>,
+    /// Tree item → texel index.
+    items: Vec<usize>,
+    /// Per texel, the spacing that decides whether a point nearest to it is on the
+    /// surface: its own [`Cloud::local_spacing`], and at a face border the largest of
+    /// those of the texels across (see [`Cloud::build`]).
+    cover: Vec<f32>,
+    /// Median adjacent spacing h.
+    pub h: f64,
+    /// Surface length per example pixel.
+    pub scale: f64,
+}
+
+fn channel<'a>(m: &'a FaceMaps, name: &str) -> Option<&'a [f32]> {
+    m.channel(name)
+}
+
+impl<'a> Cloud<'a> {
+    /// `None` without R, G, B or P channels, mismatched maps, or no finite texel.
+    pub fn build(colour: &'a FaceMaps, geometry: &FaceMaps, scale: Option<f64>) -> Option<Self> {
+        let (f, n) = (colour.faces, colour.resolution);
+        if (geometry.faces, geometry.resolution) != (f, n) {
+            return None;
+        }
+        let (r, g, b) = (
+            channel(colour, "R")?,
+            channel(colour, "G")?,
+            channel(colour, "B")?,
+        );
+        let (px, py, pz) = (
+            channel(geometry, "P.X")?,
+            channel(geometry, "P.Y")?,
+            channel(geometry, "P.Z")?,
+        );
+        let total = f * n * n;
+        let pos: Vec<DVec3> = (0..total)
+            .map(|i| DVec3::new(px[i] as f64, py[i] as f64, pz[i] as f64))
+            .collect();
+        let col: Vec<[f32; 3]> = (0..total).map(|i| [r[i], g[i], b[i]]).collect();
+        let valid: Vec<bool> = (0..total)
+            .map(|i| pos[i].is_finite() && col[i].iter().all(|c| c.is_finite()))
+            .collect();
+        let normals = match (
+            channel(geometry, "N.X"),
+            channel(geometry, "N.Y"),
+            channel(geometry, "N.Z"),
+        ) {
+            (Some(x), Some(y), Some(z)) => Some((x, y, z)),
+            _ => None,
+        };
+        let nrm: Vec<DVec3> = (0..total)
+            .into_par_iter()
+            .map(|i| {
+                let given = normals
+                    .map(|(x, y, z)| DVec3::new(x[i] as f64, y[i] as f64, z[i] as f64))
+                    .and_then(|v| v.try_normalize());
+                given.unwrap_or_else(|| grid_normal(&pos, &valid, n, i))
+            })
+            .collect();
+        let src = match (colour.channel("source.u"), colour.channel("source.v")) {
+            (Some(u), Some(v)) => Some((u, v)),
+            _ => None,
+        };
+        let items: Vec<usize> = (0..total).filter(|&i| valid[i]).collect();
+        if items.is_empty() {
+            return None;
+        }
+        let points: Vec<[f64; 3]> = items.iter().map(|&i| pos[i].to_array()).collect();
+        let tree = ImmutableKdTree::new_from_slice(&points).ok()?;
+        let h = median_spacing(&pos, &valid, f, n)?;
+        let scale = scale.filter(|s| s.is_finite() && *s > 0.0).unwrap_or(h);
+        let mut cloud = Self {
+            n,
+            pos,
+            col,
+            nrm,
+            valid,
+            src,
+            tree,
+            items,
+            cover: Vec::new(),
+            h,
+            scale,
+        };
+        // Where faces of different texel density meet, the gap between their outer texel
+        // rows is half of each spacing: a point in it may be farther from the denser
+        // face's texel than that face's own spacing allows; around a vertex where many
+        // faces meet, the vertex is farther from the corner texels than they are from
+        // each other. So a border texel takes the largest of its spacing and, per other
+        // domain within 4 of its spacings (none at an open boundary), the distance to
+        // that domain's nearest texel and its spacing — the nearest domain for an edge
+        // texel, every domain for a corner texel.
+        let own: Vec<f64> = (0..total).map(|i| cloud.local_spacing(i)).collect();
+        let nn = n * n;
+        let cover: Vec<f32> = (0..total)
+            .into_par_iter()
+            .map(|i| {
+                let (x, y) = (i % n, (i / n) % n);
+                let (bx, by) = (x == 0 || x + 1 == n, y == 0 || y + 1 == n);
+                if !(bx || by) || !cloud.valid[i] {
+                    return own[i] as f32;
+                }
+                // Nearest texel of each other domain: (domain, distance, texel).
+                let mut per: Vec<(usize, f64, usize)> = Vec::new();
+                for j in cloud.within(cloud.pos[i], 4.0 * own[i]) {
+                    if j / nn == i / nn {
+                        continue;
+                    }
+                    let d = (cloud.pos[j] - cloud.pos[i]).length();
+                    match per.iter_mut().find(|e| e.0 == j / nn) {
+                        Some(e) if d < e.1 => *e = (j / nn, d, j),
+                        Some(_) => {}
+                        None => per.push((j / nn, d, j)),
+                    }
+                }
+                let take = |e: &(usize, f64, usize)| e.1.max(own[e.2]);
+                let c = if bx && by {
+                    per.iter().map(take).fold(own[i], f64::max)
+                } else {
+                    per.iter()
+                        .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)))
+                        .map_or(own[i], |e| own[i].max(take(e)))
+                };
+                c as f32
+            })
+            .collect();
+        cloud.cover = cover;
+        Some(cloud)
+    }
+
+    /// Texels that can be window centres.
+    pub fn candidates(&self) -> Vec<usize> {
+        self.items.clone()
+    }
+
+    #[inline]
+    fn nearest(&self, p: DVec3) -> usize {
+        let r = self
+            .tree
+            .query(&p.to_array())
+            .nearest_one::<SquaredEuclidean<f64>>()
+            .execute();
+        self.items[r.item as usize]
+    }
+
+    /// Texels within `radius` of `p`, in texel order.
+    fn within(&self, p: DVec3, radius: f64) -> Vec<usize> {
+        let hits = self
+            .tree
+            .query(&p.to_array())
+            .within::<SquaredEuclidean<f64>>(radius * radius)
+            .unsorted()
+            .execute();
+        let mut v: Vec<usize> = hits.iter().map(|r| self.items[r.item as usize]).collect();
+        v.sort_unstable();
+        v
+    }
+
+    /// Largest distance to the texel's valid in-face 4-neighbours (h when it has none).
+    fn local_spacing(&self, i: usize) -> f64 {
+        let n = self.n;
+        let (x, y) = (i % n, (i / n) % n);
+        let mut max = 0f64;
+        let mut add = |j: usize| {
+            if self.valid[j] {
+                max = max.max((self.pos[j] - self.pos[i]).length());
+            }
+        };
+        if x > 0 {
+            add(i - 1);
+        }
+        if x + 1 < n {
+            add(i + 1);
+        }
+        if y > 0 {
+            add(i - n);
+        }
+        if y + 1 < n {
+            add(i + n);
+        }
+        if max > 0.0 {
+            max
+        } else {
+            self.h
+        }
+    }
+
+    /// t's pixel directions: the least-squares fit, or the fallback (module docs).
+    pub fn frame(&self, t: usize) -> Frame {
+        self.fit(t).unwrap_or_else(|| self.fallback_frame(t))
+    }
+
+    fn fit(&self, t: usize) -> Option<Frame> {
+        let (su, sv) = self.src?;
+        let st = [su[t] as f64, sv[t] as f64];
+        if !(st[0].is_finite() && st[1].is_finite()) {
+            return None;
+        }
+        let nt = self.nrm[t];
+        let (e1, e2) = nt.any_orthonormal_pair();
+        let ht = self.local_spacing(t);
+        let p0 = self.pos[t];
+        let mut pairs: Vec<([f64; 2], [f64; 2])> = Vec::new();
+        for k in self.within(p0, FIT_RADIUS * ht) {
+            if k == t {
+                continue;
+            }
+            let sk = [su[k] as f64, sv[k] as f64];
+            let ds = [sk[0] - st[0], sk[1] - st[1]];
+            if !(ds[0].is_finite() && ds[1].is_finite()) {
+                continue;
+            }
+            let dp = self.pos[k] - p0;
+            let grid = (dp.length() / ht).max(1.0);
+            if ds[0].hypot(ds[1]) > COHERENT_PER_TEXEL * grid {
+                continue;
+            }
+            pairs.push(([dp.dot(e1), dp.dot(e2)], ds));
+        }
+        if pairs.len() < MIN_FIT_NEIGHBOURS {
+            return None;
+        }
+        // Normal equations: M = Ssq · Sqq⁻¹ with Sqq = Σ q qᵀ, Ssq = Σ Δs qᵀ.
+        let (mut q11, mut q12, mut q22) = (0.0, 0.0, 0.0);
+        let mut sq = [[0.0f64; 2]; 2];
+        for (q, ds) in &pairs {
+            q11 += q[0] * q[0];
+            q12 += q[0] * q[1];
+            q22 += q[1] * q[1];
+            for r in 0..2 {
+                sq[r][0] += ds[r] * q[0];
+                sq[r][1] += ds[r] * q[1];
+            }
+        }
+        let det_q = q11 * q22 - q12 * q12;
+        let tr_q = q11 + q22;
+        // Neighbours must span the plane: smallest eigenvalue ≥ 5% of the largest.
+        let disc = ((q11 - q22).powi(2) + 4.0 * q12 * q12).sqrt();
+        let (lmax, lmin) = ((tr_q + disc) / 2.0, (tr_q - disc) / 2.0);
+        if !(det_q > 0.0 && lmin >= 0.05 * lmax) {
+            return None;
+        }
+        let inv_q = [[q22 / det_q, -q12 / det_q], [-q12 / det_q, q11 / det_q]];
+        let mut m = [[0.0f64; 2]; 2];
+        for r in 0..2 {
+            for c in 0..2 {
+                m[r][c] = sq[r][0] * inv_q[0][c] + sq[r][1] * inv_q[1][c];
+            }
+        }
+        let mut res = 0.0;
+        for (q, ds) in &pairs {
+            for r in 0..2 {
+                let e = ds[r] - (m[r][0] * q[0] + m[r][1] * q[1]);
+                res += e * e;
+            }
+        }
+        if (res / pairs.len() as f64).sqrt() > MAX_RESIDUAL_PX {
+            return None;
+        }
+        // Singular values of M (pixels per surface length).
+        let t2 = m[0][0].powi(2) + m[0][1].powi(2) + m[1][0].powi(2) + m[1][1].powi(2);
+        let det = m[0][0] * m[1][1] - m[0][1] * m[1][0];
+        let root = (t2 * t2 - 4.0 * det * det).max(0.0).sqrt();
+        let (s1, s2) = (
+            ((t2 + root) / 2.0).sqrt(),
+            ((t2 - root) / 2.0).max(0.0).sqrt(),
+        );
+        if !(s2 > 0.0 && det != 0.0 && s1 / s2 <= MAX_ANISOTROPY) {
+            return None;
+        }
+        // Pixel lengths 1/σ within a factor MAX_STRETCH of the scale.
+        if !(self.scale * s2 >= 1.0 / MAX_STRETCH && self.scale * s1 <= MAX_STRETCH) {
+            return None;
+        }
+        let inv = [
+            [m[1][1] / det, -m[0][1] / det],
+            [-m[1][0] / det, m[0][0] / det],
+        ];
+        let a = e1 * inv[0][0] + e2 * inv[1][0];
+        let b = e1 * inv[0][1] + e2 * inv[1][1];
+        Some(Frame {
+            a,
+            b,
+            fallback: false,
+        })
+    }
+
+    /// The face's texel directions at t, scaled to one pixel (the scale).
+    fn fallback_frame(&self, t: usize) -> Frame {
+        let n = self.n;
+        let (x, y) = (t % n, (t / n) % n);
+        let nt = self.nrm[t];
+        let dir = |lo: Option<usize>, hi: Option<usize>| -> Option<DVec3> {
+            let pick = |j: Option<usize>| j.filter(|&j| self.valid[j]).map(|j| self.pos[j]);
+            let (a, b) = (
+                pick(lo).unwrap_or(self.pos[t]),
+                pick(hi).unwrap_or(self.pos[t]),
+            );
+            let d = b - a;
+            (d - nt * d.dot(nt)).try_normalize()
+        };
+        let du = dir((x > 0).then(|| t - 1), (x + 1 < n).then_some(t + 1));
+        let dv = dir((y > 0).then(|| t - n), (y + 1 < n).then_some(t + n));
+        let (e1, e2) = nt.any_orthonormal_pair();
+        let (a, b) = match (du, dv) {
+            (Some(a), Some(b)) => (a, b),
+            (Some(a), None) => (a, nt.cross(a)),
+            (None, Some(b)) => (b.cross(nt), b),
+            (None, None) => (e1, e2),
+        };
+        Frame {
+            a: a * self.scale,
+            b: b * self.scale,
+            fallback: true,
+        }
+    }
+
+    /// Walks `px` pixels from `st` along its a (or b) times `sign` (module docs, step 2).
+    fn walk(&self, st: &State, along_b: bool, sign: f64, px: f64) -> Option<State> {
+        let (la, lb) = (st.a.length(), st.b.length());
+        let len = px * if along_b { lb } else { la };
+        // Steps of at most one spacing, but at most MAX_STEPS per call (a scale far above
+        // the texel spacing would otherwise cost thousands of steps per sample).
+        let steps = (len / self.h).ceil().clamp(1.0, MAX_STEPS as f64) as usize;
+        let d = len / steps as f64;
+        let mut cur = *st;
+        for _ in 0..steps {
+            let v = if along_b { cur.b } else { cur.a };
+            let p = cur.p + v.normalize_or_zero() * (sign * d);
+            let k = self.nearest(p);
+            let nk = self.nrm[k];
+            let off = p - self.pos[k];
+            let dn = off.dot(nk);
+            if (off - nk * dn).length() > OFF_SURFACE * self.cover[k] as f64 {
+                return None;
+            }
+            cur.p = p - nk * dn;
+            cur.a = transport(cur.a, nk, la);
+            cur.b = transport(cur.b, nk, lb);
+            cur.n = nk;
+        }
+        Some(cur)
+    }
+
+    /// One sample's colour at spacing `s` (module docs, step 3).
+    fn sample(&self, st: &State, s: usize) -> [f32; 3] {
+        let k = self.nearest(st.p);
+        if s <= 1 {
+            return self.col[k];
+        }
+        let r = s as f64 / 2.0;
+        let radius = r * (st.a.length_squared() + st.b.length_squared()).sqrt() * 1.001;
+        let (g11, g12, g22) = (st.a.dot(st.a), st.a.dot(st.b), st.b.dot(st.b));
+        let det = g11 * g22 - g12 * g12;
+        if det.is_nan() || det <= 0.0 {
+            return self.col[k];
+        }
+        let sheet = 0.5 * radius + 0.5 * self.h;
+        let mut acc = [0f64; 3];
+        let mut cnt = 0usize;
+        for j in self.within(st.p, radius) {
+            let d = self.pos[j] - st.p;
+            let dn = d.dot(st.n);
+            if dn.abs() > sheet || self.nrm[j].dot(st.n) < 0.5 {
+                continue;
+            }
+            let dt = d - st.n * dn;
+            let (ra, rb) = (dt.dot(st.a), dt.dot(st.b));
+            let alpha = (g22 * ra - g12 * rb) / det;
+            let beta = (g11 * rb - g12 * ra) / det;
+            if alpha * alpha + beta * beta <= r * r + 1e-3 {
+                for (a, &c) in acc.iter_mut().zip(&self.col[j]) {
+                    *a += c as f64;
+                }
+                cnt += 1;
+            }
+        }
+        if cnt == 0 {
+            return self.col[k];
+        }
+        let inv = 1.0 / cnt as f64;
+        [
+            (acc[0] * inv) as f32,
+            (acc[1] * inv) as f32,
+            (acc[2] * inv) as f32,
+        ]
+    }
+
+    /// The window of texel t at spacing `s`, `None` when it leaves the surface.
+    pub fn window(&self, t: usize, fr: &Frame, s: usize) -> Option<Vec<f32>> {
+        let half = WINDOW / 2;
+        let start = State {
+            p: self.pos[t],
+            a: fr.a,
+            b: fr.b,
+            n: self.nrm[t],
+        };
+        let (sp, ext) = (s as f64, (s / 2) as f64);
+        let line = |from: &State, along_b: bool| -> Option<[State; WINDOW]> {
+            let mut out = [*from; WINDOW];
+            for sign in [1.0f64, -1.0] {
+                let mut cur = *from;
+                for i in 1..=half {
+                    cur = self.walk(&cur, along_b, sign, sp)?;
+                    let idx = if sign > 0.0 { half + i } else { half - i };
+                    out[idx] = cur;
+                }
+                if ext > 0.0 {
+                    self.walk(&cur, along_b, sign, ext)?;
+                }
+            }
+            Some(out)
+        };
+        let row = line(&start, false)?;
+        let mut grid = [[start; WINDOW]; WINDOW];
+        for (i, r) in row.iter().enumerate() {
+            let col = line(r, true)?;
+            for (j, st) in col.iter().enumerate() {
+                grid[j][i] = *st;
+            }
+        }
+        let mut v = Vec::with_capacity(DIMS);
+        for row in &grid {
+            for st in row {
+                v.extend_from_slice(&self.sample(st, s));
+            }
+        }
+        Some(v)
+    }
+}
+
+/// Projects `v` onto the plane of normal `n`, keeping its length `len`.
+#[inline]
+fn transport(v: DVec3, n: DVec3, len: f64) -> DVec3 {
+    let w = v - n * v.dot(n);
+    let l = w.length();
+    if l > 0.0 {
+        w * (len / l)
+    } else {
+        v
+    }
+}
+
+/// Normal from the texel's in-face neighbours (one-sided at the border).
+fn grid_normal(pos: &[DVec3], valid: &[bool], n: usize, i: usize) -> DVec3 {
+    let (x, y) = (i % n, (i / n) % n);
+    let pick = |j: usize| if valid[j] { pos[j] } else { pos[i] };
+    let du = pick(if x + 1 < n { i + 1 } else { i }) - pick(if x > 0 { i - 1 } else { i });
+    let dv = pick(if y + 1 < n { i + n } else { i }) - pick(if y > 0 { i - n } else { i });
+    du.cross(dv).try_normalize().unwrap_or(DVec3::Z)
+}
+
+/// Median distance between horizontally or vertically adjacent valid texels of one face.
+fn median_spacing(pos: &[DVec3], valid: &[bool], f: usize, n: usize) -> Option<f64> {
+    let mut d: Vec<f64> = Vec::with_capacity(2 * f * n * n);
+    for face in 0..f {
+        for y in 0..n {
+            for x in 0..n {
+                let i = (face * n + y) * n + x;
+                if !valid[i] {
+                    continue;
+                }
+                if x + 1 < n && valid[i + 1] {
+                    d.push((pos[i + 1] - pos[i]).length());
+                }
+                if y + 1 < n && valid[i + n] {
+                    d.push((pos[i + n] - pos[i]).length());
+                }
+            }
+        }
+    }
+    if d.is_empty() {
+        return None;
+    }
+    let mid = d.len() / 2;
+    let (_, m, _) = d.select_nth_unstable_by(mid, f64::total_cmp);
+    (m.is_finite() && *m > 0.0).then_some(*m)
+}
+
+/// The maps as one image when their texel centres form a square lattice, tile by tile,
+/// and the source positions step one pixel per texel along it (or, without sources, the
+/// scale equals the lattice spacing): then "the window is the pixel grid". `None`
+/// otherwise (docs/eval.md, "Lattice").
+pub(crate) fn lattice_image(
+    colour: &FaceMaps,
+    geometry: &FaceMaps,
+    scale: Option<f64>,
+) -> Option<Rgb> {
+    let (f, n) = (colour.faces, colour.resolution);
+    if n < 2 || (geometry.faces, geometry.resolution) != (f, n) {
+        return None;
+    }
+    let (px, py, pz) = (
+        geometry.channel("P.X")?,
+        geometry.channel("P.Y")?,
+        geometry.channel("P.Z")?,
+    );
+    let (r, g, b) = (
+        colour.channel("R")?,
+        colour.channel("G")?,
+        colour.channel("B")?,
+    );
+    let p = |i: usize| DVec3::new(px[i] as f64, py[i] as f64, pz[i] as f64);
+    let idx = |d: usize, x: usize, y: usize| (d * n + y) * n + x;
+    let o0 = p(0);
+    let eu = (p(idx(0, n - 1, 0)) - o0) / (n - 1) as f64;
+    let ev = (p(idx(0, 0, n - 1)) - o0) / (n - 1) as f64;
+    let hl = eu.length();
+    if !(hl.is_finite() && hl > 0.0)
+        || (ev.length() - hl).abs() > LATTICE_TOL * hl
+        || eu.dot(ev).abs() > LATTICE_TOL * hl * hl
+    {
+        return None;
+    }
+    let (uu, vv) = (eu / (hl * hl), ev / ev.length_squared());
+    let mut tiles: Vec<(i64, i64)> = Vec::with_capacity(f);
+    for d in 0..f {
+        let o = p(idx(d, 0, 0)) - o0;
+        let (tx, ty) = (o.dot(uu) / n as f64, o.dot(vv) / n as f64);
+        let (rx, ry) = (tx.round(), ty.round());
+        if !((tx - rx).abs() * n as f64 <= LATTICE_TOL && (ty - ry).abs() * n as f64 <= LATTICE_TOL)
+        {
+            return None;
+        }
+        let (ix, iy) = (rx as i64, ry as i64);
+        let base = o0 + eu * (ix * n as i64) as f64 + ev * (iy * n as i64) as f64;
+        for y in 0..n {
+            for x in 0..n {
+                let q = base + eu * x as f64 + ev * y as f64;
+                let dev = (p(idx(d, x, y)) - q).length();
+                if dev.is_nan() || dev > LATTICE_TOL * hl {
+                    return None;
+                }
+            }
+        }
+        tiles.push((ix, iy));
+    }
+    let (minx, maxx) = (
+        tiles.iter().map(|t| t.0).min()?,
+        tiles.iter().map(|t| t.0).max()?,
+    );
+    let (miny, maxy) = (
+        tiles.iter().map(|t| t.1).min()?,
+        tiles.iter().map(|t| t.1).max()?,
+    );
+    let (cols, rows) = ((maxx - minx + 1) as usize, (maxy - miny + 1) as usize);
+    if cols * rows != f {
+        return None;
+    }
+    let mut seen = vec![false; f];
+    for t in &tiles {
+        let k = (t.1 - miny) as usize * cols + (t.0 - minx) as usize;
+        if std::mem::replace(&mut seen[k], true) {
+            return None;
+        }
+    }
+    // The example's pixel grid: sources step (1, 0) along x and (0, 1) along y.
+    match source_steps(colour) {
+        Some([ux, vx, uy, vy]) => {
+            let t = LATTICE_SOURCE_TOL;
+            if !((ux - 1.0).abs() <= t && vx.abs() <= t && uy.abs() <= t && (vy - 1.0).abs() <= t) {
+                return None;
+            }
+        }
+        None => {
+            if let Some(s) = scale {
+                if (hl / s - 1.0).abs() > LATTICE_TOL {
+                    return None;
+                }
+            }
+        }
+    }
+    let (w, h) = (cols * n, rows * n);
+    let mut img = vec![[f32::NAN; 3]; w * h];
+    for (d, t) in tiles.iter().enumerate() {
+        let (ox, oy) = ((t.0 - minx) as usize * n, (t.1 - miny) as usize * n);
+        for y in 0..n {
+            for x in 0..n {
+                let i = idx(d, x, y);
+                img[(oy + y) * w + ox + x] = [r[i], g[i], b[i]];
+            }
+        }
+    }
+    Some(Rgb {
+        width: w,
+        height: h,
+        px: img,
+    })
+}
+
+/// Medians of (Δu, Δv) over coherent x-adjacent and y-adjacent texel pairs of one face:
+/// [Δu_x, Δv_x, Δu_y, Δv_y]; `None` without sources or coherent pairs.
+fn source_steps(colour: &FaceMaps) -> Option<[f64; 4]> {
+    let (su, sv) = (colour.channel("source.u")?, colour.channel("source.v")?);
+    let (f, n) = (colour.faces, colour.resolution);
+    let mut v: [Vec<f64>; 4] = Default::default();
+    for d in 0..f {
+        for y in 0..n {
+            for x in 0..n {
+                let i = (d * n + y) * n + x;
+                for (j, k) in [(i + 1, 0usize), (i + n, 2)] {
+                    if (k == 0 && x + 1 >= n) || (k == 2 && y + 1 >= n) {
+                        continue;
+                    }
+                    let (du, dv) = ((su[j] - su[i]) as f64, (sv[j] - sv[i]) as f64);
+                    if du.is_finite() && dv.is_finite() && du.hypot(dv) <= COHERENT_PER_TEXEL {
+                        v[k].push(du);
+                        v[k + 1].push(dv);
+                    }
+                }
+            }
+        }
+    }
+    let mut out = [0.0; 4];
+    for (o, vals) in out.iter_mut().zip(v.iter_mut()) {
+        if vals.is_empty() {
+            return None;
+        }
+        let mid = vals.len() / 2;
+        *o = *vals.select_nth_unstable_by(mid, f64::total_cmp).1;
+    }
+    Some(out)
+}
+
+/// pf1/pf4/pf8 of face maps (module docs; docs/eval.md). The lattice, when it applies
+/// (and `opts.force_surface` is off), else the surface method.
+pub fn patch_fidelities_with(
+    colour: &FaceMaps,
+    geometry: &FaceMaps,
+    example: &Example,
+    scale: Option<f64>,
+    opts: &PfOptions,
+) -> PatchFidelity {
+    let ex = Rgb::from_example(example);
+    if !opts.force_surface {
+        if let Some(img) = lattice_image(colour, geometry, scale) {
+            return image_patch_fidelities_as(&img, &ex, opts, PfMethod::Lattice);
+        }
+    }
+    let Some(cloud) = Cloud::build(colour, geometry, scale) else {
+        return PatchFidelity::empty(PfMethod::Surface);
+    };
+    let drawn = draw(cloud.candidates(), opts.samples, opts.seed);
+    let frames: Vec<Frame> = drawn.par_iter().map(|&t| cloud.frame(t)).collect();
+    let fallbacks = frames.iter().filter(|f| f.fallback).count();
+    let scales = PF_SCALES
+        .iter()
+        .map(|&s| {
+            let windows: Vec<Option<Vec<f32>>> = drawn
+                .par_iter()
+                .zip(frames.par_iter())
+                .map(|(&t, fr)| cloud.window(t, fr, s))
+                .collect();
+            score_scale(s, &windows, &ex, opts)
+        })
+        .collect();
+    PatchFidelity::from_scales(PfMethod::Surface, drawn.len(), fallbacks, scales)
+}
