@@ -536,7 +536,7 @@ impl Synthesizer {
                 "{mesh_label}: the surface is degenerate (median texel spacing {scale}); pass --scale"
             )));
         }
-        let texels = LevelTexels::from_parts(geometry, graph, frames, scale);
+        let texels = LevelTexels::from_parts(&surface, geometry, graph, frames, scale);
         let graph_s = t0.elapsed().as_secs_f64();
         progress(Stage::Graph, 1, 1);
 

@@ -329,6 +329,91 @@ impl TexelGraph {
     }
 }
 
+/// The texels' *edge* neighbours: the 4-neighbourhood of the texel grid, continued across
+/// domain edges by the same straight walks as [`TexelGraph`] (so across T-junctions and
+/// around extraordinary corners too), symmetric, CSR, each list ascending.
+///
+/// Floods and seams run on it: a flood over nearest-first lists can jump diagonally, and
+/// a cut over them finds domain borders cheaper to cut along wherever the lists on the
+/// two sides of a border are not symmetric (measured on the double torus: 3x as many
+/// cut pairs on domain borders as inside, seam ratio 1.28).
+#[derive(Clone, Debug, PartialEq)]
+pub struct EdgeGraph {
+    start: Vec<u32>,
+    list: Vec<u32>,
+}
+
+impl EdgeGraph {
+    /// Builds the graph (in parallel per domain; independent of the thread count).
+    pub fn build(surface: &Surface, geom: &TexelGeometry) -> Self {
+        let n = geom.resolution;
+        let nn = n * n;
+        let inv = 1.0 / n as f64;
+        let pairs: Vec<Vec<(u32, u32)>> = (0..geom.faces)
+            .into_par_iter()
+            .map(|d| {
+                let base = d * nn;
+                let mut out = Vec::with_capacity(4 * nn);
+                for y in 0..n {
+                    for x in 0..n {
+                        let t = (base + y * n + x) as u32;
+                        for (a, b) in [(1i64, 0i64), (-1, 0), (0, 1), (0, -1)] {
+                            let (xa, yb) = (x as i64 + a, y as i64 + b);
+                            let u = if (0..n as i64).contains(&xa) && (0..n as i64).contains(&yb) {
+                                (base + yb as usize * n + xa as usize) as u32
+                            } else {
+                                let from = DomainLocation {
+                                    domain: DomainId::from_idx(d),
+                                    u: (x as f64 + 0.5) * inv,
+                                    v: (y as f64 + 0.5) * inv,
+                                };
+                                match surface.walk(from, a as f64 * inv, b as f64 * inv) {
+                                    Some(to) => {
+                                        let (tx, ty) = (texel_coord(to.u, n), texel_coord(to.v, n));
+                                        (to.domain.idx() * nn + ty * n + tx) as u32
+                                    }
+                                    None => continue,
+                                }
+                            };
+                            if u != t {
+                                out.push((t, u));
+                                out.push((u, t));
+                            }
+                        }
+                    }
+                }
+                out
+            })
+            .collect();
+        let mut all: Vec<(u32, u32)> = pairs.into_iter().flatten().collect();
+        all.par_sort_unstable();
+        all.dedup();
+        let total = geom.len();
+        let mut start = vec![0u32; total + 1];
+        for &(a, _) in &all {
+            start[a as usize + 1] += 1;
+        }
+        for i in 1..start.len() {
+            start[i] += start[i - 1];
+        }
+        Self {
+            start,
+            list: all.into_iter().map(|p| p.1).collect(),
+        }
+    }
+
+    /// The edge neighbours of texel `t`, ascending.
+    #[inline]
+    pub fn of(&self, t: usize) -> &[u32] {
+        &self.list[self.start[t] as usize..self.start[t + 1] as usize]
+    }
+
+    /// Bytes held.
+    pub fn heap_bytes(&self) -> usize {
+        4 * (self.start.len() + self.list.len())
+    }
+}
+
 /// Per-texel counts and the concatenated lists of domain `d` (interior texels: count 0).
 fn domain_lists(surface: &Surface, geom: &TexelGeometry, d: usize) -> (Vec<u32>, Vec<u32>) {
     let n = geom.resolution;

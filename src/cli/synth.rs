@@ -14,6 +14,8 @@ pub enum Method {
     Multiscale,
     /// Whole example patches along the field, joined by minimum-error cuts (001 §5.2).
     Patches,
+    /// Texture optimisation: EM over overlapping surface patches, multilevel (001 §4).
+    Optimise,
 }
 
 #[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
@@ -106,6 +108,7 @@ pub fn run(a: SynthArgs) -> anyhow::Result<()> {
         Method::Coherent => surfsynth::synthesizer::Method::Coherent,
         Method::Multiscale => surfsynth::synthesizer::Method::Multiscale,
         Method::Patches => surfsynth::synthesizer::Method::Patches,
+        Method::Optimise => surfsynth::synthesizer::Method::Optimise,
     };
     surfsynth::synthesizer::run_command(&surfsynth::synthesizer::SynthCommand {
         mesh: a.mesh,

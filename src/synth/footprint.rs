@@ -33,12 +33,11 @@
 //! Footprints are computed once per level and reused by every iteration.
 
 use crate::field::OrientationField;
-use crate::texels::{TexelGeometry, TexelGraph};
+use crate::texels::{EdgeGraph, TexelGeometry, TexelGraph};
 use glam::Vec3;
 use rayon::prelude::*;
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
-use std::sync::OnceLock;
 use subdiv::Surface;
 
 /// Local stretch beyond which a texel ends its patch: |Δl| / |ΔP| (in example pixels)
@@ -56,26 +55,8 @@ pub struct LevelTexels {
     pub frames: Vec<[Vec3; 2]>,
     /// Surface length of one example pixel of this level (δ).
     pub step: f64,
-    edges: OnceLock<EdgeGraph>,
-}
-
-/// The texels' *edge* neighbours (the 4-neighbourhood of the texel grid, continued
-/// across domain edges and corners), symmetric, CSR. Seams between patches are cut along
-/// these: if a domain border had fewer edges than the inside of a domain (the texel
-/// graph's nearest-first lists are not symmetric there), cuts would be cheaper along
-/// domain borders and gather on them (measured: 3x as many cut pairs on domain borders
-/// as inside on the double torus, seam ratio 1.28).
-pub struct EdgeGraph {
-    start: Vec<u32>,
-    list: Vec<u32>,
-}
-
-impl EdgeGraph {
-    /// The edge neighbours of texel `t`, ascending.
-    #[inline]
-    pub fn of(&self, t: usize) -> &[u32] {
-        &self.list[self.start[t] as usize..self.start[t + 1] as usize]
-    }
+    /// The grid's 4-neighbourhood across domains: floods and seams run on it.
+    pub edges: EdgeGraph,
 }
 
 impl LevelTexels {
@@ -84,93 +65,30 @@ impl LevelTexels {
         let geometry = TexelGeometry::compute(surface, n);
         let graph = TexelGraph::build(surface, &geometry);
         let frames = super::frames_f32(&field.texel_frames(surface, n));
-        Self::from_parts(geometry, graph, frames, step)
+        Self::from_parts(surface, geometry, graph, frames, step)
     }
 
     /// From parts already computed (the builder's output-resolution texels).
     pub fn from_parts(
+        surface: &Surface,
         geometry: TexelGeometry,
         graph: TexelGraph,
         frames: Vec<[Vec3; 2]>,
         step: f64,
     ) -> Self {
+        let edges = EdgeGraph::build(surface, &geometry);
         Self {
             geometry,
             graph,
             frames,
             step,
-            edges: OnceLock::new(),
+            edges,
         }
     }
 
-    /// The edge neighbours ([`EdgeGraph`]; built on first use): among each texel's eight
-    /// nearest graph neighbours, those no farther than 1.3 times the grid spacing (the
-    /// distance to the nearest in-domain neighbour) of the sparser of the two — the four
-    /// grid neighbours, also across domain borders, not the diagonal ones — made symmetric.
+    /// The texels' edge neighbours.
     pub fn edges(&self) -> &EdgeGraph {
-        self.edges.get_or_init(|| {
-            let n = self.len();
-            let r = self.resolution();
-            let pos = &self.geometry.pos;
-            // Each texel's own grid spacing: the distance to its nearest in-domain neighbour.
-            let h: Vec<f32> = (0..n)
-                .into_par_iter()
-                .map(|t| {
-                    let (x, y) = (t % r, (t / r) % r);
-                    let mut h = f32::INFINITY;
-                    let mut consider = |u: usize| h = h.min(pos[t].distance(pos[u]));
-                    if x > 0 {
-                        consider(t - 1);
-                    }
-                    if x + 1 < r {
-                        consider(t + 1);
-                    }
-                    if y > 0 {
-                        consider(t - r);
-                    }
-                    if y + 1 < r {
-                        consider(t + r);
-                    }
-                    h
-                })
-                .collect();
-            // The larger spacing of the two decides, so that where a dense domain meets a
-            // sparse one every dense border texel keeps an edge across.
-            let lists: Vec<Vec<u32>> = (0..n)
-                .into_par_iter()
-                .map(|t| {
-                    let mut nb = Vec::with_capacity(32);
-                    self.graph.neighbours(t, &mut nb);
-                    nb.truncate(8);
-                    nb.retain(|&u| {
-                        let u = u as usize;
-                        pos[t].distance(pos[u]) <= 1.3 * h[t].max(h[u])
-                    });
-                    nb
-                })
-                .collect();
-            // Symmetrise.
-            let mut count = vec![0u32; n + 1];
-            let mut pairs: Vec<(u32, u32)> = Vec::with_capacity(n * 5);
-            for (t, l) in lists.iter().enumerate() {
-                for &u in l {
-                    pairs.push((t as u32, u));
-                    pairs.push((u, t as u32));
-                }
-            }
-            pairs.par_sort_unstable();
-            pairs.dedup();
-            for &(a, _) in &pairs {
-                count[a as usize + 1] += 1;
-            }
-            for i in 1..count.len() {
-                count[i] += count[i - 1];
-            }
-            EdgeGraph {
-                start: count,
-                list: pairs.into_iter().map(|p| p.1).collect(),
-            }
-        })
+        &self.edges
     }
 
     /// Texels per domain side.
@@ -430,8 +348,11 @@ fn flood(level: &LevelTexels, fl: &mut Flood, c: usize, half: f32) -> (Vec<u32>,
     let pos = &level.geometry.pos;
     let normal = &level.geometry.normal;
     let inv_step = (1.0 / level.step) as f32;
-    // Paths longer than the patch's half-diagonal plus a texel cannot end inside it.
-    let limit = ((half * std::f32::consts::SQRT_2 + 2.0) as f64 * level.step) as f32;
+    // Paths run over the edge graph (the 4-neighbourhood), so a path to a texel is at most
+    // √2 times its straight distance; the patch's half-diagonal is √2·half: paths longer
+    // than 2·half (plus two texels) cannot end inside the patch.
+    let limit = ((2.0 * half + 2.0) as f64 * level.step) as f32;
+    let edges = level.edges();
     let keep = half + 1.0;
     fl.heap.clear();
     fl.reached.clear();
@@ -517,10 +438,8 @@ fn flood(level: &LevelTexels, fl: &mut Flood, c: usize, half: f32) -> (Vec<u32>,
         if ls[0].abs().max(ls[1].abs()) > keep {
             continue; // outside the patch: not expanded further
         }
-        fl.nb.clear();
-        level.graph.neighbours(s, &mut fl.nb);
-        for k in 0..fl.nb.len() {
-            let t = fl.nb[k] as usize;
+        for &t in edges.of(s) {
+            let t = t as usize;
             let nd = d + pos[s].distance(pos[t]);
             if nd > limit || !nd.is_finite() {
                 continue;
@@ -550,4 +469,3 @@ fn flood(level: &LevelTexels, fl: &mut Flood, c: usize, half: f32) -> (Vec<u32>,
     fl.reached = order;
     (texels, coords)
 }
-

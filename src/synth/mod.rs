@@ -28,6 +28,7 @@ pub mod footprint;
 pub mod matching;
 pub mod mincut;
 pub mod multiscale;
+pub mod optimise;
 pub mod patches;
 pub mod per_thread;
 pub mod schedule;
@@ -35,6 +36,7 @@ pub mod synth2d;
 
 pub use coherent::{CoherentParams, DomainOrder, Order};
 pub use multiscale::MultiscaleParams;
+pub use optimise::OptimiseParams;
 pub use patches::PatchParams;
 
 use crate::error::Result;
@@ -62,11 +64,18 @@ pub enum Method {
     Multiscale,
     /// Paper 001 §5.2: patch sampling along the field (Liang et al.), joined by cuts.
     Patches,
+    /// Paper 001 §4.3–4.4: texture optimisation (Kwatra et al.), multilevel.
+    Optimise,
 }
 
 impl Method {
     /// Every method, in the order of docs/synthesis.md's table.
-    pub const ALL: [Method; 3] = [Method::Coherent, Method::Multiscale, Method::Patches];
+    pub const ALL: [Method; 4] = [
+        Method::Coherent,
+        Method::Multiscale,
+        Method::Patches,
+        Method::Optimise,
+    ];
 
     /// The name used on the command line and in report.json.
     pub fn name(self) -> &'static str {
@@ -74,6 +83,7 @@ impl Method {
             Method::Coherent => "coherent",
             Method::Multiscale => "multiscale",
             Method::Patches => "patches",
+            Method::Optimise => "optimise",
         }
     }
 }
@@ -124,6 +134,7 @@ pub struct Settings {
     pub coherent: CoherentParams,
     pub multiscale: MultiscaleParams,
     pub patches: PatchParams,
+    pub optimise: OptimiseParams,
 }
 
 impl Default for Settings {
@@ -135,6 +146,7 @@ impl Default for Settings {
             coherent: CoherentParams::default(),
             multiscale: MultiscaleParams::default(),
             patches: PatchParams::default(),
+            optimise: OptimiseParams::default(),
         }
     }
 }
@@ -153,6 +165,10 @@ pub enum Details {
     Patches {
         params: PatchParams,
         stats: patches::Stats,
+    },
+    Optimise {
+        params: OptimiseParams,
+        stats: optimise::Stats,
     },
 }
 
@@ -241,6 +257,11 @@ pub fn synthesize(
             weighted.channels,
             run_patches(&weighted, target, settings, progress)
         )),
+        Method::Optimise => Ok(with_dims!(
+            mode,
+            weighted.channels,
+            run_optimise(&weighted, target, settings, progress)
+        )),
     }
 }
 
@@ -320,6 +341,29 @@ fn run_patches<const K: usize>(
         appearance: ex.info,
         details: Details::Patches {
             params: settings.patches,
+            stats: out.stats,
+        },
+    }
+}
+
+fn run_optimise<const K: usize>(
+    weighted: &Image,
+    target: &Target<'_>,
+    settings: &Settings,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Output {
+    let (out, appearance) = optimise::run::<K>(
+        weighted,
+        settings.appearance,
+        target,
+        &settings.optimise,
+        progress,
+    );
+    Output {
+        source: out.source,
+        appearance,
+        details: Details::Optimise {
+            params: settings.optimise.clone(),
             stats: out.stats,
         },
     }

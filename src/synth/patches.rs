@@ -132,6 +132,8 @@ struct Ctx<'a, const K: usize> {
     fp: &'a Footprints,
     params: &'a PatchParams,
     seed: u64,
+    /// Given patch positions (texture optimisation's): joined, not searched.
+    fixed: Option<&'a [[f32; 2]]>,
     /// Valid patch centres: [lo, hi_x] × [lo, hi_y].
     lo: f32,
     hi_x: f32,
@@ -189,15 +191,13 @@ pub fn run<const K: usize>(
 ) -> Output {
     let n = level.len();
     let mut size = effective_size(params.size, ex.width(), ex.height());
-    let mut src = vec![[0.0f32; 2]; n];
-    let mut set = vec![false; n];
-    let mut app = vec![[0.0f32; K]; n];
+    let mut state = State::new(n);
     let mut covered = vec![false; n];
     let mut stats = Stats {
         size,
         ..Stats::default()
     };
-    let scratch = super::per_thread::PerThread::new();
+    let scratch = super::per_thread::PerThread::<Scratch>::new();
     // Passes of halving patch size: each covers what the larger patches could not reach
     // (open boundaries, thin curved parts where a large patch would fold).
     for pass in 0u64.. {
@@ -219,12 +219,14 @@ pub fn run<const K: usize>(
                 covered[t as usize] = true;
             }
         }
+        let _ = &mut state;
         let ctx = Ctx {
             ex,
             level,
             fp: &fp,
             params,
             seed: seed ^ pass.wrapping_mul(0x51ED),
+            fixed: None,
             lo: 0.5 + half,
             hi_x: ex.width() as f32 - 0.5 - half,
             hi_y: ex.height() as f32 - 0.5 - half,
@@ -234,38 +236,118 @@ pub fn run<const K: usize>(
         stats.waves += waves.len() as u64;
         stats.passes.push((size, fp.len() as u64));
         stats.footprint_bytes = stats.footprint_bytes.max(fp.heap_bytes() as u64);
-        let mut done = 0;
-        for wave in &waves {
-            let pastes: Vec<Paste> = wave
-                .par_iter()
-                .map(|&p| {
-                    scratch.with(
-                        || Scratch::new(n),
-                        |s| paste(&ctx, p as usize, &src, &set, &app, s),
-                    )
-                })
-                .collect();
-            for r in pastes {
-                for (&t, &s) in r.texels.iter().zip(&r.sources) {
-                    let t = t as usize;
-                    src[t] = s;
-                    set[t] = true;
-                    app[t] = ex.features.sample(s[0], s[1]);
-                }
-                stats.candidates += r.candidates;
-                stats.seeded += r.seeded as u64;
-                stats.replaced += r.replaced;
-            }
-            done += wave.len();
-            progress(done, fp.len());
-        }
+        paste_waves(&ctx, &waves, &mut state, &scratch, &mut stats, progress);
         if covered.iter().all(|&c| c) || size <= MIN_SIZE {
             break;
         }
         size = (size / 2).max(MIN_SIZE);
     }
-    stats.filled = fill_uncovered(level, &mut src, &mut set, ex, seed);
-    Output { source: src, stats }
+    stats.filled = fill_uncovered(level, &mut state.src, &mut state.set, ex, seed);
+    Output {
+        source: state.src,
+        stats,
+    }
+}
+
+/// The texture pasted so far: source, whether set, and appearance per texel.
+struct State<const K: usize> {
+    src: Vec<[f32; 2]>,
+    set: Vec<bool>,
+    app: Vec<[f32; K]>,
+}
+
+impl<const K: usize> State<K> {
+    fn new(n: usize) -> Self {
+        Self {
+            src: vec![[0.0; 2]; n],
+            set: vec![false; n],
+            app: vec![[0.0; K]; n],
+        }
+    }
+}
+
+/// Pastes the patches of `ctx` wave by wave (see the module docs).
+fn paste_waves<const K: usize>(
+    ctx: &Ctx<'_, K>,
+    waves: &[Vec<u32>],
+    state: &mut State<K>,
+    scratch: &super::per_thread::PerThread<Scratch>,
+    stats: &mut Stats,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) {
+    let n = state.src.len();
+    let total: usize = waves.iter().map(|w| w.len()).sum();
+    let mut done = 0;
+    for wave in waves {
+        let pastes: Vec<Paste> = wave
+            .par_iter()
+            .map(|&p| {
+                scratch.with(
+                    || Scratch::new(n),
+                    |s| paste(ctx, p as usize, &state.src, &state.set, &state.app, s),
+                )
+            })
+            .collect();
+        for r in pastes {
+            for (&t, &s) in r.texels.iter().zip(&r.sources) {
+                let t = t as usize;
+                state.src[t] = s;
+                state.set[t] = true;
+                state.app[t] = ctx.ex.features.sample(s[0], s[1]);
+            }
+            stats.candidates += r.candidates;
+            stats.seeded += r.seeded as u64;
+            stats.replaced += r.replaced;
+        }
+        done += wave.len();
+        progress(done, total);
+    }
+}
+
+/// Joins patches at given positions — texture optimisation's final assembly — in the
+/// breadth-first waves of patch sampling: each patch of `fp` is pasted at `positions[p]`
+/// and cut into what is already there, so patches meet along seams of least error
+/// instead of along the boundaries of whichever patch weighs most. Texels no footprint
+/// covers keep `fallback`'s source.
+pub fn assemble<const K: usize>(
+    ex: &Exemplar<K>,
+    level: &LevelTexels,
+    fp: &Footprints,
+    positions: &[[f32; 2]],
+    fallback: &[[f32; 2]],
+    seed: u64,
+) -> Vec<[f32; 2]> {
+    let n = level.len();
+    let params = PatchParams::default();
+    let half = fp.half;
+    let ctx = Ctx {
+        ex,
+        level,
+        fp,
+        params: &params,
+        seed,
+        fixed: Some(positions),
+        lo: 0.5 + half,
+        hi_x: ex.width() as f32 - 0.5 - half,
+        hi_y: ex.height() as f32 - 0.5 - half,
+    };
+    let mut state = State::new(n);
+    let mut stats = Stats::default();
+    let scratch = super::per_thread::PerThread::new();
+    paste_waves(
+        &ctx,
+        &plan_waves(fp, n),
+        &mut state,
+        &scratch,
+        &mut stats,
+        &|_, _| {},
+    );
+    for t in 0..n {
+        if !state.set[t] {
+            state.src[t] = fallback[t];
+        }
+    }
+    state.src
 }
 
 /// Breadth-first order over overlapping patches, grouped into waves (see the module docs).
@@ -334,7 +416,8 @@ fn dist2<const K: usize>(a: &[f32; K], b: &[f32; K]) -> f32 {
     s
 }
 
-/// Chooses and joins patch `p` (read-only on the state).
+/// Chooses and joins patch `p` (read-only on the state): its position is searched, or
+/// given ([`Ctx::fixed`]).
 fn paste<const K: usize>(
     c: &Ctx<'_, K>,
     p: usize,
@@ -343,6 +426,41 @@ fn paste<const K: usize>(
     app: &[[f32; K]],
     s: &mut Scratch,
 ) -> Paste {
+    let (z, candidates, seeded) = match c.fixed {
+        Some(zs) => (zs[p], 0, false),
+        None => choose(c, p, src, set, app, s),
+    };
+    let (texels, coords) = c.fp.get(p);
+    if seeded {
+        return Paste {
+            texels: texels.to_vec(),
+            sources: coords.iter().map(|l| [z[0] + l[0], z[1] + l[1]]).collect(),
+            candidates,
+            seeded: true,
+            replaced: 0,
+        };
+    }
+    let (texels, sources, replaced) = join(c, p, z, set, app, s);
+    Paste {
+        texels,
+        sources,
+        candidates,
+        seeded: false,
+        replaced,
+    }
+}
+
+/// The position of patch `p` (001 step 3): the error over the overlap, among the
+/// candidates of the module docs, one drawn among those within the tolerance. Returns
+/// (position, candidates measured, whether nothing was there to match).
+fn choose<const K: usize>(
+    c: &Ctx<'_, K>,
+    p: usize,
+    src: &[[f32; 2]],
+    set: &[bool],
+    app: &[[f32; K]],
+    s: &mut Scratch,
+) -> ([f32; 2], u64, bool) {
     let (texels, coords) = c.fp.get(p);
     let m = texels.len();
     let f = &c.ex.features;
@@ -355,14 +473,7 @@ fn paste<const K: usize>(
     };
     let known: Vec<usize> = (0..m).filter(|&i| set[texels[i] as usize]).collect();
     if known.is_empty() {
-        let z = random(0);
-        return Paste {
-            texels: texels.to_vec(),
-            sources: coords.iter().map(|l| [z[0] + l[0], z[1] + l[1]]).collect(),
-            candidates: 0,
-            seeded: true,
-            replaced: 0,
-        };
+        return (random(0), 0, true);
     }
     // Candidates.
     s.cands.clear();
@@ -521,9 +632,26 @@ fn paste<const K: usize>(
     s.errs
         .sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
     let pick = (hash(c.seed, &[0x51C7, p as u64]) % s.errs.len() as u64) as usize;
-    let z = s.cands[s.errs[pick].1 as usize];
-    let candidates = s.cands.len() as u64;
+    (
+        s.cands[s.errs[pick].1 as usize],
+        s.cands.len() as u64,
+        false,
+    )
+}
 
+/// Joins patch `p` at position `z` to the texture already there by a minimum cut; returns
+/// the texels that take the new patch, their sources, and how many replaced old texture.
+fn join<const K: usize>(
+    c: &Ctx<'_, K>,
+    p: usize,
+    z: [f32; 2],
+    set: &[bool],
+    app: &[[f32; K]],
+    s: &mut Scratch,
+) -> (Vec<u32>, Vec<[f32; 2]>, u64) {
+    let (texels, coords) = c.fp.get(p);
+    let m = texels.len();
+    let f = &c.ex.features;
     // Minimum-error cut over the footprint.
     s.gen = s.gen.wrapping_add(1);
     if s.gen == 0 {
@@ -633,13 +761,7 @@ fn paste<const K: usize>(
         }
     }
     s.side = side;
-    Paste {
-        texels: out_t,
-        sources: out_s,
-        candidates,
-        seeded: false,
-        replaced,
-    }
+    (out_t, out_s, replaced)
 }
 
 /// Gives every texel no footprint reached the continuation of a synthesized neighbour

@@ -1,0 +1,434 @@
+//! Texture optimisation on the surface (Kwatra et al. 2005, as generalised to surfaces and
+//! vector fields in paper 001 §4.2–4.4).
+//!
+//! The texture energy is `E = Σ_p ω_p ‖X_p − Z_p‖²` over surface patches `p`: `X_p` the
+//! texels of the patch's footprint ([`super::footprint`]: texels with their coordinates
+//! `l` in an example patch laid along the field), `Z_p` the example patch at position
+//! `z_p` read at the same coordinates. It is minimised by alternating
+//! - **E-step** (choose `Z_p`): for every patch, the position `z_p` whose example patch is
+//!   nearest to the current texels, in appearance space ([`super::matching::appearance`]).
+//!   Search: k-coherence (paper 003 §5.2) — the patch's own previous position, the
+//!   positions that continue its texels' current sources, the [`super::matching::similar`]
+//!   places of those, and a few random ones — re-ranked by the exact distance over a
+//!   subset of the footprint. (Measured against PCA + kd-tree over whole patch vectors and
+//!   k-means clustering in docs/synthesis.md: the surface's footprints have no fixed shape,
+//!   so a precomputed index over patch vectors needs resampling to a grid, which costs
+//!   more than the candidates save.)
+//! - **M-step** (choose `X`): every texel becomes the robust weighted average of the
+//!   example patches covering it, read at its own coordinates in each (bilinear lookups at
+//!   float positions): weights `ω_p = (‖X_p − Z_p‖² / n_p)^((r − 2)/2)` with `r = 0.8`
+//!   (iteratively reweighted least squares for the `r`-norm, as Kwatra et al.), times a
+//!   Gaussian falloff from the patch centre so that texels are decided by the patches they
+//!   are central to.
+//!
+//! **Multilevel** (001 §4.4): coarse to fine over face-map resolutions (texels per side
+//! halving with the example's pyramid levels, each level matched in its own appearance
+//! space) and, per level, patch sizes from large to small ([`OptimiseParams::sizes`], in
+//! that level's pixels: a 32-pixel patch two levels up spans 128 output pixels, which is
+//! what keeps large structure). The coarsest level starts from patch sampling
+//! ([`super::patches`]) instead of noise — the same energy, reached in fewer iterations;
+//! finer levels start from the coarser level's sources, doubled and continued to each texel
+//! (the rule of coherent synthesis).
+//!
+//! **Final pass**: every texel copies the example at one position — that of the patch with
+//! the largest weight at the texel (`z_p + l_p(t)`) — so `source.u/v` is exact and every
+//! channel (colour, alpha, height) comes from the same place, with no blur.
+//!
+//! **Determinism**: patches and texels are independent within a step (E-steps read `X`,
+//! M-steps read the chosen positions), so parallel loops give the same result for any
+//! thread count; random candidates hash (seed, level, size, iteration, patch).
+
+use super::footprint::{centres, Footprints, LevelTexels};
+use super::matching::exemplar::Exemplar;
+use super::matching::search::hash;
+use super::patches::{self, PatchParams};
+use super::Target;
+use crate::pyramid::Image;
+use rayon::prelude::*;
+use serde::Serialize;
+
+/// Tuning of texture optimisation (defaults measured, see docs/synthesis.md).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct OptimiseParams {
+    /// Synthesis levels at most (coarse levels keep large structure).
+    pub levels: usize,
+    /// Patch sides per level, large to small, in that level's example pixels (clamped to
+    /// half the example level's shorter side).
+    pub sizes: Vec<usize>,
+    /// EM iterations per level and patch size.
+    pub iterations: usize,
+    /// Distance between patch centres as a fraction of the side (001 and Kwatra et al.:
+    /// a quarter, so each texel is covered by about four patches).
+    pub spacing: f32,
+    /// The robust norm's exponent r (Kwatra et al.: 0.8).
+    pub r: f32,
+    /// Texels of a footprint the E-step measures, per patch.
+    pub eval_samples: u32,
+    /// Random candidates per patch and iteration.
+    pub random: u32,
+    /// Footprint texels proposing continuations, per patch.
+    pub proposers: u32,
+    /// Patch sampling that starts the coarsest level.
+    pub start: PatchParams,
+}
+
+impl Default for OptimiseParams {
+    fn default() -> Self {
+        Self {
+            levels: 3,
+            sizes: vec![32, 16],
+            iterations: 3,
+            spacing: 0.5,
+            r: 0.8,
+            eval_samples: 128,
+            random: 2,
+            proposers: 8,
+            start: PatchParams {
+                size: 32,
+                ..PatchParams::default()
+            },
+        }
+    }
+}
+
+/// One level's plan and counters (reported).
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct LevelStats {
+    /// Example pyramid level.
+    pub example_level: usize,
+    /// Face-map texels per side.
+    pub resolution: usize,
+    /// (patch side, patches) per size.
+    pub patches: Vec<(usize, u64)>,
+    /// Mean squared patch distance (per texel) after the last iteration of each size.
+    pub energy: Vec<f64>,
+}
+
+/// Counters (reported).
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Stats {
+    /// Coarsest first.
+    pub levels: Vec<LevelStats>,
+    /// Candidate positions measured over all E-steps.
+    pub candidates: u64,
+    /// The patch sampling that started the coarsest level.
+    pub start: patches::Stats,
+}
+
+/// Source position per output texel and counters.
+pub struct Output {
+    pub source: Vec<[f32; 2]>,
+    pub stats: Stats,
+}
+
+/// Smallest example side at the coarsest level, and smallest face-map side.
+const MIN_EXAMPLE_SIDE: usize = 24;
+const MIN_RESOLUTION: usize = 2;
+
+/// Runs texture optimisation of `weighted` (the example's channels premultiplied by the
+/// square roots of their weights) over `target`. `K` is the matching dimension of
+/// `mode`. `progress(done, total)` counts EM iterations.
+pub fn run<const K: usize>(
+    weighted: &Image,
+    mode: super::matching::appearance::AppearanceMode,
+    target: &Target<'_>,
+    params: &OptimiseParams,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> (Output, super::matching::appearance::AppearanceInfo) {
+    let n = target.texels.resolution();
+    let scale = target.scale();
+    // Example levels: j0 skips levels finer than the output texels (a texture scaled
+    // down); then halve while the example and the maps stay large enough.
+    let j0 = ((target.spacing / scale).log2().round().max(0.0)) as usize;
+    let mut pyramid = vec![weighted.clone()];
+    while pyramid.len() < j0 + params.levels.max(1) {
+        let last = pyramid.last().expect("non-empty");
+        let next = last.downsample();
+        if next.width.min(next.height) < MIN_EXAMPLE_SIDE && pyramid.len() > j0 {
+            break;
+        }
+        pyramid.push(next);
+    }
+    let j0 = j0.min(pyramid.len() - 1);
+    let mut plan: Vec<(usize, usize)> = Vec::new(); // (example level, resolution), finest first
+    for (i, j) in (j0..pyramid.len()).enumerate() {
+        let r = if i == 0 {
+            n
+        } else {
+            (n as f64 * target.spacing / (scale * (1u64 << j) as f64)).round() as usize
+        };
+        if i > 0 && r < MIN_RESOLUTION {
+            break;
+        }
+        plan.push((j, r.max(1)));
+        if plan.len() == params.levels.max(1) {
+            break;
+        }
+    }
+    let total_iters = plan.len() * params.sizes.len().max(1) * params.iterations;
+    let mut done_iters = 0;
+    let mut stats = Stats::default();
+    let mut info = None;
+    let mut prev: Option<(LevelTexels, Vec<[f32; 2]>)> = None;
+    for (li, &(j, r)) in plan.iter().enumerate().rev() {
+        let ex = Exemplar::<K>::build(&pyramid[j], mode);
+        if li == 0 {
+            info = Some(ex.info);
+        }
+        let step = scale * (1u64 << j) as f64;
+        // The output level reuses the target's texels unless its pixels are coarser.
+        let owned =
+            (li > 0 || j > 0).then(|| LevelTexels::new(target.surface, target.field, r, step));
+        let level: &LevelTexels = owned.as_ref().unwrap_or(target.texels);
+        // Start: patch sampling at the coarsest level, else the coarser level continued.
+        let mut src = match prev.take() {
+            None => {
+                let out = patches::run(&ex, level, &params.start, target.seed, &|_, _| {});
+                stats.start = out.stats;
+                out.source
+            }
+            Some((coarse, csrc)) => upsample(&coarse, &csrc, level, &ex),
+        };
+        let mut lstats = LevelStats {
+            example_level: j,
+            resolution: r,
+            ..LevelStats::default()
+        };
+        let mut last = None;
+        for (si, &size) in params.sizes.iter().enumerate() {
+            let size = size.min(ex.width().min(ex.height()) / 2).max(4);
+            let key = hash(target.seed, &[0x0971, li as u64, si as u64]);
+            let res = optimise_size(&ex, level, &src, size, params, key, &mut || {
+                done_iters += 1;
+                progress(done_iters, total_iters);
+            });
+            src = res.source;
+            lstats.patches.push((size, res.patches));
+            lstats.energy.push(res.energy);
+            stats.candidates += res.candidates;
+            last = Some((res.footprints, res.positions));
+        }
+        stats.levels.push(lstats);
+        if li == 0 {
+            // Final pass: the last patches joined at their optimised positions by cuts.
+            if let Some((fp, z)) = last {
+                src = patches::assemble(&ex, level, &fp, &z, &src, target.seed);
+            }
+            // Sources in level-j pixels, to level-0 example pixels.
+            let up = (1u64 << j) as f32;
+            let source = src.iter().map(|s| [s[0] * up, s[1] * up]).collect();
+            return (Output { source, stats }, info.expect("set above"));
+        }
+        prev = Some((owned.expect("coarse levels own their texels"), src));
+    }
+    unreachable!("the plan has at least one level")
+}
+
+/// What one patch size of one level produced.
+struct SizeResult {
+    source: Vec<[f32; 2]>,
+    footprints: Footprints,
+    positions: Vec<[f32; 2]>,
+    energy: f64,
+    patches: u64,
+    candidates: u64,
+}
+
+#[inline(always)]
+fn dist2<const K: usize>(a: &[f32; K], b: &[f32; K]) -> f32 {
+    let mut s = 0.0;
+    for k in 0..K {
+        let d = a[k] - b[k];
+        s += d * d;
+    }
+    s
+}
+
+/// EM iterations with patches of side `size` over `level`, starting from sources `src`.
+fn optimise_size<const K: usize>(
+    ex: &Exemplar<K>,
+    level: &LevelTexels,
+    src: &[[f32; 2]],
+    size: usize,
+    params: &OptimiseParams,
+    key: u64,
+    tick: &mut dyn FnMut(),
+) -> SizeResult {
+    let n = level.len();
+    let f = &ex.features;
+    let half = size as f32 / 2.0;
+    let spacing = (params.spacing as f64 * size as f64 * level.step).max(1e-30);
+    let fp = Footprints::build(level, centres(level, spacing, key, None), half);
+    let np = fp.len();
+    let (lo, hi_x, hi_y) = (
+        0.5 + half,
+        f.width as f32 - 0.5 - half,
+        f.height as f32 - 0.5 - half,
+    );
+    let clamp = |z: [f32; 2]| [z[0].clamp(lo, hi_x.max(lo)), z[1].clamp(lo, hi_y.max(lo))];
+    // Memberships per texel (patch, local coordinates), for the M-step.
+    let (mstart, mlist) = fp.covering(n);
+    let mut mcoord = vec![[0.0f32; 2]; mlist.len()];
+    {
+        let mut fill: Vec<u32> = mstart.clone();
+        for p in 0..np {
+            let (ts, ls) = fp.get(p);
+            for (&t, &l) in ts.iter().zip(ls) {
+                let k = &mut fill[t as usize];
+                mcoord[*k as usize] = l;
+                *k += 1;
+            }
+        }
+    }
+    let sigma2 = (0.8 * half) * (0.8 * half);
+    let falloff = |l: [f32; 2]| (-(l[0] * l[0] + l[1] * l[1]) / (2.0 * sigma2)).exp();
+    // Initial state: the example at the given sources; patch positions continue the
+    // sources at their centres.
+    let mut x: Vec<[f32; K]> = src.par_iter().map(|s| f.sample(s[0], s[1])).collect();
+    let mut source: Vec<[f32; 2]> = src.to_vec();
+    let mut z: Vec<[f32; 2]> = fp.centres.iter().map(|&c| clamp(src[c as usize])).collect();
+    let mut err = vec![0.0f32; np];
+    let mut candidates = 0u64;
+    for it in 0..params.iterations {
+        // E-step: per patch, the nearest example patch among the candidates.
+        let chosen: Vec<([f32; 2], f32, u64)> = (0..np)
+            .into_par_iter()
+            .map(|p| {
+                let (ts, ls) = fp.get(p);
+                let m = ts.len();
+                let stride = m.div_ceil(params.eval_samples.max(1) as usize).max(1);
+                let mut cands: Vec<[f32; 2]> = Vec::with_capacity(48);
+                let push = |c: &mut Vec<[f32; 2]>, q: [f32; 2]| {
+                    let q = clamp(q);
+                    if !c
+                        .iter()
+                        .any(|o| (o[0] - q[0]).abs() < 0.5 && (o[1] - q[1]).abs() < 0.5)
+                    {
+                        c.push(q);
+                    }
+                };
+                push(&mut cands, z[p]);
+                let pstride = m.div_ceil(params.proposers.max(1) as usize).max(1);
+                for i in (0..m).step_by(pstride) {
+                    let s = source[ts[i] as usize];
+                    push(&mut cands, [s[0] - ls[i][0], s[1] - ls[i][1]]);
+                }
+                let base = cands.clone();
+                for q in base {
+                    let (px, py) = (q[0].floor(), q[1].floor());
+                    if px >= 0.0 && py >= 0.0 && (px as usize) < f.width && (py as usize) < f.height
+                    {
+                        let (fx, fy) = (q[0] - px, q[1] - py);
+                        for (jx, jy) in ex.similar.of(px as usize, py as usize) {
+                            push(&mut cands, [jx as f32 + fx, jy as f32 + fy]);
+                        }
+                    }
+                }
+                for k in 0..params.random as u64 {
+                    let h = hash(key, &[it as u64, p as u64, k]);
+                    let a = (h >> 40) as f32 / (1u64 << 24) as f32;
+                    let b = ((h >> 8) & 0xFF_FFFF) as f32 / (1u64 << 24) as f32;
+                    push(&mut cands, [lo + a * (hi_x - lo), lo + b * (hi_y - lo)]);
+                }
+                let mut best = (f32::INFINITY, z[p]);
+                for &q in &cands {
+                    let mut e = 0.0f32;
+                    let mut i = 0;
+                    while i < m {
+                        let l = ls[i];
+                        e += dist2(&x[ts[i] as usize], &f.sample(q[0] + l[0], q[1] + l[1]));
+                        if e >= best.0 {
+                            break;
+                        }
+                        i += stride;
+                    }
+                    if e < best.0 {
+                        best = (e, q);
+                    }
+                }
+                let samples = m.div_ceil(stride) as f32;
+                (best.1, best.0 / samples.max(1.0), cands.len() as u64)
+            })
+            .collect();
+        for (p, (q, e, c)) in chosen.into_iter().enumerate() {
+            z[p] = q;
+            err[p] = e;
+            candidates += c;
+        }
+        // M-step: robust weighted average per texel; the heaviest patch gives the source.
+        let expo = (params.r - 2.0) / 2.0;
+        let omega: Vec<f32> = err.iter().map(|&e| (e + 1e-6).powf(expo)).collect();
+        let upd: Vec<([f32; K], [f32; 2])> = (0..n)
+            .into_par_iter()
+            .map(|t| {
+                let (a, b) = (mstart[t] as usize, mstart[t + 1] as usize);
+                if a == b {
+                    return (x[t], source[t]);
+                }
+                let mut acc = [0.0f32; K];
+                let mut wsum = 0.0f32;
+                let mut best = (f32::NEG_INFINITY, source[t]);
+                for k in a..b {
+                    let p = mlist[k] as usize;
+                    let l = mcoord[k];
+                    let w = omega[p] * falloff(l);
+                    let s = [z[p][0] + l[0], z[p][1] + l[1]];
+                    let v = f.sample(s[0], s[1]);
+                    for c in 0..K {
+                        acc[c] += w * v[c];
+                    }
+                    wsum += w;
+                    if w > best.0 {
+                        best = (w, s);
+                    }
+                }
+                for a in &mut acc {
+                    *a /= wsum;
+                }
+                (acc, best.1)
+            })
+            .collect();
+        for (t, (v, s)) in upd.into_iter().enumerate() {
+            x[t] = v;
+            source[t] = s;
+        }
+        tick();
+    }
+    let energy = err.iter().map(|&e| e as f64).sum::<f64>() / np.max(1) as f64;
+    SizeResult {
+        source,
+        footprints: fp,
+        positions: z,
+        energy,
+        patches: np as u64,
+        candidates,
+    }
+}
+
+/// Sources of a finer level from a coarser one: each fine texel continues the nearest
+/// coarse texel of its domain (same domain point scaled), doubled to the finer pixels.
+fn upsample<const K: usize>(
+    coarse: &LevelTexels,
+    csrc: &[[f32; 2]],
+    fine: &LevelTexels,
+    ex: &Exemplar<K>,
+) -> Vec<[f32; 2]> {
+    let (rc, rf) = (coarse.resolution(), fine.resolution());
+    let (w, h) = (ex.width() as f32, ex.height() as f32);
+    (0..fine.len())
+        .into_par_iter()
+        .map(|t| {
+            let d = t / (rf * rf);
+            let (x, y) = (t % rf, (t / rf) % rf);
+            let cx = ((x as f64 + 0.5) * rc as f64 / rf as f64) as usize;
+            let cy = ((y as f64 + 0.5) * rc as f64 / rf as f64) as usize;
+            let q = (d * rc + cy.min(rc - 1)) * rc + cx.min(rc - 1);
+            let dp = fine.geometry.pos[t] - coarse.geometry.pos[q];
+            let [v1, v2] = coarse.frames[q];
+            let k = (1.0 / coarse.step) as f32;
+            let e = [dp.dot(v1) * k, -dp.dot(v2) * k];
+            let s = [2.0 * (csrc[q][0] + e[0]), 2.0 * (csrc[q][1] + e[1])];
+            [s[0].clamp(0.5, w - 0.5), s[1].clamp(0.5, h - 0.5)]
+        })
+        .collect()
+}
