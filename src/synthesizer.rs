@@ -720,6 +720,19 @@ impl SynthResult {
                 d.join(crate::io::atlas::MTL_NAME),
                 d.join(crate::io::atlas::ATLAS_NAME),
             ];
+            let ptx = d.join(crate::io::ptex::PTEX_FILE);
+            if let Err(e) = crate::io::ptex::write_face_maps_ptex(
+                &ptx,
+                &self.surface,
+                &self.maps,
+                &Default::default(),
+            ) {
+                for p in &written {
+                    let _ = std::fs::remove_file(p);
+                }
+                return Err(e);
+            }
+            written.push(ptx);
             if let Some(amount) = self.displace {
                 match crate::io::displace::write_displaced(d, &self.surface, &self.maps, amount) {
                     Ok(p) => written.push(p),

@@ -6,3 +6,4 @@ pub mod atlas;
 pub mod atomic;
 pub mod displace;
 pub mod exr;
+pub mod ptex;
