@@ -6,4 +6,6 @@ pub mod atlas;
 pub mod atomic;
 pub mod displace;
 pub mod exr;
+pub mod gltf;
+pub mod materials;
 pub mod ptex;
