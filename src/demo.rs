@@ -48,6 +48,7 @@ pub fn command(out: &Path) -> SynthCommand {
         seed: SEED,
         search: None,
         displace: None,
+        decimate: None,
         handedness: Default::default(),
         out: out.to_path_buf(),
     }

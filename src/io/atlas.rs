@@ -570,6 +570,25 @@ pub fn face_domain_corners(surface: &Surface, lm: &LimitMesh) -> Vec<(u32, [(f64
         .collect()
 }
 
+/// The texture-coordinate grid of every domain in [`tessellate`]'s numbering: domain after
+/// domain, `(M+1)²` points each, row by row (v outer), M = 2^level segments per side for a
+/// quad domain and 2^(level−1) for an n-gon sub-face.
+pub fn uv_grids(surface: &Surface, level: u32) -> Vec<crate::io::decimate::DomainGrid> {
+    let per_base = 1u32 << (level.max(1) - 1);
+    let mut first = 0u32;
+    (0..surface.num_domains())
+        .map(|d| {
+            let m = match surface.domain(DomainId::from_idx(d)) {
+                subdiv::Domain::Quad { .. } => 2 * per_base,
+                subdiv::Domain::SubFace { .. } => per_base,
+            };
+            let g = crate::io::decimate::DomainGrid { first, m };
+            first += (m + 1) * (m + 1);
+            g
+        })
+        .collect()
+}
+
 /// Tessellates the limit surface at `level` (>= 1; see [`level_for_resolution`]) with UVs
 /// into `layout`.
 pub fn tessellate(surface: &Surface, layout: &AtlasLayout, level: u32) -> SurfaceMesh {
@@ -724,6 +743,17 @@ pub fn export(
     maps: &FaceMaps,
     opts: &ExportOptions,
 ) -> Result<ExportSummary> {
+    export_images(dir, surface, maps, opts).map(|(summary, _)| summary)
+}
+
+/// [`export`], also returning the encoded material images (for other outputs with the same
+/// material: `displaced.glb`).
+pub fn export_images(
+    dir: impl AsRef<Path>,
+    surface: &Surface,
+    maps: &FaceMaps,
+    opts: &ExportOptions,
+) -> Result<(ExportSummary, crate::io::materials::MaterialImages)> {
     let dir = dir.as_ref();
     check_maps(surface, maps, opts.gutter)?;
     let level = opts
@@ -783,14 +813,15 @@ pub fn export(
     if let Some(glb) = glb {
         glb.commit()?;
     }
-    Ok(ExportSummary {
+    let summary = ExportSummary {
         atlas_width: layout.width(),
         atlas_height: layout.height(),
         vertices: mesh.positions.len(),
         quads: mesh.quads.len(),
         level,
         alpha,
-    })
+    };
+    Ok((summary, images))
 }
 
 #[cfg(test)]

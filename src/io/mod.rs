@@ -4,6 +4,7 @@
 
 pub mod atlas;
 pub mod atomic;
+pub mod decimate;
 pub mod displace;
 pub mod exr;
 pub mod gltf;
