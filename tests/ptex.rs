@@ -636,13 +636,27 @@ fn per_face_resolutions_tiles_and_constant_faces_as_the_reference_reads_them() {
         alpha: None,
         meta: vec![],
     };
+    // Stored blocks (the default: sizes known before encoding) and deflate level 6.
+    for zlib_level in [0, 6] {
+        check_grid_file(t, &s, &infos, &img, &value, zlib_level);
+    }
+}
+
+fn check_grid_file(
+    t: &Tools,
+    s: &Surface,
+    infos: &[surfsynth::io::ptex::FaceInfo],
+    img: &PtexImage,
+    value: &(dyn Fn(usize, usize, usize, usize) -> f32 + Sync),
+    zlib_level: u32,
+) {
     let dir = tempfile::tempdir().unwrap();
     let ptx = dir.path().join("t.ptx");
     let opts = PtexOptions {
-        zlib_level: 6,
+        zlib_level,
         mipmaps: true,
     };
-    let sum = write_ptex(&ptx, &img, &opts, |f, buf| {
+    let sum = write_ptex(&ptx, img, &opts, |f, buf| {
         let r = infos[f].res;
         for k in 0..2 {
             for y in 0..r.v() {
@@ -657,7 +671,7 @@ fn per_face_resolutions_tiles_and_constant_faces_as_the_reference_reads_them() {
     let (ok, info) = ptxinfo(t, &["-f", "-t"], &ptx);
     assert!(ok, "{info}");
     let rows = face_rows(&info);
-    check_adjacency_against_mesh(&s, &rows);
+    check_adjacency_against_mesh(s, &rows);
     for (f, r) in rows.iter().enumerate() {
         let want = match f {
             8 => "(none)",

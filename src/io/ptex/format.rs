@@ -221,10 +221,47 @@ impl LevelInfo {
     }
 }
 
-/// Appends `data` to `out` as one complete zlib stream at deflate `level` (0 = stored
-/// blocks) and returns the number of bytes appended.
+/// Largest stored deflate block.
+const STORED_BLOCK: usize = 65535;
+
+/// Length of the zlib stream [`zip_into`] writes for `n` bytes at level 0: the 2-byte
+/// header, 5 bytes per stored block of at most 65535 bytes (at least one block), the data,
+/// the 4-byte Adler-32. Known without looking at the data, so the writer's first pass need
+/// not encode anything at level 0.
+pub fn stored_len(n: usize) -> usize {
+    2 + n + 5 * n.div_ceil(STORED_BLOCK).max(1) + 4
+}
+
+/// `data` as a zlib stream of stored blocks (RFC 1950/1951), appended to `out`.
+fn stored_into(data: &[u8], out: &mut Vec<u8>) {
+    out.reserve(stored_len(data.len()));
+    // CMF: deflate, 32 KiB window; FLG: no dictionary, fastest, check bits for 31.
+    out.extend_from_slice(&[0x78, 0x01]);
+    let mut blocks = data.chunks(STORED_BLOCK).peekable();
+    if blocks.peek().is_none() {
+        out.extend_from_slice(&[1, 0, 0, 0xff, 0xff]);
+    }
+    while let Some(b) = blocks.next() {
+        let last = blocks.peek().is_none();
+        let len = b.len() as u16;
+        out.push(last as u8);
+        out.extend_from_slice(&len.to_le_bytes());
+        out.extend_from_slice(&(!len).to_le_bytes());
+        out.extend_from_slice(b);
+    }
+    let mut a = simd_adler32::Adler32::new();
+    a.write(data);
+    out.extend_from_slice(&a.finish().to_be_bytes());
+}
+
+/// Appends `data` to `out` as one complete zlib stream at deflate `level` (0: stored
+/// blocks, [`stored_len`] bytes) and returns the number of bytes appended.
 pub fn zip_into(data: &[u8], level: u32, out: &mut Vec<u8>) -> usize {
     let start = out.len();
+    if level == 0 {
+        stored_into(data, out);
+        return out.len() - start;
+    }
     let mut e = flate2::write::ZlibEncoder::new(out, flate2::Compression::new(level));
     // Writing into a Vec cannot fail.
     e.write_all(data).expect("in-memory compression");
@@ -316,8 +353,18 @@ mod tests {
     fn zip_blocks_are_zlib_streams() {
         use std::io::Read;
         let data: Vec<u8> = (0..100_000u32).map(|i| (i * 7 % 251) as u8).collect();
-        for level in [0, 1, 6] {
-            let z = zip(&data, level);
+        for (level, data) in [
+            (0, &data[..]),
+            (0, &data[..65535]),
+            (0, &data[..65536]),
+            (0, &[][..]),
+            (1, &data[..]),
+            (6, &data[..]),
+        ] {
+            let z = zip(data, level);
+            if level == 0 {
+                assert_eq!(z.len(), stored_len(data.len()));
+            }
             let mut back = Vec::new();
             flate2::read::ZlibDecoder::new(&z[..])
                 .read_to_end(&mut back)

@@ -83,9 +83,9 @@ pub fn pixel(data: &[f32], npix: usize, i: usize) -> Vec<f32> {
 
 /// Little-endian bytes of f32 values.
 pub fn bytes(data: &[f32]) -> Vec<u8> {
-    let mut out = Vec::with_capacity(data.len() * 4);
-    for v in data {
-        out.extend_from_slice(&v.to_le_bytes());
+    let mut out = vec![0u8; data.len() * 4];
+    for (o, v) in out.chunks_exact_mut(4).zip(data) {
+        o.copy_from_slice(&v.to_le_bytes());
     }
     out
 }

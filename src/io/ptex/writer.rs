@@ -108,8 +108,23 @@ struct Plan {
 }
 
 /// Encodes one face (or reduction) of planar data as the reference's `writeFaceData`
-/// does: one zipped block, or tiles when it is large. Returns the data header.
-fn encode(data: &[f32], res: Res, nch: usize, level: u32, out: &mut Vec<u8>) -> Result<u32> {
+/// does: one zipped block, or tiles when it is large. Returns the data header. With
+/// `out = None` only the size is wanted: at level 0 (stored blocks) it follows from the
+/// data's length, so nothing is encoded.
+fn encode(
+    data: &[f32],
+    res: Res,
+    nch: usize,
+    level: u32,
+    out: Option<&mut Vec<u8>>,
+) -> Result<u32> {
+    if out.is_none() && level == 0 && format::tile_res(res, nch * 4).is_none() {
+        let size = format::stored_len(data.len() * 4) as u64;
+        return Ok(data_header(size as u32, Encoding::Zipped));
+    }
+    let mut scratch = Vec::new();
+    let measure_only = out.is_none();
+    let out = out.unwrap_or(&mut scratch);
     let start = out.len();
     let enc = match format::tile_res(res, nch * 4) {
         None => {
@@ -126,6 +141,8 @@ fn encode(data: &[f32], res: Res, nch: usize, level: u32, out: &mut Vec<u8>) -> 
                     let fdh = if texels::is_constant(&tile, t.size()) {
                         body.extend_from_slice(&texels::bytes(&texels::pixel(&tile, t.size(), 0)));
                         data_header((nch * 4) as u32, Encoding::Constant)
+                    } else if measure_only && level == 0 {
+                        data_header(format::stored_len(tile.len() * 4) as u32, Encoding::Zipped)
                     } else {
                         let n = zip_into(&texels::bytes(&tile), level, &mut body);
                         data_header(n as u32, Encoding::Zipped)
@@ -138,6 +155,20 @@ fn encode(data: &[f32], res: Res, nch: usize, level: u32, out: &mut Vec<u8>) -> 
             out.push(t.vlog2);
             out.extend_from_slice(&(zipped_headers.len() as u32).to_le_bytes());
             out.extend_from_slice(&zipped_headers);
+            if measure_only {
+                // The tiles' sizes are in their headers; their bytes are not needed.
+                let body_len: u64 = headers
+                    .chunks_exact(4)
+                    .map(|h| block_size(u32::from_le_bytes(h.try_into().unwrap())) as u64)
+                    .sum();
+                let size = (out.len() - start) as u64 + body_len;
+                if size > MAX_BLOCK {
+                    return Err(Error::invalid(format!(
+                        "a Ptex face block of {size} bytes exceeds the format's {MAX_BLOCK}"
+                    )));
+                }
+                return Ok(data_header(size as u32, Encoding::Tiled));
+            }
             out.extend_from_slice(&body);
             Encoding::Tiled
         }
@@ -180,8 +211,7 @@ fn plan_face(
             small: Vec::new(),
         });
     }
-    let mut scratch = Vec::new();
-    let mut fdh = vec![encode(&data, res, nch, opts.zlib_level, &mut scratch)?];
+    let mut fdh = vec![encode(&data, res, nch, opts.zlib_level, None)?];
     if let Some(a) = img.alpha {
         texels::premultiply(&mut data, npix, nch, a);
     }
@@ -191,10 +221,18 @@ fn plan_face(
     for level in 1..face_levels(res, opts.mipmaps) {
         cur = texels::reduce(&cur, cur_res, nch);
         cur_res = cur_res.reduced(1);
-        let mut block = Vec::new();
-        fdh.push(encode(&cur, cur_res, nch, opts.zlib_level, &mut block)?);
         if level >= 2 {
+            let mut block = Vec::new();
+            fdh.push(encode(
+                &cur,
+                cur_res,
+                nch,
+                opts.zlib_level,
+                Some(&mut block),
+            )?);
             small.push(block);
+        } else {
+            fdh.push(encode(&cur, cur_res, nch, opts.zlib_level, None)?);
         }
     }
     let mut value = texels::average(&cur, cur_res.size());
@@ -223,13 +261,13 @@ fn block(
     fill(f, &mut data);
     let mut out = Vec::new();
     if level == 0 {
-        encode(&data, res, nch, opts.zlib_level, &mut out)?;
+        encode(&data, res, nch, opts.zlib_level, Some(&mut out))?;
     } else {
         if let Some(a) = img.alpha {
             texels::premultiply(&mut data, npix, nch, a);
         }
         let r = texels::reduce(&data, res, nch);
-        encode(&r, res.reduced(1), nch, opts.zlib_level, &mut out)?;
+        encode(&r, res.reduced(1), nch, opts.zlib_level, Some(&mut out))?;
     }
     Ok(out)
 }
