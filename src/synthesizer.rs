@@ -829,8 +829,26 @@ impl SynthResult {
                     let p = dir.join(FACEMAPS_FILE);
                     write_face_maps(&p, &self.maps)?;
                     written.push(p);
+                    // Streamed from the texel geometry (the same bytes as writing
+                    // `geometry_maps()`, without a second copy of the maps).
                     let p = dir.join(GEOMETRY_FILE);
-                    write_face_maps(&p, &self.geometry_maps())?;
+                    let g = &self.geometry;
+                    let nn = g.resolution * g.resolution;
+                    crate::io::exr::write_tiles(
+                        &p,
+                        crate::io::exr::TileLayout::new(g.faces, g.resolution),
+                        &crate::bake::GEOMETRY_CHANNELS,
+                        crate::io::exr::DEFAULT_COMPRESSION,
+                        |f, tile| {
+                            for (c, out) in tile.chunks_exact_mut(nn).enumerate() {
+                                let src = if c < 3 { &g.pos } else { &g.normal };
+                                for (o, v) in out.iter_mut().zip(&src[f * nn..(f + 1) * nn]) {
+                                    *o = v[c % 3];
+                                }
+                            }
+                        },
+                        &|_| {},
+                    )?;
                     written.push(p);
                     Ok(())
                 })();
