@@ -752,3 +752,40 @@ fn check_grid_file(
     }
     assert_eq!(a[5], [0.25, 0.75]);
 }
+
+#[test]
+fn a_resolution_that_is_not_a_power_of_two_is_resampled_to_the_next() {
+    let Some(t) = tools() else { return };
+    let s = common::load("opensubdiv-reference/catmark_nonquads.obj");
+    let n = 6;
+    let maps = smooth_maps(&s, n);
+    let dir = tempfile::tempdir().unwrap();
+    let ptx = dir.path().join("facemaps.ptx");
+    surfsynth::io::ptex::write_face_maps_ptex(&ptx, &s, &maps, &PtexOptions::default()).unwrap();
+    let (ok, info) = ptxinfo(t, &["-f", "-m"], &ptx);
+    assert!(ok, "{info}");
+    assert!(
+        info.contains("surfsynth.resolution type=int32  6"),
+        "{info}"
+    );
+    assert!(
+        face_rows(&info).iter().all(|r| (r.0, r.1) == (3, 3)),
+        "8 x 8 faces"
+    );
+    // The field is linear in position: the resampled texels are the field at the 8 x 8
+    // texel centres, to bilinear-interpolation accuracy.
+    let q: Vec<String> = (0..s.num_domains())
+        .map(|f| format!("data {f} 3 3"))
+        .collect();
+    let a = ptxcheck(t, &ptx, &q, false);
+    let fine = smooth_maps(&s, 8);
+    let mut worst = 0f32;
+    for f in 0..s.num_domains() {
+        for i in 0..64 {
+            for (k, (_, data)) in fine.channels.iter().enumerate() {
+                worst = worst.max((a[f][i * 5 + k] - data[f * 64 + i]).abs());
+            }
+        }
+    }
+    assert!(worst < 0.02, "resampled texels off by {worst}");
+}
