@@ -49,6 +49,7 @@ pub fn command(out: &Path) -> SynthCommand {
         search: None,
         displace: None,
         appearance: Default::default(),
+        decimate: None,
         handedness: Default::default(),
         out: out.to_path_buf(),
     }

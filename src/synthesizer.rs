@@ -11,7 +11,7 @@
 //!     .seed(7)
 //!     .run()?;
 //! println!("{} texels at scale {}", result.report.texels, result.report.scale);
-//! result.write("out/spot")?; // facemaps.exr, geometry.exr, report.json
+//! result.write("out/spot")?; // facemaps.exr/.ptx, geometry.exr, surface.*, report.json
 //! # Ok(())
 //! # }
 //! ```
@@ -224,6 +224,7 @@ pub struct Synthesizer {
     threads: Option<usize>,
     displace: Option<f64>,
     handedness: Handedness,
+    write_options: WriteOptions,
     progress: Option<std::sync::Arc<Progress>>,
 }
 
@@ -254,8 +255,11 @@ pub struct SynthResult {
     /// report.json content; `seconds.write`, `seconds.total` and the rates are completed
     /// by [`SynthResult::write`].
     pub report: Report,
-    /// `--displace` amount: [`SynthResult::write`] also writes displaced.obj.
+    /// `--displace` amount: [`SynthResult::write`] also writes displaced.glb.
     displace: Option<f64>,
+    /// How [`SynthResult::write`] writes the renderer outputs (from
+    /// [`Synthesizer::write_options`]; may be changed before writing).
+    pub write_options: WriteOptions,
     /// Time the run started (for the total).
     started: Instant,
 }
@@ -277,6 +281,7 @@ impl Synthesizer {
             threads: None,
             displace: None,
             handedness: Handedness::default(),
+            write_options: WriteOptions::default(),
             progress: None,
         }
     }
@@ -352,10 +357,21 @@ impl Synthesizer {
         self
     }
     /// Shape synthesis (`--displace AMOUNT`, 000 §6): [`SynthResult::write`] also writes
-    /// `displaced.obj`, the limit surface tessellated at texel resolution and moved along
+    /// `displaced.glb`, the limit surface tessellated at texel resolution and moved along
     /// the limit normal by `amount · (height − 0.5)`. Needs a height channel.
     pub fn displace(mut self, amount: impl Into<Option<f64>>) -> Self {
         self.displace = amount.into();
+        self
+    }
+    /// `--decimate TOL`: displaced.glb decimated where the displaced surface is flat
+    /// within TOL mesh units (see [`WriteOptions::decimate`]).
+    pub fn decimate(mut self, tol: impl Into<Option<f64>>) -> Self {
+        self.write_options.decimate = tol.into();
+        self
+    }
+    /// How [`SynthResult::write`] writes the renderer outputs.
+    pub fn write_options(mut self, o: WriteOptions) -> Self {
+        self.write_options = o;
         self
     }
     /// Which way round the example is laid on the surface (see [`Handedness`]).
@@ -408,6 +424,18 @@ impl Synthesizer {
         }
         if self.threads == Some(0) {
             return Err(Error::invalid("threads must be at least 1"));
+        }
+        if let Some(t) = self.write_options.decimate {
+            if !(t.is_finite() && t >= 0.0) {
+                return Err(Error::invalid(format!(
+                    "decimation tolerance {t} is not a non-negative length"
+                )));
+            }
+            if self.displace.is_none() {
+                return Err(Error::invalid(
+                    "--decimate applies to the displaced mesh: pass --displace AMOUNT",
+                ));
+            }
         }
         if let Some(a) = self.displace {
             if !a.is_finite() {
@@ -636,6 +664,7 @@ impl Synthesizer {
             example,
             report,
             displace: self.displace,
+            write_options: self.write_options,
             started,
         })
     }
@@ -668,55 +697,135 @@ impl SynthResult {
     }
 
     /// Writes BRIEF's output directory into `dir` (created if missing): facemaps.exr,
-    /// geometry.exr, surface.obj + surface.mtl + atlas.png ([`crate::io::atlas`]),
-    /// displaced.obj when the run was given [`Synthesizer::displace`], and report.json,
-    /// last. Every file is written atomically; if one fails, the files written
-    /// by this call are removed again, so the directory never holds a partial result of
-    /// this run.
+    /// geometry.exr, facemaps.ptx ([`crate::io::ptex`]), surface.obj + surface.mtl +
+    /// atlas.png and surface.glb ([`crate::io::atlas`], [`crate::io::gltf`]), displaced.glb
+    /// when the run was given [`Synthesizer::displace`] ([`crate::io::displace`], decimated
+    /// with [`WriteOptions::decimate`]), and report.json, last. Every file is written
+    /// atomically; if one fails, the files written by this call are removed again, so the
+    /// directory never holds a partial result of this run.
     pub fn write(&self, dir: impl AsRef<Path>) -> Result<Report> {
-        self.write_with(dir, |d| {
-            crate::io::atlas::export(d, &self.surface, &self.maps, &Default::default())?;
-            let mut written = vec![
-                d.join(crate::io::atlas::OBJ_NAME),
-                d.join(crate::io::atlas::MTL_NAME),
-                d.join(crate::io::atlas::ATLAS_NAME),
-            ];
-            if let Some(amount) = self.displace {
-                match crate::io::displace::write_displaced(d, &self.surface, &self.maps, amount) {
-                    Ok(p) => written.push(p),
-                    Err(e) => {
-                        for p in &written {
-                            let _ = std::fs::remove_file(p);
+        self.write_with(dir, |d| self.write_renderer_outputs(d))
+    }
+
+    /// facemaps.ptx beside the textured meshes (independent, so side by side: PNG encoding
+    /// and OBJ text are single-threaded). Cleans up after its own errors.
+    fn write_renderer_outputs(&self, d: &Path) -> Result<Vec<PathBuf>> {
+        use crate::io::{atlas, displace, ptex};
+        let (ptx, textured) = rayon::join(
+            || -> Result<Vec<PathBuf>> {
+                let p = d.join(ptex::PTEX_FILE);
+                ptex::write_face_maps_ptex(
+                    &p,
+                    &self.surface,
+                    &self.maps,
+                    &self.write_options.ptex,
+                )?;
+                Ok(vec![p])
+            },
+            || -> Result<Vec<PathBuf>> {
+                let (_, images) =
+                    atlas::export_images(d, &self.surface, &self.maps, &Default::default())?;
+                let mut written: Vec<PathBuf> = [
+                    atlas::OBJ_NAME,
+                    atlas::MTL_NAME,
+                    atlas::ATLAS_NAME,
+                    atlas::GLB_NAME,
+                ]
+                .iter()
+                .map(|n| d.join(n))
+                .collect();
+                if let Some(amount) = self.displace {
+                    let decimate = self.write_options.decimate;
+                    match displace::write_displaced(
+                        d,
+                        &self.surface,
+                        &self.maps,
+                        amount,
+                        decimate,
+                        &images,
+                    )
+                    .and_then(|f| f.commit())
+                    {
+                        Ok(()) => written.push(d.join(displace::DISPLACED_GLB)),
+                        Err(e) => {
+                            remove_all(&written);
+                            return Err(e);
                         }
-                        return Err(e);
                     }
                 }
+                Ok(written)
+            },
+        );
+        match (ptx, textured) {
+            (Ok(mut a), Ok(b)) => {
+                a.extend(b);
+                Ok(a)
             }
-            Ok(written)
-        })
+            (Err(e), other) | (other, Err(e)) => {
+                if let Ok(w) = other {
+                    remove_all(&w);
+                }
+                Err(e)
+            }
+        }
     }
 
     /// Like [`SynthResult::write`] with other extra outputs: `extra(dir)` writes them
-    /// (after the EXR files, before the report; its time counts as writing) and returns
-    /// their paths, which are removed again if a later step fails. It must clean up after
-    /// its own errors.
+    /// (while the EXR files are written, before the report; its time counts as writing)
+    /// and returns their paths, which are removed again if another step fails. It must
+    /// clean up after its own errors.
     pub fn write_with(
         &self,
         dir: impl AsRef<Path>,
-        extra: impl FnOnce(&Path) -> Result<Vec<PathBuf>>,
+        extra: impl FnOnce(&Path) -> Result<Vec<PathBuf>> + Send,
     ) -> Result<Report> {
         let dir = dir.as_ref();
         prepare_out_dir(dir)?;
         let t0 = Instant::now();
-        let mut written: Vec<PathBuf> = Vec::new();
+        // The two EXR files (parallel inside) and the extra outputs side by side.
+        let ((mut written, exr), extra) = rayon::join(
+            || {
+                let mut written: Vec<PathBuf> = Vec::new();
+                let r = (|| {
+                    let p = dir.join(FACEMAPS_FILE);
+                    write_face_maps(&p, &self.maps)?;
+                    written.push(p);
+                    // Streamed from the texel geometry (the same bytes as writing
+                    // `geometry_maps()`, without a second copy of the maps).
+                    let p = dir.join(GEOMETRY_FILE);
+                    let g = &self.geometry;
+                    let nn = g.resolution * g.resolution;
+                    crate::io::exr::write_tiles(
+                        &p,
+                        crate::io::exr::TileLayout::new(g.faces, g.resolution),
+                        &crate::bake::GEOMETRY_CHANNELS,
+                        crate::io::exr::DEFAULT_COMPRESSION,
+                        |f, tile| {
+                            for (c, out) in tile.chunks_exact_mut(nn).enumerate() {
+                                let src = if c < 3 { &g.pos } else { &g.normal };
+                                for (o, v) in out.iter_mut().zip(&src[f * nn..(f + 1) * nn]) {
+                                    *o = v[c % 3];
+                                }
+                            }
+                        },
+                        &|_| {},
+                    )?;
+                    written.push(p);
+                    Ok(())
+                })();
+                (written, r)
+            },
+            || extra(dir),
+        );
         let result = (|| {
-            let p = dir.join(FACEMAPS_FILE);
-            write_face_maps(&p, &self.maps)?;
-            written.push(p);
-            let p = dir.join(GEOMETRY_FILE);
-            write_face_maps(&p, &self.geometry_maps())?;
-            written.push(p);
-            written.extend(extra(dir)?);
+            match (exr, extra) {
+                (Ok(()), Ok(p)) => written.extend(p),
+                (Err(e), Ok(p)) => {
+                    written.extend(p);
+                    return Err(e);
+                }
+                (Ok(()), Err(e)) | (Err(e), Err(_)) => return Err(e),
+            }
             let mut report = self.report.clone();
             report.seconds.write = t0.elapsed().as_secs_f64();
             report.seconds.total = self.started.elapsed().as_secs_f64();
@@ -727,12 +836,28 @@ impl SynthResult {
             Ok(report)
         })();
         if result.is_err() {
-            for p in &written {
-                let _ = std::fs::remove_file(p);
-            }
+            remove_all(&written);
         }
         result
     }
+}
+
+/// Removes files written by a run that failed later (best effort: they were ours).
+fn remove_all(paths: &[PathBuf]) {
+    for p in paths {
+        let _ = std::fs::remove_file(p);
+    }
+}
+
+/// What [`SynthResult::write`] writes beyond BRIEF's fixed set, and how.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct WriteOptions {
+    /// `--decimate TOL`: displaced.glb keeps only the vertices needed where the displaced
+    /// surface is flat within TOL mesh units ([`crate::io::decimate`]); `None`: one vertex
+    /// per texture coordinate of the texel-resolution tessellation.
+    pub decimate: Option<f64>,
+    /// How facemaps.ptx is written.
+    pub ptex: crate::io::ptex::PtexOptions,
 }
 
 /// The `synth` command in plain types (the CLI's argument struct maps onto it).
@@ -752,6 +877,8 @@ pub struct SynthCommand {
     pub displace: Option<f64>,
     /// `--appearance`.
     pub appearance: AppearanceMode,
+    /// `--decimate TOL`.
+    pub decimate: Option<f64>,
     /// `--handedness`.
     pub handedness: Handedness,
     pub out: PathBuf,
@@ -769,6 +896,7 @@ impl SynthCommand {
             .seed(self.seed)
             .displace(self.displace)
             .appearance(self.appearance)
+            .decimate(self.decimate)
             .handedness(self.handedness);
         if let Some(h) = &self.height {
             s = s.height(h);

@@ -10,12 +10,14 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 /// The files that must not depend on threads or on the run.
-const FILES: [&str; 5] = [
+const FILES: [&str; 7] = [
     "facemaps.exr",
     "geometry.exr",
     "atlas.png",
     "surface.obj",
     "surface.mtl",
+    "facemaps.ptx",
+    "surface.glb",
 ];
 
 /// A cube whose top face is a fan of four triangles around a centre vertex: valence-3

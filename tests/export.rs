@@ -444,6 +444,7 @@ fn noise_gutters_copy_the_neighbours_texels() {
         let opts = ExportOptions {
             gutter: 3,
             level: Some(2),
+            ..Default::default()
         };
         let (_d, obj, png) = run_export(&s, &maps, &opts);
         assert_eq!(png.k, 4);
@@ -573,6 +574,7 @@ fn atlas_interior_is_the_maps_and_alpha_gets_map_d() {
     let opts = ExportOptions {
         gutter: 2,
         level: None,
+        ..Default::default()
     };
     let (dir, _obj, png) = run_export(&s, &maps, &opts);
     assert_eq!(png.k, 4);
@@ -650,6 +652,7 @@ fn export_is_deterministic_and_fails_cleanly() {
         &ExportOptions {
             gutter: 0,
             level: None,
+            ..Default::default()
         },
     )
     .unwrap_err()

@@ -80,9 +80,12 @@ pub struct SynthArgs {
         allow_negative_numbers = true
     )]
     pub seed: u64,
-    /// Also write displaced.obj, moved along the normal by AMOUNT x (height - 0.5).
+    /// Also write displaced.glb, moved along the normal by AMOUNT x (height - 0.5).
     #[arg(long, value_name = "AMOUNT", value_parser = parse_finite, allow_negative_numbers = true)]
     pub displace: Option<f64>,
+    /// Decimate displaced.glb where the displaced surface is flat within TOL (mesh units).
+    #[arg(long, value_name = "TOL", value_parser = parse_finite, allow_negative_numbers = true)]
+    pub decimate: Option<f64>,
     /// Image rows along +v2 (tiles: face maps show the example as stored, so the surface
     /// seen from outside shows its mirror image) or along -v2 (outside: the texture reads
     /// correctly seen from outside, e.g. text; the tiles are mirrored).
@@ -128,6 +131,7 @@ pub fn run(a: SynthArgs) -> anyhow::Result<()> {
             Appearance::Pca => surfsynth::synthesizer::AppearanceMode::Pca,
             Appearance::Rgb => surfsynth::synthesizer::AppearanceMode::Rgb,
         },
+        decimate: a.decimate,
         handedness: match a.handedness {
             Handedness::Tiles => surfsynth::synthesizer::Handedness::Tiles,
             Handedness::Outside => surfsynth::synthesizer::Handedness::Outside,

@@ -44,6 +44,8 @@ pub const OBJ_NAME: &str = "surface.obj";
 pub const MTL_NAME: &str = "surface.mtl";
 /// See [`OBJ_NAME`].
 pub const ATLAS_NAME: &str = "atlas.png";
+/// The glTF binary of the same surface and material ([`crate::io::gltf`]).
+pub const GLB_NAME: &str = "surface.glb";
 /// Material name used in the MTL file.
 pub const MATERIAL: &str = "surfsynth";
 
@@ -323,10 +325,8 @@ fn fix_corner_gutter(
         };
     }
 }
-/// Builds the atlas (linear colours) for `maps` on `surface` with a gutter of `gutter`
-/// pixels (at least 1). Tiles are independent, so they are filled in parallel; the result
-/// does not depend on the number of threads.
-pub fn build_atlas(surface: &Surface, maps: &FaceMaps, gutter: usize) -> Result<Atlas> {
+/// The checks every writer of the atlas and its mesh makes first.
+fn check_maps(surface: &Surface, maps: &FaceMaps, gutter: usize) -> Result<()> {
     if maps.faces != surface.num_domains() {
         return Err(Error::invalid(format!(
             "face maps have {} domains but the mesh has {}",
@@ -337,11 +337,32 @@ pub fn build_atlas(surface: &Surface, maps: &FaceMaps, gutter: usize) -> Result<
     if gutter == 0 {
         return Err(Error::invalid("atlas gutter must be at least 1 pixel"));
     }
-    let n = maps.resolution;
-    if n == 0 {
+    if maps.resolution == 0 {
         return Err(Error::invalid("face maps have resolution 0"));
     }
-    let chans = colour_channels(maps)?;
+    colour_channels(maps).map(|_| ())
+}
+
+/// Builds the atlas (linear colours) for `maps` on `surface` with a gutter of `gutter`
+/// pixels (at least 1). Tiles are independent, so they are filled in parallel; the result
+/// does not depend on the number of threads.
+pub fn build_atlas(surface: &Surface, maps: &FaceMaps, gutter: usize) -> Result<Atlas> {
+    build_atlas_of(surface, &colour_channels(maps)?, maps, gutter)
+}
+
+/// [`build_atlas`] of any 1 to 4 channels of `maps` (the data maps of a material: normal,
+/// roughness, ...), in the order given.
+pub fn build_atlas_of(
+    surface: &Surface,
+    chans: &[&[f32]],
+    maps: &FaceMaps,
+    gutter: usize,
+) -> Result<Atlas> {
+    if chans.is_empty() || chans.len() > 4 {
+        return Err(Error::invalid("an atlas has 1 to 4 channels"));
+    }
+    check_maps(surface, maps, gutter)?;
+    let n = maps.resolution;
     let k = chans.len();
     let layout = AtlasLayout::new(maps.faces, n, gutter);
     let (w, t) = (layout.width(), layout.tile());
@@ -362,12 +383,12 @@ pub fn build_atlas(surface: &Surface, maps: &FaceMaps, gutter: usize) -> Result<
                         }
                     } else {
                         let loc = gutter_location(surface, n, d, x, y);
-                        fetch_in_domain(&chans, n, loc.domain.idx(), loc.u, loc.v, px);
+                        fetch_in_domain(chans, n, loc.domain.idx(), loc.u, loc.v, px);
                     }
                 }
             }
             for corner in 0..4 {
-                fix_corner_gutter(surface, &chans, n, gutter, d, corner, &mut tile);
+                fix_corner_gutter(surface, chans, n, gutter, d, corner, &mut tile);
             }
             tile
         })
@@ -389,7 +410,71 @@ pub fn build_atlas(surface: &Surface, maps: &FaceMaps, gutter: usize) -> Result<
 }
 
 /// Linear [0, 1] → 8-bit sRGB (IEC 61966-2-1); NaN and negatives give 0.
+///
+/// Encoding the atlas pixel by pixel with `powf` took ~170 ms at Spot N = 128, more than
+/// compressing the PNG. This is a table lookup instead, exact: the 255 smallest inputs of
+/// each code are found once by bisection on the formula itself
+/// ([`linear_to_srgb8_exact`]); inputs are bucketed by the top 17 bits of their f32 bit
+/// pattern, and no bucket holds more than one of those thresholds (checked when the
+/// table is built; tested on every 61st f32 in [0, 1]), so a lookup is one table read and
+/// one comparison.
+#[inline]
 pub fn linear_to_srgb8(c: f32) -> u8 {
+    const SHIFT: u32 = 15;
+    struct Table {
+        code: Vec<u8>,
+        threshold: Vec<f32>,
+    }
+    static T: std::sync::OnceLock<Table> = std::sync::OnceLock::new();
+    let t = T.get_or_init(|| {
+        let thresholds: Vec<f32> = (0..255)
+            .map(|k| {
+                // Smallest c in [0, 1] whose code is > k (codes are non-decreasing in c).
+                let (mut lo, mut hi) = (0u32, 1.0f32.to_bits());
+                while lo < hi {
+                    let mid = lo + (hi - lo) / 2;
+                    if linear_to_srgb8_exact(f32::from_bits(mid)) as usize > k {
+                        hi = mid;
+                    } else {
+                        lo = mid + 1;
+                    }
+                }
+                f32::from_bits(lo)
+            })
+            .collect();
+        let buckets = (1.0f32.to_bits() >> SHIFT) as usize + 1;
+        let mut code = vec![0u8; buckets];
+        let mut threshold = vec![f32::INFINITY; buckets];
+        for b in 0..buckets {
+            let start = f32::from_bits((b as u32) << SHIFT);
+            let k = thresholds.partition_point(|&x| x <= start);
+            code[b] = k as u8;
+            if let Some(&x) = thresholds.get(k) {
+                if (x.to_bits() >> SHIFT) as usize == b {
+                    threshold[b] = x;
+                    assert!(
+                        thresholds
+                            .get(k + 1)
+                            .is_none_or(|y| (y.to_bits() >> SHIFT) as usize != b),
+                        "two sRGB thresholds in one bucket"
+                    );
+                }
+            }
+        }
+        Table { code, threshold }
+    });
+    if c.is_nan() || c <= 0.0 {
+        return 0;
+    }
+    if c >= 1.0 {
+        return 255;
+    }
+    let b = (c.to_bits() >> SHIFT) as usize;
+    t.code[b] + (c >= t.threshold[b]) as u8
+}
+
+/// The sRGB formula [`linear_to_srgb8`] tabulates.
+pub fn linear_to_srgb8_exact(c: f32) -> u8 {
     let c = if c.is_nan() { 0.0 } else { c.clamp(0.0, 1.0) };
     let s = if c <= 0.003_130_8 {
         12.92 * c
@@ -412,40 +497,60 @@ pub fn srgb8_to_linear(b: u8) -> f32 {
 impl Atlas {
     /// 8-bit pixels as stored in the PNG: colour sRGB-encoded, alpha linear.
     pub fn to_8bit(&self) -> Vec<u8> {
+        self.to_8bit_with(self.channels.min(3))
+    }
+
+    /// 8-bit pixels with the first `srgb` channels sRGB-encoded and the others linear
+    /// (data maps such as normals and roughness are all linear: `srgb` = 0).
+    pub fn to_8bit_with(&self, srgb: usize) -> Vec<u8> {
         let k = self.channels;
-        self.pixels
-            .par_chunks(k)
-            .flat_map_iter(|px| {
-                px.iter().enumerate().map(move |(c, &v)| {
-                    if c == 3 {
-                        let v = if v.is_nan() { 0.0 } else { v.clamp(0.0, 1.0) };
-                        (v * 255.0 + 0.5).floor() as u8
-                    } else {
-                        linear_to_srgb8(v)
+        let mut out = vec![0u8; self.pixels.len()];
+        out.par_chunks_mut(k * 4096)
+            .zip(self.pixels.par_chunks(k * 4096))
+            .for_each(|(o, px)| {
+                for (o, px) in o.chunks_exact_mut(k).zip(px.chunks_exact(k)) {
+                    for (c, (b, &v)) in o.iter_mut().zip(px).enumerate() {
+                        *b = if c < srgb {
+                            linear_to_srgb8(v)
+                        } else {
+                            let v = if v.is_nan() { 0.0 } else { v.clamp(0.0, 1.0) };
+                            (v * 255.0 + 0.5).floor() as u8
+                        };
                     }
-                })
-            })
-            .collect()
+                }
+            });
+        out
     }
 
     /// PNG bytes of [`Self::to_8bit`] (deterministic: fixed compression and filter).
     pub fn encode_png(&self, out: &mut impl Write) -> std::result::Result<(), String> {
-        use image::codecs::png::{CompressionType, FilterType, PngEncoder};
-        use image::{ExtendedColorType, ImageEncoder};
-        let colour = if self.channels == 4 {
-            ExtendedColorType::Rgba8
-        } else {
-            ExtendedColorType::Rgb8
-        };
-        PngEncoder::new_with_quality(out, CompressionType::Default, FilterType::Adaptive)
-            .write_image(
-                &self.to_8bit(),
-                self.layout.width() as u32,
-                self.layout.height() as u32,
-                colour,
-            )
-            .map_err(|e| e.to_string())
+        encode_png(&self.to_8bit(), &self.layout, self.channels, out)
     }
+}
+
+/// PNG of 8-bit pixels (1 to 4 channels) of an atlas of `layout`, deterministic: deflate
+/// level 3 (zlib-rs through flate2) with adaptive filtering. Measured at Spot N = 128
+/// (2112² RGB): level 3 is 0.5% larger than level 6 and a quarter faster; through
+/// miniz_oxide the default level took 6× as long (docs/benchmarks.md).
+pub fn encode_png(
+    pixels: &[u8],
+    layout: &AtlasLayout,
+    channels: usize,
+    out: &mut impl Write,
+) -> std::result::Result<(), String> {
+    let mut e = png::Encoder::new(out, layout.width() as u32, layout.height() as u32);
+    e.set_color(match channels {
+        1 => png::ColorType::Grayscale,
+        2 => png::ColorType::GrayscaleAlpha,
+        3 => png::ColorType::Rgb,
+        _ => png::ColorType::Rgba,
+    });
+    e.set_depth(png::BitDepth::Eight);
+    e.set_deflate_compression(png::DeflateCompression::Level(3));
+    e.set_filter(png::Filter::Adaptive);
+    let mut w = e.write_header().map_err(|e| e.to_string())?;
+    w.write_image_data(pixels).map_err(|e| e.to_string())?;
+    w.finish().map_err(|e| e.to_string())
 }
 
 /// A tessellated limit surface with per-domain texture coordinates (OBJ-ready, 0-based).
@@ -484,6 +589,7 @@ pub fn level_for_resolution(n: usize) -> u32 {
 /// domain; its corners are dyadic, so the (u, v) are exact.
 pub fn face_domain_corners(surface: &Surface, lm: &LimitMesh) -> Vec<(u32, [(f64, f64); 4])> {
     (0..lm.mesh.num_faces())
+        .into_par_iter()
         .map(|f| {
             let fid = FaceId::from_idx(f);
             let mut uv = [(0.0, 0.0); 4];
@@ -495,6 +601,25 @@ pub fn face_domain_corners(surface: &Surface, lm: &LimitMesh) -> Vec<(u32, [(f64
                 domain = loc.domain.0;
             }
             (domain, uv)
+        })
+        .collect()
+}
+
+/// The texture-coordinate grid of every domain in [`tessellate`]'s numbering: domain after
+/// domain, `(M+1)²` points each, row by row (v outer), M = 2^level segments per side for a
+/// quad domain and 2^(level−1) for an n-gon sub-face.
+pub fn uv_grids(surface: &Surface, level: u32) -> Vec<crate::io::decimate::DomainGrid> {
+    let per_base = 1u32 << (level.max(1) - 1);
+    let mut first = 0u32;
+    (0..surface.num_domains())
+        .map(|d| {
+            let m = match surface.domain(DomainId::from_idx(d)) {
+                subdiv::Domain::Quad { .. } => 2 * per_base,
+                subdiv::Domain::SubFace { .. } => per_base,
+            };
+            let g = crate::io::decimate::DomainGrid { first, m };
+            first += (m + 1) * (m + 1);
+            g
         })
         .collect()
 }
@@ -559,7 +684,7 @@ pub fn tessellate_limit_mesh(
 
 impl SurfaceMesh {
     /// Writes the mesh as OBJ text referencing `mtl` and [`MATERIAL`]. Coordinates are
-    /// printed as f32 in shortest round-trip form: exact enough for any renderer, half the
+    /// printed as f32 in shortest round-trip form (zmij): exact enough for any renderer, half the
     /// size of f64, and identical text for identical values (the shared vertex already
     /// guarantees crack-free edges; the text form keeps them crack-free after parsing).
     pub fn write_obj(&self, out: &mut impl Write, mtl: &str) -> std::io::Result<()> {
@@ -576,24 +701,58 @@ impl SurfaceMesh {
             self.quads.len()
         )?;
         writeln!(out, "mtllib {mtl}")?;
-        for p in &self.positions {
-            writeln!(out, "v {} {} {}", p[0] as f32, p[1] as f32, p[2] as f32)?;
-        }
-        for t in &self.uvs {
-            writeln!(out, "vt {} {}", t[0] as f32, t[1] as f32)?;
-        }
-        for n in &self.normals {
-            writeln!(out, "vn {} {} {}", n[0] as f32, n[1] as f32, n[2] as f32)?;
-        }
-        writeln!(out, "usemtl {MATERIAL}")?;
-        for q in &self.quads {
-            write!(out, "f")?;
-            for &(v, t) in q {
-                write!(out, " {}/{}/{}", v + 1, t + 1, v + 1)?;
+        // Formatting numbers is most of the cost: lines are formatted in parallel chunks
+        // and written in order (the same bytes for any thread count).
+        fn chunks<T: Sync>(
+            items: &[T],
+            out: &mut impl Write,
+            line: impl Fn(&mut Vec<u8>, &T) -> std::io::Result<()> + Sync,
+        ) -> std::io::Result<()> {
+            let parts: Vec<std::io::Result<Vec<u8>>> = items
+                .par_chunks(16384)
+                .map(|c| {
+                    let mut b = Vec::with_capacity(c.len() * 32);
+                    for it in c {
+                        line(&mut b, it)?;
+                    }
+                    Ok(b)
+                })
+                .collect();
+            for p in parts {
+                out.write_all(&p?)?;
             }
-            writeln!(out)?;
+            Ok(())
         }
-        Ok(())
+        // Shortest round-trip digits (zmij, as serde_json prints floats: 3-4x faster than
+        // `{}`; 0.5 and 1e-8 print as "0.5" and "1e-8", integers as "1.0").
+        fn line(b: &mut Vec<u8>, tag: &[u8], xs: &[f64]) -> std::io::Result<()> {
+            let mut z = zmij::Buffer::new();
+            b.extend_from_slice(tag);
+            for &x in xs {
+                b.push(b' ');
+                b.extend_from_slice(z.format(x as f32).as_bytes());
+            }
+            b.push(b'\n');
+            Ok(())
+        }
+        chunks(&self.positions, out, |b, p| line(b, b"v", p))?;
+        chunks(&self.uvs, out, |b, t| line(b, b"vt", t))?;
+        chunks(&self.normals, out, |b, n| line(b, b"vn", n))?;
+        writeln!(out, "usemtl {MATERIAL}")?;
+        chunks(&self.quads, out, |b, q| {
+            let mut i = itoa::Buffer::new();
+            b.push(b'f');
+            for &(v, t) in q {
+                b.push(b' ');
+                b.extend_from_slice(i.format(v + 1).as_bytes());
+                b.push(b'/');
+                b.extend_from_slice(i.format(t + 1).as_bytes());
+                b.push(b'/');
+                b.extend_from_slice(i.format(v + 1).as_bytes());
+            }
+            b.push(b'\n');
+            Ok(())
+        })
     }
 }
 
@@ -615,6 +774,8 @@ pub struct ExportOptions {
     pub gutter: usize,
     /// Tessellation level; `None` picks [`level_for_resolution`].
     pub level: Option<u32>,
+    /// Also write `surface.glb` (default).
+    pub gltf: bool,
 }
 
 impl Default for ExportOptions {
@@ -622,6 +783,7 @@ impl Default for ExportOptions {
         Self {
             gutter: DEFAULT_GUTTER,
             level: None,
+            gltf: true,
         }
     }
 }
@@ -637,28 +799,48 @@ pub struct ExportSummary {
     pub alpha: bool,
 }
 
-/// Writes `DIR/surface.obj`, `DIR/surface.mtl` and `DIR/atlas.png` for `maps` (which need
-/// `R`, `G`, `B` and may have `A`) on `surface`. The directory must exist. Nothing is
-/// published unless all three files were written.
+/// Writes `DIR/surface.obj`, `DIR/surface.mtl`, `DIR/atlas.png` and (with
+/// [`ExportOptions::gltf`]) `DIR/surface.glb` for `maps` (which need `R`, `G`, `B` and may
+/// have `A`, and the data maps of [`crate::io::materials`]) on `surface`. The directory
+/// must exist. Nothing is published unless all files were written.
+///
+/// The atlases (PNG encoding is single-threaded) are made while the surface is
+/// tessellated, and the OBJ text while the glTF mesh is built.
 pub fn export(
     dir: impl AsRef<Path>,
     surface: &Surface,
     maps: &FaceMaps,
     opts: &ExportOptions,
 ) -> Result<ExportSummary> {
+    export_images(dir, surface, maps, opts).map(|(summary, _)| summary)
+}
+
+/// [`export`], also returning the encoded material images (for other outputs with the same
+/// material: `displaced.glb`).
+pub fn export_images(
+    dir: impl AsRef<Path>,
+    surface: &Surface,
+    maps: &FaceMaps,
+    opts: &ExportOptions,
+) -> Result<(ExportSummary, crate::io::materials::MaterialImages)> {
     let dir = dir.as_ref();
-    let atlas = build_atlas(surface, maps, opts.gutter)?;
+    check_maps(surface, maps, opts.gutter)?;
     let level = opts
         .level
         .unwrap_or_else(|| level_for_resolution(maps.resolution));
-    let mesh = tessellate(surface, &atlas.layout, level);
-    let alpha = atlas.channels == 4;
+    let layout = AtlasLayout::new(maps.faces, maps.resolution, opts.gutter);
+    let (images, mesh) = rayon::join(
+        || crate::io::materials::material_images(surface, maps, opts.gutter),
+        || tessellate(surface, &layout, level),
+    );
+    let images = images?;
+    let alpha = images.alpha;
 
     let png_path = dir.join(ATLAS_NAME);
     let mut png = AtomicFile::create(&png_path)?;
-    atlas
-        .encode_png(png.writer())
-        .map_err(|e| Error::file(&png_path, format!("cannot write PNG: {e}")))?;
+    png.writer()
+        .write_all(&images.base_colour)
+        .map_err(|e| Error::io(&png_path, "cannot write", e))?;
 
     let mtl_path = dir.join(MTL_NAME);
     let mut mtl = AtomicFile::create(&mtl_path)?;
@@ -667,22 +849,48 @@ pub fn export(
         .map_err(|e| Error::io(&mtl_path, "cannot write", e))?;
 
     let obj_path = dir.join(OBJ_NAME);
-    let mut obj = AtomicFile::create(&obj_path)?;
-    mesh.write_obj(obj.writer(), MTL_NAME)
-        .map_err(|e| Error::io(&obj_path, "cannot write", e))?;
+    let glb_path = dir.join(GLB_NAME);
+    let (obj, glb) = rayon::join(
+        || -> Result<AtomicFile> {
+            let mut obj = AtomicFile::create(&obj_path)?;
+            mesh.write_obj(obj.writer(), MTL_NAME)
+                .map_err(|e| Error::io(&obj_path, "cannot write", e))?;
+            Ok(obj)
+        },
+        || -> Result<Option<AtomicFile>> {
+            if !opts.gltf {
+                return Ok(None);
+            }
+            let mut tri = crate::io::gltf::TriMesh::from(&mesh);
+            tri.tangents = crate::io::gltf::tangents(&tri);
+            let material = crate::io::gltf::Material {
+                name: MATERIAL,
+                base_colour: &images.base_colour,
+                alpha,
+                normal: images.normal.as_deref(),
+                orm: images.orm.as_ref().map(|(p, o)| (p.as_slice(), *o)),
+            };
+            crate::io::gltf::write_glb_uncommitted(&glb_path, &tri, &material).map(Some)
+        },
+    );
+    let (obj, glb) = (obj?, glb?);
 
     // The OBJ refers to the MTL, which refers to the PNG: publish in that dependency order.
     png.commit()?;
     mtl.commit()?;
     obj.commit()?;
-    Ok(ExportSummary {
-        atlas_width: atlas.layout.width(),
-        atlas_height: atlas.layout.height(),
+    if let Some(glb) = glb {
+        glb.commit()?;
+    }
+    let summary = ExportSummary {
+        atlas_width: layout.width(),
+        atlas_height: layout.height(),
         vertices: mesh.positions.len(),
         quads: mesh.quads.len(),
         level,
         alpha,
-    })
+    };
+    Ok((summary, images))
 }
 
 #[cfg(test)]
@@ -698,6 +906,29 @@ mod tests {
         assert_eq!(linear_to_srgb8(2.0), 255);
         // Reference value: linear 0.5 is sRGB 0.7354 → 188.
         assert_eq!(linear_to_srgb8(0.5), 188);
+    }
+
+    #[test]
+    fn srgb_table_gives_the_formula_bytes() {
+        let one = 1.0f32.to_bits();
+        let mut bits = 0u32;
+        while bits <= one {
+            let c = f32::from_bits(bits);
+            assert_eq!(linear_to_srgb8(c), linear_to_srgb8_exact(c), "{c:e}");
+            bits += 61;
+        }
+        for c in [
+            -1.0,
+            -0.0,
+            0.0,
+            1.0,
+            1.5,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::NAN,
+        ] {
+            assert_eq!(linear_to_srgb8(c), linear_to_srgb8_exact(c), "{c}");
+        }
     }
 
     #[test]

@@ -4,5 +4,9 @@
 
 pub mod atlas;
 pub mod atomic;
+pub mod decimate;
 pub mod displace;
 pub mod exr;
+pub mod gltf;
+pub mod materials;
+pub mod ptex;

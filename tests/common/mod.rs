@@ -3,6 +3,9 @@
 //! as a test binary of its own. Not every test uses every helper, so each item allows
 //! `dead_code` rather than the test binaries that leave it unused.
 
+pub mod glb;
+pub mod gltf_validator;
+
 use glam::DVec3;
 use std::path::PathBuf;
 use subdiv::{DomainId, DomainLocation, Surface};
