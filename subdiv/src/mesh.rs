@@ -32,6 +32,9 @@ impl ControlMesh {
 
     /// Parses OBJ text (see [`Self::load_obj`]).
     pub fn parse_obj(text: &str) -> Result<Self, MeshError> {
+        // A UTF-8 byte order mark would otherwise glue onto the first keyword ("\u{feff}v")
+        // and silently drop that line.
+        let text = text.strip_prefix('\u{feff}').unwrap_or(text);
         let mut positions = Vec::new();
         let mut face_start = vec![0u32];
         let mut face_verts: Vec<u32> = Vec::new();
@@ -282,6 +285,30 @@ mod tests {
         ));
         assert!(matches!(err("v 0 0\n"), MeshProblem::Parse(_)));
         assert!(matches!(err("v 0 0 0\nf 1 a 2\n"), MeshProblem::Parse(_)));
+    }
+
+    /// A cube (8 vertices, 6 quads) as OBJ text.
+    const CUBE: &str = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nv 0 0 1\nv 1 0 1\nv 0 1 1\nv 1 1 1\n\
+                        f 1 3 4 2\nf 5 6 8 7\nf 1 2 6 5\nf 3 7 8 4\nf 1 5 7 3\nf 2 4 8 6\n";
+
+    /// Issue 18: a UTF-8 byte order mark used to glue onto the first `v` and drop that line
+    /// ("face 2 refers to vertex 8, but the mesh has only 7 vertices").
+    #[test]
+    fn byte_order_mark_is_skipped() {
+        let m = ControlMesh::parse_obj(&format!("\u{feff}{CUBE}")).unwrap();
+        assert_eq!(m.mesh.num_vertices(), 8);
+        assert_eq!(m.mesh.pos(crate::VertexId(0)), DVec3::ZERO);
+        let dir = std::env::temp_dir().join(format!("surfsynth-bom-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("cube.obj");
+        std::fs::write(
+            &path,
+            [b"\xef\xbb\xbf".as_slice(), CUBE.as_bytes()].concat(),
+        )
+        .unwrap();
+        let m = ControlMesh::load_obj(&path).unwrap();
+        assert_eq!(m.mesh.num_faces(), 6);
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]
