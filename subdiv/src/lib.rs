@@ -11,6 +11,7 @@
 
 pub mod adjacency;
 pub mod charts;
+pub mod crease;
 mod deep;
 pub mod domains;
 pub mod error;
@@ -28,6 +29,7 @@ pub mod topology;
 pub use adjacency::BaseLocation;
 pub use charts::{ChartHint, ChartPoint, Charts, VertexChart};
 pub use domains::{Domain, DomainLocation};
+pub use crease::{Rule, Sharpness};
 pub use error::MeshError;
 pub use ids::{BaseQuadId, DomainId, FaceId, VertexId};
 pub use levels::LimitMesh;
