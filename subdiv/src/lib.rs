@@ -28,10 +28,10 @@ pub mod topology;
 
 pub use adjacency::BaseLocation;
 pub use charts::{ChartHint, ChartPoint, Charts, VertexChart};
-pub use domains::{Domain, DomainLocation};
 pub use crease::{Rule, Sharpness};
-pub use error::MeshError;
+pub use domains::{Domain, DomainLocation};
+pub use error::{MeshError, MeshProblem, TagProblem};
 pub use ids::{BaseQuadId, DomainId, FaceId, VertexId};
 pub use levels::LimitMesh;
-pub use mesh::ControlMesh;
+pub use mesh::{ControlMesh, IgnoredTag};
 pub use surface::{LimitSample, Surface};
