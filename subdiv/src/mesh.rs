@@ -585,7 +585,11 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("surfsynth-bom-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("cube.obj");
-        std::fs::write(&path, [b"\xef\xbb\xbf".as_slice(), CUBE.as_bytes()].concat()).unwrap();
+        std::fs::write(
+            &path,
+            [b"\xef\xbb\xbf".as_slice(), CUBE.as_bytes()].concat(),
+        )
+        .unwrap();
         let m = ControlMesh::load_obj(&path).unwrap();
         assert_eq!(m.mesh.num_faces(), 6);
         std::fs::remove_dir_all(&dir).unwrap();
@@ -636,8 +640,10 @@ mod tests {
             notes[0]
         );
         // Sharpness 0 everywhere is the untagged mesh.
-        let zero = ControlMesh::parse_obj(&format!("{CUBE}t crease 2/1/0 0 1 0\nt corner 1/1/0 3 0.0\n"))
-            .unwrap();
+        let zero = ControlMesh::parse_obj(&format!(
+            "{CUBE}t crease 2/1/0 0 1 0\nt corner 1/1/0 3 0.0\n"
+        ))
+        .unwrap();
         assert!(!zero.mesh.has_tags());
     }
 
@@ -650,7 +656,10 @@ mod tests {
             assert!(s.starts_with("<mesh>: line 15: t "), "{tag}: {s}");
             assert!(!s.contains('\n'));
             match e.problem {
-                MeshProblem::Tag { line: Some(14), problem } => problem,
+                MeshProblem::Tag {
+                    line: Some(14),
+                    problem,
+                } => problem,
                 p => panic!("{tag}: {p:?}"),
             }
         };
@@ -666,8 +675,14 @@ mod tests {
             bad("t corner 1/1/0 -1 1.0"),
             TagProblem::VertexOutOfRange { index: -1, .. }
         ));
-        assert_eq!(bad("t crease 2/1/0 0 7 1.0"), TagProblem::NoEdge { a: 0, b: 7 });
-        assert_eq!(bad("t crease 2/1/0 3 3 1.0"), TagProblem::NoEdge { a: 3, b: 3 });
+        assert_eq!(
+            bad("t crease 2/1/0 0 7 1.0"),
+            TagProblem::NoEdge { a: 0, b: 7 }
+        );
+        assert_eq!(
+            bad("t crease 2/1/0 3 3 1.0"),
+            TagProblem::NoEdge { a: 3, b: 3 }
+        );
         assert!(matches!(
             bad("t crease 2/1/0 0 1 -2"),
             TagProblem::BadSharpness { .. }
@@ -697,10 +712,17 @@ mod tests {
             bad("t crease 2/1/0 0 1 2 3"),
             TagProblem::CountMismatch { .. }
         ));
-        assert_eq!(bad("t crease 3/1/0 0 1 3 2"), TagProblem::CreaseVertexCount(3));
+        assert_eq!(
+            bad("t crease 3/1/0 0 1 3 2"),
+            TagProblem::CreaseVertexCount(3)
+        );
         assert!(matches!(
             bad("t crease 4/3/0 0 1 1 3 2 2 2"),
-            TagProblem::SharpnessCount { values: 3, items: 2, .. }
+            TagProblem::SharpnessCount {
+                values: 3,
+                items: 2,
+                ..
+            }
         ));
         assert!(matches!(
             bad("t corner 0/1/0 2"),
@@ -708,11 +730,17 @@ mod tests {
         ));
         assert!(matches!(
             bad("t crease 2/1/0 0 1.5 2"),
-            TagProblem::BadValue { what: "vertex index", .. }
+            TagProblem::BadValue {
+                what: "vertex index",
+                ..
+            }
         ));
         assert!(matches!(
             bad("t corner 1/1/0 0 2x"),
-            TagProblem::BadValue { what: "sharpness", .. }
+            TagProblem::BadValue {
+                what: "sharpness",
+                ..
+            }
         ));
         // Through a file: the message names it.
         let e = ControlMesh::parse_obj(&format!("{CUBE}t crease 2/1/0 0 7 1.0\n"))

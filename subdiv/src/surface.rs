@@ -739,11 +739,15 @@ mod tests {
     /// stored to depth 1 must give exactly what a tree stored to depth 10 gives.
     #[test]
     fn on_demand_levels_match_stored_levels() {
-        for shape in ["catmark_nonquads", "catmark_edgecorner", "catmark_pole8"] {
-            let cm = crate::ControlMesh::load_obj(crate::test_data::opensubdiv_reference(
-                &format!("{shape}.obj"),
-            ))
-            .unwrap();
+        for shape in [
+            "catmark_nonquads",
+            "catmark_edgecorner",
+            "catmark_pole8",
+            "catmark_single_crease",
+            "catmark_cubes_infsharp",
+            "catmark_pyramid_creases1",
+        ] {
+            let cm = crate::ControlMesh::load_obj(crate::test_data::shape(shape)).unwrap();
             let shallow = Surface::with_options(cm.clone(), SurfaceOptions { max_depth: 1 });
             let deep = Surface::with_options(cm, SurfaceOptions { max_depth: 10 });
             for b in 0..deep.num_base_quads() {
@@ -775,11 +779,10 @@ mod tests {
             ("catmark_edgecorner", 2),
             ("catmark_pole8", 1),
             ("catmark_cube", 3),
+            ("catmark_cube_creases1", 1),
+            ("catmark_inf_crease0", 2),
         ] {
-            let cm = crate::ControlMesh::load_obj(crate::test_data::opensubdiv_reference(
-                &format!("{shape}.obj"),
-            ))
-            .unwrap();
+            let cm = crate::ControlMesh::load_obj(crate::test_data::shape(shape)).unwrap();
             let s = Surface::with_options(cm, SurfaceOptions { max_depth: depth });
             // Points spiralling into every corner (down to 2^-30 of it), the corners
             // themselves and a few interior points: every depth below the stored one.
@@ -826,11 +829,14 @@ mod tests {
     /// remembered patch, on its boundary, in other patches and other base quads.
     #[test]
     fn hinted_derivs_match_eval_base() {
-        for shape in ["catmark_pole8", "catmark_nonquads", "catmark_edgecorner"] {
-            let cm = crate::ControlMesh::load_obj(crate::test_data::opensubdiv_reference(
-                &format!("{shape}.obj"),
-            ))
-            .unwrap();
+        for shape in [
+            "catmark_pole8",
+            "catmark_nonquads",
+            "catmark_edgecorner",
+            "catmark_chaikin0",
+            "catmark_cubes_infsharp",
+        ] {
+            let cm = crate::ControlMesh::load_obj(crate::test_data::shape(shape)).unwrap();
             let s = Surface::with_options(cm, SurfaceOptions { max_depth: 4 });
             let mut hint = LeafHint::default();
             for b in 0..s.num_base_quads() as u32 {

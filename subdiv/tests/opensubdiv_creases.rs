@@ -11,7 +11,12 @@
 //! compared. On an infinitely sharp edge (flag 1 off the vertices) the reference is this
 //! face's one-sided normal, which we must match. At smooth extraordinary vertices the
 //! exact normal is the limit-mask one (`NAME.limitmask.csv`): OpenSubdiv's Gregory patches
-//! are off by up to 6e-3° there.
+//! are off by up to 6e-3° there (but see `judge` for valence 2).
+//!
+//! Held-out sets made the same way (the README's `tools/`) can be checked with
+//! `SURFSYNTH_CREASE_EXTRA=DIR cargo test --release -p subdiv --test opensubdiv_creases --
+//! --ignored`: every `NAME.obj` in DIR with its `NAME.limit.csv`, `NAME.texels.csv` (and
+//! `NAME.limitmask.csv`, when present).
 
 mod common;
 
@@ -60,8 +65,8 @@ struct Row {
     flag: u8,
 }
 
-fn read_csv(name: &str) -> Vec<Row> {
-    let path = data_dir().join(name);
+fn read_csv(dir: &std::path::Path, name: &str) -> Vec<Row> {
+    let path = dir.join(name);
     let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     text.lines()
         .skip(1)
@@ -86,8 +91,8 @@ fn bake_depth(n: usize) -> u32 {
     (log2 + 1).clamp(1, 10)
 }
 
-fn load(shape: &str, n: usize) -> Surface {
-    let cm = ControlMesh::load_obj(data_dir().join(format!("{shape}.obj"))).unwrap();
+fn load(dir: &std::path::Path, shape: &str, n: usize) -> Surface {
+    let cm = ControlMesh::load_obj(dir.join(format!("{shape}.obj"))).unwrap();
     Surface::with_options(
         cm,
         SurfaceOptions {
@@ -149,11 +154,14 @@ fn judge(
         );
         match r.flag {
             0 => {
-                // The exact normal: the limit-mask one on the grid (it differs from the
-                // patch one only at smooth extraordinary vertices).
-                let n = exact_normals.map_or(r.n, |m| m[i].n);
+                // The exact normal: the limit-mask one on the grid at smooth extraordinary
+                // vertices (elsewhere both agree to 4e-12°), except at interior valence 2,
+                // where OpenSubdiv's limit tangent masks are its corner masks (90–180° off
+                // there on `catmark_val2_interior`, while the patch normal is within 1e-4°
+                // of ours): the nearer of the two.
+                let a = exact_normals
+                    .map_or(angle(e.n, r.n), |m| angle(e.n, m[i].n).min(angle(e.n, r.n)));
                 w.pos = w.pos.max(pe);
-                let a = angle(e.n, n);
                 if a > 0.01 {
                     eprintln!(
                         "{shape}: face {} ({}, {}): normal off by {a}°",
@@ -197,33 +205,74 @@ fn check(shape: &str, what: &str, w: &Worst) {
     );
 }
 
+/// The 5x5 grid of every domain of `shape` in `dir`.
+fn check_grid(dir: &std::path::Path, shape: &str) {
+    let s = load(dir, shape, 8);
+    let rows = read_csv(dir, &format!("{shape}.limit.csv"));
+    let mask_file = format!("{shape}.limitmask.csv");
+    let mask = dir
+        .join(&mask_file)
+        .exists()
+        .then(|| read_csv(dir, &mask_file));
+    assert_eq!(s.num_domains() * 25, rows.len(), "{shape}: domain count");
+    let w = judge(shape, &s, &rows, mask.as_deref(), |r| {
+        s.eval(DomainId(r.face), r.a, r.b)
+    });
+    check(shape, "grid", &w);
+}
+
+/// The 8x8 texel centres of every domain of `shape` in `dir`, as `bake` evaluates them.
+fn check_texels(dir: &std::path::Path, shape: &str) {
+    let n = 8;
+    let s = load(dir, shape, n);
+    let rows = read_csv(dir, &format!("{shape}.texels.csv"));
+    let mut maps = vec![LimitSample::default(); s.num_domains() * n * n];
+    for (d, chunk) in maps.chunks_mut(n * n).enumerate() {
+        s.eval_texels(DomainId(d as u32), n, chunk);
+    }
+    let w = judge(shape, &s, &rows, None, |r| {
+        maps[r.face as usize * n * n + r.b as usize * n + r.a as usize]
+    });
+    check(shape, "texels", &w);
+}
+
 #[test]
 fn limit_grid_matches_opensubdiv_with_creases() {
     for shape in SHAPES {
-        let s = load(shape, 8);
-        let rows = read_csv(&format!("{shape}.limit.csv"));
-        let mask = read_csv(&format!("{shape}.limitmask.csv"));
-        assert_eq!(s.num_domains() * 25, rows.len(), "{shape}: domain count");
-        let w = judge(shape, &s, &rows, Some(&mask), |r| {
-            s.eval(DomainId(r.face), r.a, r.b)
-        });
-        check(shape, "grid", &w);
+        check_grid(&data_dir(), shape);
     }
 }
 
 #[test]
 fn texel_centres_match_opensubdiv_with_creases() {
-    let n = 8;
     for shape in SHAPES {
-        let s = load(shape, n);
-        let rows = read_csv(&format!("{shape}.texels.csv"));
-        let mut maps = vec![LimitSample::default(); s.num_domains() * n * n];
-        for (d, chunk) in maps.chunks_mut(n * n).enumerate() {
-            s.eval_texels(DomainId(d as u32), n, chunk);
-        }
-        let w = judge(shape, &s, &rows, None, |r| {
-            maps[r.face as usize * n * n + r.b as usize * n + r.a as usize]
-        });
-        check(shape, "texels", &w);
+        check_texels(&data_dir(), shape);
+    }
+}
+
+/// Held-out shapes (see the module doc).
+#[test]
+#[ignore = "needs SURFSYNTH_CREASE_EXTRA"]
+fn extra_shapes_match_opensubdiv() {
+    let dir = PathBuf::from(
+        std::env::var_os("SURFSYNTH_CREASE_EXTRA").expect("set SURFSYNTH_CREASE_EXTRA"),
+    );
+    let mut shapes: Vec<String> = std::fs::read_dir(&dir)
+        .unwrap()
+        .filter_map(|e| {
+            let name = e.ok()?.file_name().into_string().ok()?;
+            let shape = name.strip_suffix(".limit.csv")?.to_string();
+            dir.join(format!("{shape}.obj")).exists().then_some(shape)
+        })
+        .collect();
+    shapes.sort();
+    assert!(
+        !shapes.is_empty(),
+        "no NAME.obj + NAME.limit.csv in {}",
+        dir.display()
+    );
+    for shape in &shapes {
+        check_grid(&dir, shape);
+        check_texels(&dir, shape);
     }
 }
