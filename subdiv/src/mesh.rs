@@ -282,6 +282,17 @@ impl ControlMesh {
         Self::from_faces(pos, &faces).expect("a box is a valid mesh")
     }
 
+    /// The mesh refined once (Catmull-Clark with its creases, whose sharpness drops by one):
+    /// the same limit surface, with four times the quads. Tags carry over, as OpenSubdiv's
+    /// refined levels do.
+    pub fn refined(&self) -> ControlMesh {
+        ControlMesh {
+            mesh: crate::refine::refine(&self.mesh),
+            path: self.path.clone(),
+            ignored_tags: self.ignored_tags.clone(),
+        }
+    }
+
     /// Number of Ptex face domains: 1 per quad, n per n-gon.
     pub fn num_domains(&self) -> usize {
         (0..self.mesh.num_faces())
