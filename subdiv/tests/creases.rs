@@ -135,3 +135,66 @@ fn semi_sharp_creases_approach_the_sharp_one() {
         .fold(0.0, f64::max);
     assert!(worst < 1e-14, "sharpness 9: {worst}");
 }
+
+/// Random tags on meshes with n-gons, triangles, boundaries and extraordinary vertices
+/// (seeded): every sample finite with a unit normal, and every vertex of a level-4
+/// refinement — where all semi-sharp values (≤ 3) have decayed — evaluated through the
+/// patch trees equals the limit masks on the globally refined mesh.
+#[test]
+fn random_tags_agree_with_global_refinement() {
+    use subdiv::limit::corner_limit;
+    let mut r = common::Lcg(17);
+    let values = [0.3f32, 1.0, 1.7, 2.5, 10.0];
+    for name in [
+        "catmark_nonquads.obj",
+        "catmark_edgecorner.obj",
+        "catmark_pole8.obj",
+    ] {
+        let c = shape(name);
+        for round in 0..3 {
+            let mut tags = Vec::new();
+            for (a, b) in edges(&c) {
+                if r.next() < 0.3 {
+                    tags.push((a, b, values[(r.next() * 5.0) as usize]));
+                }
+            }
+            let mut verts = Vec::new();
+            for v in 0..c.mesh.num_vertices() as u32 {
+                if r.next() < 0.1 {
+                    verts.push((v, values[(r.next() * 5.0) as usize]));
+                }
+            }
+            let s = Surface::new(c.clone().with_sharpness(&tags, &verts).unwrap());
+            for e in samples(&s) {
+                assert!(
+                    e.p.is_finite() && (e.n.length() - 1.0).abs() < 1e-9,
+                    "{name} {round}: {e:?}"
+                );
+            }
+            let (lo, hi) = s.bounds();
+            let diag = (hi - lo).length();
+            let lm = s.limit_mesh(4);
+            let (mut worst, mut worst_n) = (0.0f64, 0.0f64);
+            for v in 0..lm.mesh.num_vertices() {
+                let vid = subdiv::VertexId(v as u32);
+                let Some(h) = lm.mesh.vertex_out(vid) else {
+                    continue;
+                };
+                assert!(!lm.mesh.has_semi_sharp_at(vid));
+                let l = corner_limit(&lm.mesh, h);
+                worst = worst.max((l.position - lm.position[v]).length() / diag);
+                // One normal (no crease side to choose), not a boundary vertex with 3+
+                // faces (OpenSubdiv's "not unique"): the same normal.
+                let m = &lm.mesh;
+                if m.normal_is_unique(vid)
+                    && !(m.is_boundary_vertex(vid) && m.vertex_faces(vid) >= 3)
+                {
+                    worst_n = worst_n.max(l.normal.angle_between(lm.normal[v]).to_degrees());
+                }
+            }
+            eprintln!("{name} round {round}: position {worst:.1e}, normal {worst_n:.1e}°");
+            assert!(worst < 1e-12, "{name} round {round}: position {worst:e}");
+            assert!(worst_n < 1e-3, "{name} round {round}: normal {worst_n}°");
+        }
+    }
+}
