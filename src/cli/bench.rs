@@ -308,6 +308,7 @@ fn bake(a: BenchBakeArgs) -> anyhow::Result<()> {
 
 /// `bench bake --creases R`: the plain and the creased torus, alternately, R times each (so
 /// both see the same machine load), with the medians of the per-round throughput ratios.
+/// (Peak memory is the whole process's, so it is not compared here: run each mesh alone.)
 fn crease_rounds(
     a: &BenchBakeArgs,
     rounds: usize,
@@ -343,7 +344,6 @@ fn crease_rounds(
         "eval_texels_per_second": median(&|r| r.eval_texels_per_second),
         "eval_texels_per_cpu_second": median(&|r| r.texels as f64 / r.eval_cpu_seconds.max(1e-9)),
         "surface_build_seconds": median(&|r| r.surface_build_seconds),
-        "peak_rss_bytes": median(&|r| r.peak_rss_bytes as f64),
     });
     Ok(serde_json::json!({ "plain": plain, "creased": creased, "creased_over_plain": ratios }))
 }
