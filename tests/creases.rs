@@ -387,3 +387,40 @@ fn bad_crease_tags_fail_with_one_line() {
         assert!(line.to_lowercase().contains(problem), "{tag}: {line}");
     }
 }
+
+/// The texel graph crosses creases as it crosses any domain edge: every texel on a crease
+/// has neighbours on the other side, as near as across a smooth edge (a creased domain
+/// edge is a domain edge like any other).
+#[test]
+fn texel_graph_reaches_across_creases() {
+    use surfsynth::texels::{TexelGeometry, TexelGraph};
+    let s = creased_frustum(10.0, 1);
+    let n = 8;
+    let geom = TexelGeometry::compute(&s, n);
+    let graph = TexelGraph::build(&s, &geom);
+    let h = geom.median_spacing(&s) as f32;
+    let (mut on_crease, mut nb) = (0, Vec::new());
+    for t in 0..geom.len() {
+        let (x, y) = (t % n, (t / n) % n);
+        if x != 0 && y != 0 && x != n - 1 && y != n - 1 {
+            continue;
+        }
+        nb.clear();
+        graph.neighbours(t, &mut nb);
+        // Neighbours on another side of a crease: their normal is far from this one's.
+        let across: Vec<u32> = nb
+            .iter()
+            .copied()
+            .filter(|&j| geom.normal[j as usize].dot(geom.normal[t]) < 0.9)
+            .collect();
+        let crease_side = across
+            .iter()
+            .any(|&j| geom.pos[j as usize].distance(geom.pos[t]) < 1.5 * h);
+        on_crease += crease_side as usize;
+    }
+    // Each face is 2x2 domains: two sides of every domain lie on creases, 15 of its 28
+    // border texels.
+    let border = geom.faces * (4 * n - 4);
+    println!("{on_crease} of {border} border texels have a neighbour across a crease");
+    assert!(on_crease >= border / 2, "{on_crease} of {border}");
+}
