@@ -74,19 +74,41 @@ pub fn torus_mesh(min_domains: usize) -> ControlMesh {
     ControlMesh::from_polygons(positions, face_start, verts).expect("torus is a valid mesh")
 }
 
+/// [`torus_mesh`] with creases, a panelled hard surface: every third meridian loop and
+/// every third parallel loop is tagged, alternately infinitely sharp and semi-sharp (2.5
+/// on meridians, 1.5 on parallels), so two thirds of the quads touch a crease, with
+/// corners where sharp loops cross and semi-sharp values that decay only at level 3.
+pub fn creased_torus_mesh(min_domains: usize) -> ControlMesh {
+    let m = torus_mesh(min_domains);
+    let rows = ((min_domains as f64 / 2.0).sqrt().ceil() as usize).max(3);
+    let cols = 2 * rows;
+    let id = |i: usize, j: usize| ((i % cols) * rows + (j % rows)) as u32;
+    let mut edges = Vec::new();
+    for i in 0..cols {
+        for j in 0..rows {
+            // Meridian loop i (around the tube) and parallel loop j (around the axis).
+            match i % 6 {
+                0 => edges.push((id(i, j), id(i, j + 1), 10.0)),
+                3 => edges.push((id(i, j), id(i, j + 1), 2.5)),
+                _ => {}
+            }
+            match j % 6 {
+                0 => edges.push((id(i, j), id(i + 1, j), 10.0)),
+                3 => edges.push((id(i, j), id(i + 1, j), 1.5)),
+                _ => {}
+            }
+        }
+    }
+    m.with_sharpness(&edges, &[])
+        .expect("torus loops are edges")
+}
+
 /// Uniform Catmull-Clark refinement of the control mesh until it has at least
-/// `min_domains` face domains (each step turns every domain into four quads).
+/// `min_domains` face domains (each step turns every domain into four quads; crease tags
+/// carry over, one sharper level spent per step).
 pub fn refine_to(mut mesh: ControlMesh, min_domains: usize) -> ControlMesh {
     while mesh.num_domains() < min_domains {
-        let r = subdiv::refine::refine(&mesh.mesh);
-        let path = mesh.path.clone();
-        mesh = ControlMesh::from_polygons(
-            r.positions.clone(),
-            r.face_starts().to_vec(),
-            r.half_edge_vertices().to_vec(),
-        )
-        .expect("refinement of a valid mesh is valid");
-        mesh.path = path;
+        mesh = mesh.refined();
     }
     mesh
 }
@@ -96,6 +118,8 @@ pub fn refine_to(mut mesh: ControlMesh, min_domains: usize) -> ControlMesh {
 pub enum BenchMesh {
     /// [`torus_mesh`] with this many domains (at least).
     Torus(usize),
+    /// [`creased_torus_mesh`] with this many domains (at least).
+    CreasedTorus(usize),
     /// An OBJ file, refined with [`refine_to`] until it has this many domains (at least).
     File(PathBuf, usize),
 }
@@ -139,6 +163,10 @@ pub fn bake_bench(
     let t = Instant::now();
     let (name, control) = match mesh {
         BenchMesh::Torus(d) => (format!("generated torus (>= {d} quads)"), torus_mesh(*d)),
+        BenchMesh::CreasedTorus(d) => (
+            format!("generated creased torus (>= {d} quads)"),
+            creased_torus_mesh(*d),
+        ),
         BenchMesh::File(p, d) => {
             let m = ControlMesh::load_obj(p)?;
             (
@@ -317,6 +345,10 @@ mod tests {
         assert!(t.num_domains() >= 200 && t.num_domains() < 260);
         let r = refine_to(torus_mesh(20), 300);
         assert!(r.num_domains() >= 300);
+        let c = creased_torus_mesh(200);
+        assert_eq!(c.num_domains(), t.num_domains());
+        assert!(c.mesh.has_tags());
+        assert!(refine_to(c, 300).mesh.has_tags());
         assert!(peak_rss_bytes().unwrap_or(1) > 0);
         assert!(cpu_seconds().is_some_and(|c| c >= 0.0));
     }

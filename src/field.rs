@@ -27,6 +27,16 @@
 //! vertices interact, so every half-sweep lowers E (recorded in [`OrientationField::history`])
 //! and the result does not depend on the thread count.
 //!
+//! # Across infinitely sharp creases
+//! A vertex on such a crease (or corner) has one tangent plane per *sector* (the faces
+//! between two sharp edges). It keeps one θ_i, measured in a frame per sector: at a crease
+//! (two sectors meeting along two sharp edges) every sector's frame starts from the
+//! crease's own tangent, which lies in both planes, so the same θ_i on either side is the
+//! direction *unfolded* across the crease (same angle to the crease), as a geodesic crossing
+//! it continues. Edges use the frame of the sector they lie in, and field vectors inside a
+//! face use the frame of the face's side. At corners (three or more sectors) each sector's
+//! frame starts from its first sharp edge: the field is singular there anyway.
+//!
 //! # Inside faces
 //! [`OrientationField::frame`] blends the four corner vectors of the level face holding the
 //! point bilinearly (in 3D), projects on the exact tangent plane and normalises. Two faces
@@ -36,6 +46,7 @@
 use anyhow::{bail, Context};
 use glam::{DVec2, DVec3};
 use rayon::prelude::*;
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use subdiv::{BaseLocation, DomainId, FaceId, LimitMesh, Surface, VertexId};
 
@@ -174,8 +185,12 @@ pub struct Singularity {
 #[derive(Clone, Debug)]
 pub struct OrientationField {
     mesh: LimitMesh,
-    /// Unit tangent v1 at every vertex of `mesh`.
+    /// Unit tangent v1 at every vertex of `mesh` (at a vertex with one normal per side:
+    /// on the side of its `vertex_corner`).
     v1: Vec<DVec3>,
+    /// v1 on each face's side at the vertices with one normal per side, by face corner
+    /// 4·face + corner ([`LimitMesh::is_sided`]); empty without such vertices.
+    corner_v1: HashMap<u32, DVec3>,
     history: Vec<LevelHistory>,
     label: String,
 }
@@ -312,9 +327,13 @@ struct LevelProblem {
     start: Vec<u32>,
     nbr: Vec<u32>,
     coef: Vec<DVec2>,
-    /// Tangent frame per vertex: e_i and f_i = n_i × e_i.
+    /// Tangent frame per vertex: e_i and f_i = n_i × e_i (at a vertex with one normal per
+    /// side, the frame of its `vertex_corner`'s side).
     e: Vec<DVec3>,
     f: Vec<DVec3>,
+    /// At vertices with one normal per side: the frame of every face corner's side
+    /// (4·face + corner), see the module doc.
+    corner_frames: HashMap<u32, (DVec3, DVec3)>,
     /// λ a_i in the vertex frame.
     target: Vec<DVec2>,
     /// Pinned values (NaN = free).
@@ -344,16 +363,33 @@ impl LevelProblem {
             e[v] = t.normalize();
             f[v] = n.cross(e[v]);
         }
+        let corner_frames = sided_frames(lm);
+        for (v, (ev, fv)) in e.iter_mut().zip(f.iter_mut()).enumerate() {
+            if lm.is_sided(VertexId::from_idx(v)) {
+                (*ev, *fv) = corner_frames[&lm.vertex_corner[v]];
+            }
+        }
+        // The frame of vertex `v` on the side of face `face`, corner `c`.
+        let frame = |v: usize, face: FaceId, c: usize| {
+            if lm.is_sided(VertexId::from_idx(v)) {
+                corner_frames[&(4 * face.0 + c as u32)]
+            } else {
+                (e[v], f[v])
+            }
+        };
         let mut start = Vec::with_capacity(nv + 1);
         let mut nbr = Vec::new();
         let mut coef = Vec::new();
         start.push(0u32);
         for v in 0..nv {
             let vid = VertexId::from_idx(v);
-            let mut push = |j: usize| {
+            // Edge v → j of face `face`, where v is corner `cv` and j corner `cj`.
+            let mut push = |j: usize, face: FaceId, cv: usize, cj: usize| {
                 let d = lm.position[j] - lm.position[v];
-                let ai = DVec2::new(d.dot(e[v]), d.dot(f[v]));
-                let aj = DVec2::new(d.dot(e[j]), d.dot(f[j]));
+                let (ev, fv) = frame(v, face, cv);
+                let (ej, fj) = frame(j, face, cj);
+                let ai = DVec2::new(d.dot(ev), d.dot(fv));
+                let aj = DVec2::new(d.dot(ej), d.dot(fj));
                 // c_ij = e^{i(φ_ij − φ_ji)}: rotates j's frame angle into i's.
                 let c = if ai.length_squared() > 0.0 && aj.length_squared() > 0.0 {
                     cmul(ai.normalize(), conj(aj.normalize()))
@@ -365,14 +401,18 @@ impl LevelProblem {
             };
             let mut last = None;
             for h in m.outgoing(vid) {
-                push(m.dest(h).idx());
+                let face = m.face_of(h);
+                let c = (h - m.face_he(face)) as usize;
+                push(m.dest(h).idx(), face, c, (c + 1) % 4);
                 last = Some(h);
             }
             // A boundary vertex's fan misses the edge arriving along the boundary.
             if m.is_boundary_vertex(vid) {
                 if let Some(h) = last {
                     let p = m.prev(h);
-                    push(m.origin(p).idx());
+                    let face = m.face_of(p);
+                    let c = (p - m.face_he(face)) as usize;
+                    push(m.origin(p).idx(), face, (c + 1) % 4, c);
                 }
             }
             start.push(nbr.len() as u32);
@@ -384,6 +424,7 @@ impl LevelProblem {
             coef,
             e,
             f,
+            corner_frames,
             target: vec![DVec2::ZERO; nv],
             pinned: vec![DVec2::NAN; nv],
             classes,
@@ -400,6 +441,17 @@ impl LevelProblem {
 
     fn to_3d(&self, v: usize, z: DVec2) -> DVec3 {
         self.e[v] * z.x + self.f[v] * z.y
+    }
+
+    /// v1 on every face corner's side at the vertices with one normal per side.
+    fn corner_v1(&self, lm: &LimitMesh, z: &[DVec2]) -> HashMap<u32, DVec3> {
+        self.corner_frames
+            .iter()
+            .map(|(&k, &(e, f))| {
+                let v = lm.mesh.face_vertices(FaceId(k / 4))[(k % 4) as usize] as usize;
+                (k, e * z[v].x + f * z[v].y)
+            })
+            .collect()
     }
 
     /// E of the module doc (each edge counted once).
@@ -580,13 +632,105 @@ impl LevelProblem {
     }
 }
 
+/// The tangent frame (e, n × e) of every face corner's side at the vertices of `lm` with one
+/// normal per side (module doc, "Across infinitely sharp creases"), by 4·face + corner.
+fn sided_frames(lm: &LimitMesh) -> HashMap<u32, (DVec3, DVec3)> {
+    let m = &lm.mesh;
+    let mut out = HashMap::new();
+    for v in 0..m.num_vertices() {
+        let vid = VertexId::from_idx(v);
+        if !lm.is_sided(vid) {
+            continue;
+        }
+        let x = lm.position[v];
+        let corner = |h: u32| {
+            let face = m.face_of(h);
+            (face, (h - m.face_he(face)) as usize)
+        };
+        // Sectors by their first half-edge, each with its normal.
+        let outs: Vec<u32> = m.outgoing(vid).collect();
+        let mut sectors: Vec<(u32, DVec3)> = Vec::new();
+        let sector_of: Vec<usize> = outs
+            .iter()
+            .map(|&h| {
+                let first = m.sector(h).first;
+                sectors
+                    .iter()
+                    .position(|s| s.0 == first)
+                    .unwrap_or_else(|| {
+                        let (face, c) = corner(first);
+                        sectors.push((first, lm.corner_normal(face, c)));
+                        sectors.len() - 1
+                    })
+            })
+            .collect();
+        // The infinitely sharp edges shared by two sectors (not on the boundary).
+        let shared: Vec<DVec3> = m
+            .vertex_edges(vid)
+            .filter(|&(h, _)| m.twin(h).is_some() && m.edge_sharpness(h).is_infinite())
+            .map(|(_, w)| lm.position[w.idx()] - x)
+            .collect();
+        // One tangent both sides contain where two sectors meet: along the crease.
+        let common = match (sectors.as_slice(), shared.as_slice()) {
+            ([(_, na), (_, nb)], [a, b]) => {
+                let t = na.cross(*nb);
+                let chord = *a - *b;
+                Some(if t.length() > 1e-3 {
+                    t * t.dot(chord).signum()
+                } else {
+                    chord
+                })
+            }
+            ([_, _], [a]) => Some(*a),
+            _ => None,
+        };
+        // Otherwise (corners, cones) the sectors are unfolded one after the other: sector
+        // s starts at its leading edge, turned back by the angles of the sectors before it,
+        // so the field crosses every shared edge but the one closing the fan unfolded.
+        let unit = |d: DVec3, n: DVec3| {
+            (d - n * n.dot(d))
+                .try_normalize()
+                .unwrap_or_else(|| n.any_orthonormal_vector())
+        };
+        let mut turned = 0.0f64;
+        let mut frames: Vec<(DVec3, DVec3)> = Vec::with_capacity(sectors.len());
+        for &(first, n) in &sectors {
+            let lead = unit(lm.position[m.dest(first).idx()] - x, n);
+            let e = match common {
+                Some(d) => unit(d, n),
+                None => {
+                    let (sn, cs) = (-turned).sin_cos();
+                    lead * cs + n.cross(lead) * sn
+                }
+            };
+            frames.push((e, n.cross(e)));
+            // This sector's angle at the vertex: from its leading to its trailing edge.
+            let mut last = first;
+            for _ in 1..m.sector(first).faces {
+                last = m.twin(m.prev(last)).expect("faces of a sector are joined");
+            }
+            let trail = unit(lm.position[m.origin(m.prev(last)).idx()] - x, n);
+            turned += n
+                .cross(lead)
+                .dot(trail)
+                .atan2(lead.dot(trail))
+                .rem_euclid(std::f64::consts::TAU);
+        }
+        for (k, &h) in outs.iter().enumerate() {
+            let (face, c) = corner(h);
+            out.insert(4 * face.0 + c as u32, frames[sector_of[k]]);
+        }
+    }
+    out
+}
+
 /// `auto` leaves one freedom: E (without targets) is unchanged when every vector turns by
 /// the same angle about its normal, and the eigenvector's phase is arbitrary. Fix it
 /// predictably: turn the field so that it follows world +x as closely as possible (least
 /// squares over the vertices), or +y, then +z where the axis is (almost) normal everywhere
 /// or the field winds around it. On a flat grid in the xy plane v1 is then exactly +x, so
 /// the texture lines up with the grid (and with the face maps when u runs along +x).
-fn align_global_rotation(lm: &LimitMesh, v1: &mut [DVec3]) {
+fn align_global_rotation(lm: &LimitMesh, v1: &mut [DVec3], corner_v1: &mut HashMap<u32, DVec3>) {
     for axis in [DVec3::X, DVec3::Y, DVec3::Z] {
         let mut sum = DVec2::ZERO;
         let mut total = 0.0;
@@ -598,9 +742,16 @@ fn align_global_rotation(lm: &LimitMesh, v1: &mut [DVec3]) {
         // Meaningful only where the axis is not (almost) normal to the surface throughout.
         if sum.length() > 0.05 * total && total > 1e-3 * v1.len() as f64 {
             let c = sum / sum.length();
-            for (v, n) in v1.iter_mut().zip(&lm.normal) {
+            let turn = |v: &mut DVec3, n: DVec3| {
                 let r = *v * c.x + n.cross(*v) * c.y;
                 *v = r.try_normalize().unwrap_or(*v);
+            };
+            for (v, n) in v1.iter_mut().zip(&lm.normal) {
+                turn(v, *n);
+            }
+            // The same turn on every side (the same angle in every sector's frame).
+            for (&k, v) in corner_v1.iter_mut() {
+                turn(v, lm.corner_normal(FaceId(k / 4), (k % 4) as usize));
             }
             return;
         }
@@ -651,18 +802,39 @@ fn bilinear(s: f64, t: f64) -> [f64; 4] {
     [(1.0 - s) * (1.0 - t), s * (1.0 - t), s * t, (1.0 - s) * t]
 }
 
+/// v1 at corner `c` of level face `f`: on the face's side where the vertex has two.
+#[inline]
+fn corner_vector(
+    lm: &LimitMesh,
+    v1: &[DVec3],
+    corner_v1: &HashMap<u32, DVec3>,
+    f: FaceId,
+    c: usize,
+) -> DVec3 {
+    let v = lm.mesh.face_vertices(f)[c];
+    if lm.is_sided(VertexId(v)) {
+        corner_v1[&(4 * f.0 + c as u32)]
+    } else {
+        v1[v as usize]
+    }
+}
+
 /// Blend of per-vertex vectors over the level face holding a base point.
-fn blend(lm: &LimitMesh, v1: &[DVec3], loc: BaseLocation) -> (DVec3, DVec3) {
+fn blend(
+    lm: &LimitMesh,
+    v1: &[DVec3],
+    corner_v1: &HashMap<u32, DVec3>,
+    loc: BaseLocation,
+) -> (DVec3, DVec3) {
     let (f, s, t) = lm.locate(loc.quad, loc.s, loc.t);
-    let vs = lm.mesh.face_vertices(f);
     let w = bilinear(s, t);
     let mut acc = DVec3::ZERO;
     let mut best = (0.0, DVec3::ZERO);
-    for c in 0..4 {
-        let x = v1[vs[c] as usize];
-        acc += x * w[c];
-        if w[c] > best.0 {
-            best = (w[c], x);
+    for (c, &wc) in w.iter().enumerate() {
+        let x = corner_vector(lm, v1, corner_v1, f, c);
+        acc += x * wc;
+        if wc > best.0 {
+            best = (wc, x);
         }
     }
     (acc, best.1)
@@ -718,19 +890,19 @@ impl OrientationField {
         let diag = (hi - lo).length().max(1e-300);
 
         let mut history = Vec::new();
-        let mut prev: Option<(LimitMesh, Vec<DVec3>)> = None;
+        let mut prev: Option<(LimitMesh, Vec<DVec3>, HashMap<u32, DVec3>)> = None;
         for lev in 1..=level {
             let lm = surface.limit_mesh(lev);
             let mut prob = LevelProblem::new(&lm);
             set_targets(&mut prob, &lm, &constraints, opts.target_weight, diag)?;
             let mut z = match &prev {
                 None => prob.initial(),
-                Some((plm, pv1)) => (0..prob.nv())
+                Some((plm, pv1, pcv1)) => (0..prob.nv())
                     .map(|i| {
                         if !prob.pinned[i].x.is_nan() {
                             return prob.pinned[i];
                         }
-                        let (acc, best) = blend(plm, pv1, lm.vertex_location[i]);
+                        let (acc, best) = blend(plm, pv1, pcv1, lm.vertex_location[i]);
                         let mut c = prob.to_complex(i, acc);
                         if c.length() < 1e-9 {
                             c = prob.to_complex(i, best);
@@ -751,15 +923,17 @@ impl OrientationField {
                 energy,
             });
             let v1: Vec<DVec3> = (0..prob.nv()).map(|i| prob.to_3d(i, z[i])).collect();
-            prev = Some((lm, v1));
+            let corner_v1 = prob.corner_v1(&lm, &z);
+            prev = Some((lm, v1, corner_v1));
         }
-        let (mesh, mut v1) = prev.expect("at least one level");
+        let (mesh, mut v1, mut corner_v1) = prev.expect("at least one level");
         if *orientation == Orientation::Auto {
-            align_global_rotation(&mesh, &mut v1);
+            align_global_rotation(&mesh, &mut v1, &mut corner_v1);
         }
         Ok(OrientationField {
             mesh,
             v1,
+            corner_v1,
             history,
             label: orientation.label(),
         })
@@ -800,7 +974,7 @@ impl OrientationField {
     /// The frame at a base point whose unit normal `n` is already known (saves an
     /// evaluation); `fallback` is used only where the field vanishes (at a singularity).
     pub fn frame_at(&self, loc: BaseLocation, n: DVec3, fallback: DVec3) -> Frame {
-        let (acc, best) = blend(&self.mesh, &self.v1, loc);
+        let (acc, best) = blend(&self.mesh, &self.v1, &self.corner_v1, loc);
         let t = acc - n * n.dot(acc);
         let dir = if t.length_squared() > 1e-16 { t } else { best };
         Frame::from_direction(dir, n, fallback)
@@ -847,6 +1021,9 @@ impl OrientationField {
             // index is m + 1.
             let mut along = 0.0;
             let mut corners = 0.0;
+            // Normals and field vectors on this face's side.
+            let n = |c: usize| lm.corner_normal(fid, c % k);
+            let v1 = |c: usize| corner_vector(lm, &self.v1, &self.corner_v1, fid, c % k);
             for c in 0..k {
                 let (i, j, l) = (
                     vs[c] as usize,
@@ -854,12 +1031,12 @@ impl OrientationField {
                     vs[(c + 2) % k] as usize,
                 );
                 let d = lm.position[j] - lm.position[i];
-                let fi = frame_along(d, lm.normal[i]);
-                let fj = frame_along(d, lm.normal[j]);
-                let thi = self.v1[i].dot(fi.1).atan2(self.v1[i].dot(fi.0));
-                let thj = self.v1[j].dot(fj.1).atan2(self.v1[j].dot(fj.0));
+                let fi = frame_along(d, n(c));
+                let fj = frame_along(d, n(c + 1));
+                let thi = v1(c).dot(fi.1).atan2(v1(c).dot(fi.0));
+                let thj = v1(c + 1).dot(fj.1).atan2(v1(c + 1).dot(fj.0));
                 along += wrap(thj - thi);
-                let next = frame_along(lm.position[l] - lm.position[j], lm.normal[j]);
+                let next = frame_along(lm.position[l] - lm.position[j], n(c + 1));
                 corners += next.0.dot(fj.1).atan2(next.0.dot(fj.0));
             }
             let idx = ((along - corners) / std::f64::consts::TAU).round() as i32 + 1;

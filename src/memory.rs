@@ -27,7 +27,7 @@
 use crate::error::{Error, Result};
 use std::path::Path;
 use std::sync::atomic::{AtomicU64, Ordering};
-use subdiv::{ControlMesh, FaceId, Surface, VertexId};
+use subdiv::{ControlMesh, FaceId, Surface};
 
 /// Share of physical memory used as the default limit.
 pub const DEFAULT_FRACTION: f64 = 0.75;
@@ -229,30 +229,69 @@ pub struct MeshSize {
     /// Base quads (level-1 faces): the sum of the face sizes.
     pub base_quads: usize,
     /// Base quads with a corner at an extraordinary vertex: every base quad of an n-gon
-    /// (n != 4; its face point is extraordinary) and those at irregular control vertices.
+    /// (n != 4; its face point is extraordinary) and those at irregular control vertices,
+    /// also where infinitely sharp edges make a corner irregular (a dart, a crease or
+    /// corner whose sector is not the regular one).
     pub irregular_base_quads: usize,
+    /// Base quads (not counted above) with a semi-sharp value left at a corner at level 1:
+    /// their trees refine until it decays, ⌈s − 1⌉ levels for sharpness s ...
+    pub semi_sharp_base_quads: usize,
+    /// ... and the sum of those levels over them.
+    pub semi_sharp_levels: usize,
 }
 
 impl MeshSize {
     pub fn of(control: &ControlMesh) -> Self {
         let m = &control.mesh;
         let (mut base, mut irregular) = (0usize, 0usize);
+        let (mut semi_quads, mut semi_levels) = (0usize, 0usize);
         for f in 0..m.num_faces() {
             let vs = m.face_vertices(FaceId::from_idx(f));
             base += vs.len();
             if vs.len() != 4 {
                 irregular += vs.len();
             } else {
-                irregular += vs
-                    .iter()
-                    .filter(|&&v| !m.is_regular_vertex(VertexId(v)))
-                    .count();
+                let h0 = m.face_he(FaceId::from_idx(f));
+                for h in h0..h0 + 4 {
+                    let v = m.origin(h);
+                    if !m.has_tags() {
+                        irregular += !m.is_regular_vertex(v) as usize;
+                        continue;
+                    }
+                    // The largest semi-sharp value at the base quad's corners: the vertex
+                    // and its edges, and the edge points of the face's two edges there.
+                    let semi = |s: subdiv::Sharpness| {
+                        if s.is_semi_sharp() {
+                            s.value()
+                        } else {
+                            0.0
+                        }
+                    };
+                    let mut top = semi(m.vertex_sharpness(v));
+                    for (g, _) in m.vertex_edges(v) {
+                        top = top.max(semi(m.edge_sharpness(g)));
+                    }
+                    let levels = (top - 1.0).max(0.0).ceil() as usize;
+                    // With a semi-sharp value left, only the topology says whether the
+                    // corner stays irregular after it decays (an estimate: sharp edges
+                    // may still leave it irregular).
+                    if (top > 0.0 && !m.is_regular_vertex(v))
+                        || (top == 0.0 && !m.corner_is_regular(h))
+                    {
+                        irregular += 1;
+                    } else if levels > 0 {
+                        semi_quads += 1;
+                        semi_levels += levels;
+                    }
+                }
             }
         }
         Self {
             domains: control.num_domains(),
             base_quads: base,
             irregular_base_quads: irregular,
+            semi_sharp_base_quads: semi_quads,
+            semi_sharp_levels: semi_levels,
         }
     }
 }
@@ -312,14 +351,19 @@ pub fn estimate(size: &MeshSize, n: usize, job: &Job) -> Estimate {
     let texels = sat(domains, sat(n64, n64));
     let depth = crate::bake::patch_depth_for(n) as u64;
     let irregular = size.irregular_base_quads as u64;
+    let semi = size.semi_sharp_base_quads as u64;
+    // Semi-sharp trees stop where the value has decayed (or at the stored depth).
+    let semi_levels = (size.semi_sharp_levels as u64).min(sat(semi, depth));
     let surface = sat(
-        (size.base_quads as u64).saturating_sub(irregular),
+        (size.base_quads as u64).saturating_sub(irregular + semi),
         REGULAR_QUAD,
     )
     .saturating_add(sat(
         irregular,
         IRREGULAR_QUAD + IRREGULAR_QUAD_PER_LEVEL * depth,
-    ));
+    ))
+    .saturating_add(sat(semi, IRREGULAR_QUAD))
+    .saturating_add(sat(semi_levels, IRREGULAR_QUAD_PER_LEVEL));
     let mut parts = vec![("process", BASELINE), ("surface", surface)];
     let channels = match *job {
         Job::Synth {
@@ -507,9 +551,21 @@ mod tests {
             MeshSize {
                 domains: 9,
                 base_quads: 36,
-                irregular_base_quads: 0
+                irregular_base_quads: 0,
+                semi_sharp_base_quads: 0,
+                semi_sharp_levels: 0,
             }
         );
+        // A 3x3 grid with a semi-sharp crease (2.5) along y = 1, boundary to boundary: the
+        // base quads at its four vertices (2 + 4 + 4 + 2 face corners) refine
+        // ⌈2.5 − 1⌉ = 2 levels; none is irregular for good.
+        let creased = grid(3)
+            .with_sharpness(&[(4, 5, 2.5), (5, 6, 2.5), (6, 7, 2.5)], &[])
+            .unwrap();
+        let s = MeshSize::of(&creased);
+        assert_eq!(s.irregular_base_quads, 0);
+        assert_eq!(s.semi_sharp_base_quads, 12);
+        assert_eq!(s.semi_sharp_levels, 24);
         // A triangle: 3 domains, 3 base quads, all at the extraordinary face point.
         let tri = ControlMesh::parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
         let s = MeshSize::of(&tri);
@@ -518,7 +574,9 @@ mod tests {
             MeshSize {
                 domains: 3,
                 base_quads: 3,
-                irregular_base_quads: 3
+                irregular_base_quads: 3,
+                semi_sharp_base_quads: 0,
+                semi_sharp_levels: 0,
             }
         );
     }

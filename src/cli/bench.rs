@@ -145,6 +145,10 @@ pub struct BenchBakeArgs {
     /// Keep geometry.exr in this directory (default: a temporary directory, removed).
     #[arg(long, value_name = "DIR")]
     pub out: Option<PathBuf>,
+    /// Compare the generated torus without and with creases (every third loop tagged),
+    /// R rounds of each, interleaved; prints both reports and the medians of the ratios.
+    #[arg(long, value_name = "R", conflicts_with = "mesh")]
+    pub creases: Option<usize>,
 }
 
 pub fn run(a: BenchArgs) -> anyhow::Result<()> {
@@ -311,11 +315,11 @@ fn bake(a: BenchBakeArgs) -> anyhow::Result<()> {
     if a.domains == 0 || a.domains > 50_000_000 {
         anyhow::bail!("--domains {} must be between 1 and 50000000", a.domains);
     }
-    let mesh = match a.mesh {
+    let mesh = match a.mesh.clone() {
         Some(p) => BenchMesh::File(p, a.domains),
         None => BenchMesh::Torus(a.domains),
     };
-    let (dir, temporary) = match a.out {
+    let (dir, temporary) = match a.out.clone() {
         Some(d) => (d, false),
         None => (
             std::env::temp_dir().join(format!("surfsynth-bench-{}", std::process::id())),
@@ -323,6 +327,14 @@ fn bake(a: BenchBakeArgs) -> anyhow::Result<()> {
         ),
     };
     prepare_out_dir(&dir)?;
+    if let Some(rounds) = a.creases {
+        let r = crease_rounds(&a, rounds.max(1), &dir);
+        if temporary {
+            let _ = std::fs::remove_dir_all(&dir);
+        }
+        println!("{}", serde_json::to_string_pretty(&r?)?);
+        return Ok(());
+    }
     let report = bake_bench(
         &mesh,
         a.resolution,
@@ -335,4 +347,46 @@ fn bake(a: BenchBakeArgs) -> anyhow::Result<()> {
     }
     println!("{}", serde_json::to_string_pretty(&report?)?);
     Ok(())
+}
+
+/// `bench bake --creases R`: the plain and the creased torus, alternately, R times each (so
+/// both see the same machine load), with the medians of the per-round throughput ratios.
+/// (Peak memory is the whole process's, so it is not compared here: run each mesh alone.)
+fn crease_rounds(
+    a: &BenchBakeArgs,
+    rounds: usize,
+    dir: &std::path::Path,
+) -> anyhow::Result<serde_json::Value> {
+    let (mut plain, mut creased) = (Vec::new(), Vec::new());
+    for _ in 0..rounds {
+        for (mesh, out) in [
+            (BenchMesh::Torus(a.domains), &mut plain),
+            (BenchMesh::CreasedTorus(a.domains), &mut creased),
+        ] {
+            out.push(bake_bench(
+                &mesh,
+                a.resolution,
+                a.compression.to_exr(),
+                a.max_depth,
+                dir,
+            )?);
+        }
+    }
+    let median = |f: &dyn Fn(&surfsynth::bench::BakeBenchReport) -> f64| {
+        let mut r: Vec<f64> = plain
+            .iter()
+            .zip(&creased)
+            .map(|(p, c)| f(c) / f(p))
+            .collect();
+        r.sort_by(f64::total_cmp);
+        r[r.len() / 2]
+    };
+    let ratios = serde_json::json!({
+        "bake_texels_per_second": median(&|r| r.bake_texels_per_second),
+        "bake_texels_per_cpu_second": median(&|r| r.texels as f64 / r.bake_cpu_seconds.max(1e-9)),
+        "eval_texels_per_second": median(&|r| r.eval_texels_per_second),
+        "eval_texels_per_cpu_second": median(&|r| r.texels as f64 / r.eval_cpu_seconds.max(1e-9)),
+        "surface_build_seconds": median(&|r| r.surface_build_seconds),
+    });
+    Ok(serde_json::json!({ "plain": plain, "creased": creased, "creased_over_plain": ratios }))
 }

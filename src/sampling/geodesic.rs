@@ -16,7 +16,10 @@
 //!
 //! The global error is O(Δt²): halving the step divides it by four
 //! ([`exp_pattern`] can report the difference between n and 2n substeps). Paths that leave
-//! the surface through an open boundary end there (`None`).
+//! the surface through an open boundary end there (`None`). So do paths that cross an
+//! infinitely sharp crease (a step that turns the normal by more than [`CREASE_TURN_DEG`]
+//! on a surface with creases): the projection along the old normal does not unfold across
+//! a crease, and callers continue on the triangulated mesh, which does.
 
 use crate::field::Frame;
 use glam::DVec3;
@@ -134,6 +137,11 @@ fn project_along(
 /// patterns move by at most ~5e-6 δ against 1e-10 of the geodesic's length (the
 /// integration error is ~1e-3 δ), with 10–15% fewer evaluations.
 const PROJECTION_TOL: f64 = 1e-7;
+/// A RATTLE step whose normal turns by more than this (degrees) on a surface with crease
+/// tags is taken to cross an infinitely sharp crease (see the module doc). Smooth parts turn
+/// the normal by the step times the curvature, ~1° per step of 0.5 δ at texel scales.
+pub const CREASE_TURN_DEG: f64 = 10.0;
+
 /// Unit vectors spanning the plane normal to `n`.
 fn plane_axes(n: DVec3) -> (DVec3, DVec3) {
     let a = n.any_orthonormal_vector();
@@ -220,6 +228,9 @@ impl State {
             let c = Constraint { x, a, b, tol };
             let (nl, e, same) =
                 project_along(surface, self.loc, &self.e, &c, guess, &mut self.hint)?;
+            if surface.base.has_tags() && e.n.dot(self.e.n) < CREASE_TURN_DEG.to_radians().cos() {
+                return None;
+            }
             self.corr = match (lin, same) {
                 (Some(l), true) => Some((nl.s - self.loc.s - l.0, nl.t - self.loc.t - l.1)),
                 _ => None,

@@ -16,6 +16,11 @@
 //! the start direction also moved along the normal ([`MarchMesh::to_local`]) marching is
 //! within 0.8% of δ of the exact exponential map there. docs/sampling.md.)
 //!
+//! Across an infinitely sharp crease the limit normal jumps, so the rule has nothing to
+//! interpolate: there the path is unfolded (the same angle to the crease on both sides),
+//! which is what a geodesic crossing a crease does; the corner normals of every triangle are
+//! those of its own side ([`LimitMesh::corner_normal`]).
+//!
 //! Each triangle keeps 2D coordinates of its corners (P0 = (0,0), P1 = (x1, 0),
 //! P2 = (x2, y2)); the walk state is a barycentric point and a 2D direction, so there is no
 //! 3D projection (and no drift off the surface) along the way. Robustness:
@@ -40,6 +45,8 @@ const TRI_PARAM: [[(f64, f64); 3]; 2] = [
     [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0)],
     [(0.0, 0.0), (1.0, 1.0), (0.0, 1.0)],
 ];
+/// Quad corners of the two triangles of a face.
+const TRI_CORNERS: [[usize; 3]; 2] = [[0, 1, 2], [0, 2, 3]];
 /// Quad edge q of a face → (triangle k of the face, local edge j of that triangle).
 const QUAD_EDGE: [(usize, usize); 4] = [(0, 0), (0, 1), (1, 1), (1, 2)];
 
@@ -57,6 +64,8 @@ struct TriGeo {
     edge: [DVec2; 3],
     /// Per local edge: (neighbour triangle << 2) | its local edge, or NONE.
     adj: [u32; 3],
+    /// Bit j: local edge j lies on an infinitely sharp crease (crossed by unfolding).
+    crease: u8,
     /// Limit normals at the corners (the crossing rule, see the module doc).
     corner_normals: [DVec3; 3],
     /// Within [`EXACT_RINGS`] rings of an extraordinary vertex, where the polyhedral mesh
@@ -147,7 +156,8 @@ impl MarchMesh {
                     n,
                     edge,
                     adj,
-                    corner_normals: tv.map(|v| lm.normal[v as usize]),
+                    crease: 0,
+                    corner_normals: TRI_CORNERS[k].map(|c| lm.corner_normal(fid, c)),
                     near_extraordinary: false,
                 });
             }
@@ -158,6 +168,9 @@ impl MarchMesh {
                     let q2 = (t - m.face_he(g)) as usize;
                     let (k2, j2) = QUAD_EDGE[q2];
                     geo[2 * f + k].adj[j] = (((2 * g.idx() + k2) as u32) << 2) | j2 as u32;
+                    if m.has_tags() && m.edge_sharpness(h).is_infinite() {
+                        geo[2 * f + k].crease |= 1 << j;
+                    }
                 }
             }
         }
@@ -378,7 +391,8 @@ impl MarchMesh {
             let t1 = g.ex * d.x + g.ey * d.y;
             let den = nc.dot(g2.n);
             let mut d2 = DVec2::ZERO;
-            if den > 1e-3 * nc.length() {
+            // (On a crease d2 stays zero: unfolded below.)
+            if g.crease & (1 << j) == 0 && den > 1e-3 * nc.length() {
                 let t2 = t1 - nc * (t1.dot(g2.n) / den);
                 d2 = DVec2::new(t2.dot(g2.ex), t2.dot(g2.ey));
             }

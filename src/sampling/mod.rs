@@ -132,16 +132,18 @@ pub struct Sampler<'a> {
     counters: Counters,
     order: PatternOrder,
     tolerance: Option<f64>,
-    /// Limit positions of the extraordinary and open-boundary vertices of the field's limit
+    /// Limit positions of the extraordinary, open-boundary and crease vertices of the field's limit
     /// mesh, where chart patterns are marched instead (built on first use).
     irregular: OnceLock<Option<kiddo::ImmutableKdTree<f64, 3>>>,
 }
 
 /// Chart patterns whose reach comes within this many steps δ (beyond the pattern's
-/// corner, h·√2·δ) of an extraordinary or open-boundary vertex are marched instead: the
-/// chart's Christoffel symbols are singular at an extraordinary vertex and the grid is cut
-/// by an open boundary, so chart patterns there drifted 5–22% of δ from the exact
-/// exponential map, while marching follows it to ~2% (docs/sampling.md).
+/// corner, h·√2·δ) of an extraordinary or open-boundary vertex, or of an infinitely sharp
+/// crease, are marched instead: the chart's Christoffel symbols are singular at an
+/// extraordinary vertex and the grid is cut by an open boundary, so chart patterns there
+/// drifted 5–22% of δ from the exact exponential map, while marching follows it to ~2%
+/// (docs/sampling.md); across a crease the metric jumps, so a chart must not straddle one:
+/// marching unfolds across it instead.
 pub const EXTRAORDINARY_MARGIN: f64 = 2.0;
 
 /// Base point used for derivatives: a corner (a possible extraordinary vertex, where Df and
@@ -183,7 +185,7 @@ impl<'a> Sampler<'a> {
             let pts: Vec<[f64; 3]> = (0..lm.mesh.num_vertices())
                 .filter(|&v| {
                     let v = VertexId::from_idx(v);
-                    !lm.mesh.is_regular_vertex(v) || lm.mesh.is_boundary_vertex(v)
+                    !lm.mesh.is_regular_vertex(v) || lm.mesh.is_boundary_vertex(v) || lm.is_sided(v)
                 })
                 .map(|v| lm.position[v].to_array())
                 .collect();

@@ -16,7 +16,7 @@
 //! whatever the thread count and call order. The cache is per thread (no locks) and
 //! bounded: when it holds more than [`CAPACITY`] nodes it is emptied.
 
-use crate::ids::{FaceId, VertexId};
+use crate::ids::FaceId;
 use crate::patch::BSplinePatch;
 use crate::refine::refine;
 use crate::topology::PolyMesh;
@@ -61,10 +61,7 @@ impl DeepNode {
     /// can be gathered is evaluated as that patch.
     pub(crate) fn classify(m: PolyMesh) -> Self {
         let q = FaceId(0);
-        if m.face_vertices(q)
-            .iter()
-            .all(|&v| m.is_regular_vertex(VertexId(v)))
-        {
+        if crate::surface::is_regular_quad(&m, q) {
             if let Some(p) = BSplinePatch::gather(&m, q) {
                 return DeepNode::Patch(p);
             }

@@ -45,6 +45,62 @@ pub enum MeshProblem {
         valence: usize,
         max: usize,
     },
+    /// A bad `t crease` / `t corner` line (`line` is 0-based; `None` for sharpness given
+    /// through [`crate::ControlMesh::with_sharpness`]).
+    #[error("{}{problem}", line.map(|l| format!("line {}: ", l + 1)).unwrap_or_default())]
+    Tag {
+        line: Option<usize>,
+        problem: TagProblem,
+    },
+}
+
+/// What is wrong with an OpenSubdiv tag line (`t NAME nint/nfloat/nstring ints floats
+/// strings`). Vertex indices in tags count from 0, as OpenSubdiv's shape files do, and are
+/// quoted that way.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum TagProblem {
+    #[error("tag line without a name")]
+    NoName,
+    #[error("t {tag}: malformed count '{count}' (expected nint/nfloat/nstring, e.g. 2/1/0)")]
+    MalformedCount { tag: &'static str, count: String },
+    #[error("t {tag}: the count {count} declares {declared} values but the line has {found}")]
+    CountMismatch {
+        tag: &'static str,
+        count: String,
+        declared: usize,
+        found: usize,
+    },
+    #[error("t {tag}: bad {what} '{token}'")]
+    BadValue {
+        tag: &'static str,
+        what: &'static str,
+        token: String,
+    },
+    #[error("t crease: needs vertex pairs, i.e. an even number (at least 2) of vertices, not {0}")]
+    CreaseVertexCount(usize),
+    #[error("t corner: needs at least one vertex")]
+    CornerVertexCount,
+    #[error(
+        "t {tag}: {values} sharpness values for {items} {item}s (give one for all, or one per {item})"
+    )]
+    SharpnessCount {
+        tag: &'static str,
+        values: usize,
+        items: usize,
+        item: &'static str,
+    },
+    #[error(
+        "t {tag}: vertex index {index} is out of range (tags count vertices from 0; the mesh has {count})"
+    )]
+    VertexOutOfRange {
+        tag: &'static str,
+        index: i64,
+        count: usize,
+    },
+    #[error("t crease: vertices {a} and {b} share no edge (tags count vertices from 0)")]
+    NoEdge { a: i64, b: i64 },
+    #[error("t {tag}: sharpness {value} is negative or NaN")]
+    BadSharpness { tag: &'static str, value: String },
 }
 
 /// A [`MeshProblem`] with the file it was found in.

@@ -1,13 +1,15 @@
 //! Uniformly refined copies of the surface with exact limit positions and normals: the
 //! "tessellated copy of the limit surface" that the orientation field is optimised on and
-//! surface marching walks over.
+//! surface marching walks over. Where an infinitely sharp crease makes the normal of a
+//! vertex two-sided, each face's own side is kept too ([`LimitMesh::corner_normal`]).
 
 use crate::adjacency::BaseLocation;
-use crate::ids::{BaseQuadId, FaceId};
+use crate::ids::{BaseQuadId, FaceId, VertexId};
 use crate::refine::refine;
 use crate::surface::{from_child, quadrant, to_child, Surface};
 use crate::topology::PolyMesh;
 use glam::DVec3;
+use std::collections::HashMap;
 
 /// The base mesh refined to `level` (level 1 = the base quads themselves), with every vertex
 /// moved to its exact limit position.
@@ -22,6 +24,15 @@ pub struct LimitMesh {
     pub normal: Vec<DVec3>,
     /// Where every vertex is, as a base-quad point (one of possibly several).
     pub vertex_location: Vec<BaseLocation>,
+    /// The face corner (4·face + corner) `position`, `normal` and `vertex_location` of
+    /// every vertex were evaluated at (its first face in face order).
+    pub vertex_corner: Vec<u32>,
+    /// Whether a vertex's normal is not unique (it lies on an infinitely sharp crease or
+    /// corner: one normal per side, [`PolyMesh::normal_is_unique`]); empty when no vertex
+    /// is such.
+    pub sided: Vec<bool>,
+    /// At such vertices, the normal on each face's own side, by face corner 4·face + corner.
+    sided_normal: HashMap<u32, DVec3>,
 }
 
 impl LimitMesh {
@@ -41,6 +52,24 @@ impl LimitMesh {
             f = 4 * f + c;
         }
         (FaceId::from_idx(f), s, t)
+    }
+
+    /// Whether vertex `v` has one normal per side ([`Self::sided`]).
+    #[inline]
+    pub fn is_sided(&self, v: VertexId) -> bool {
+        !self.sided.is_empty() && self.sided[v.idx()]
+    }
+
+    /// The limit normal at corner `c` of level face `f` on that face's side: `normal` of
+    /// the corner's vertex unless its normal is not unique.
+    #[inline]
+    pub fn corner_normal(&self, f: FaceId, c: usize) -> DVec3 {
+        let v = self.mesh.face_vertices(f)[c] as usize;
+        if self.is_sided(VertexId(v as u32)) {
+            self.sided_normal[&(4 * f.0 + c as u32)]
+        } else {
+            self.normal[v]
+        }
     }
 
     /// The base-quad parameter of point (s, t) of level face `f`.
@@ -69,6 +98,18 @@ impl Surface {
             mesh = refine(&mesh);
         }
         let nv = mesh.num_vertices();
+        let sided: Vec<bool> = if mesh.has_tags() {
+            (0..nv)
+                .map(|v| !mesh.normal_is_unique(VertexId::from_idx(v)))
+                .collect()
+        } else {
+            Vec::new()
+        };
+        let sided = if sided.contains(&true) {
+            sided
+        } else {
+            Vec::new()
+        };
         let mut lm = LimitMesh {
             level,
             position: vec![DVec3::ZERO; nv],
@@ -81,23 +122,34 @@ impl Surface {
                 };
                 nv
             ],
+            vertex_corner: vec![0; nv],
+            sided,
+            sided_normal: HashMap::new(),
             mesh,
         };
         let mut done = vec![false; nv];
         const CORNER: [(f64, f64); 4] = [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)];
         for f in 0..lm.mesh.num_faces() {
             let fid = FaceId::from_idx(f);
-            for (c, &v) in lm.mesh.face_vertices(fid).iter().enumerate() {
-                let v = v as usize;
+            for (c, &(cs, ct)) in CORNER.iter().enumerate() {
+                let v = lm.mesh.face_vertices(fid)[c] as usize;
+                let sided = lm.is_sided(VertexId(v as u32));
+                if done[v] && !sided {
+                    continue;
+                }
+                let loc = lm.to_base(fid, cs, ct);
+                let e = self.eval_base(loc.quad, loc.s, loc.t);
+                if sided {
+                    lm.sided_normal.insert(4 * f as u32 + c as u32, e.n);
+                }
                 if done[v] {
                     continue;
                 }
                 done[v] = true;
-                let loc = lm.to_base(fid, CORNER[c].0, CORNER[c].1);
-                let e = self.eval_base(loc.quad, loc.s, loc.t);
                 lm.position[v] = e.p;
                 lm.normal[v] = e.n;
                 lm.vertex_location[v] = loc;
+                lm.vertex_corner[v] = 4 * f as u32 + c as u32;
             }
         }
         lm

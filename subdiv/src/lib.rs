@@ -11,6 +11,7 @@
 
 pub mod adjacency;
 pub mod charts;
+pub mod crease;
 mod deep;
 pub mod domains;
 pub mod error;
@@ -27,9 +28,10 @@ pub mod topology;
 
 pub use adjacency::BaseLocation;
 pub use charts::{ChartHint, ChartPoint, Charts, VertexChart};
+pub use crease::{Rule, Sharpness};
 pub use domains::{Domain, DomainLocation};
-pub use error::MeshError;
+pub use error::{MeshError, MeshProblem, TagProblem};
 pub use ids::{BaseQuadId, DomainId, FaceId, VertexId};
 pub use levels::LimitMesh;
-pub use mesh::ControlMesh;
+pub use mesh::{ControlMesh, IgnoredTag};
 pub use surface::{LimitSample, Surface};

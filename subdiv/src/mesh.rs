@@ -3,19 +3,62 @@
 //! We read OBJ ourselves instead of through `tobj`: tobj renumbers vertices per object/group
 //! (by first use), which splits meshes whose groups share vertices and makes it impossible
 //! to name the file's own vertex numbers in error messages (see docs/dependencies.md).
-//! Only `v` and `f` lines matter; `vt`, `vn`, `usemtl`, `mtllib`, `o`, `g`, `s` and
-//! OpenSubdiv's `t` tag lines are ignored.
+//! `v` and `f` lines make the mesh; OpenSubdiv's tag lines as its regression shapes write
+//! them, `t crease N/M/0 v0 v1 v2 v3 ... s...` (sharpness of the edges (v0, v1), (v2, v3),
+//! ...) and `t corner N/M/0 v ... s...` (vertex sharpness), give creases (0-based vertex
+//! indices; one sharpness for all, or one per edge / vertex). Other tags are recorded in
+//! [`ControlMesh::ignored_tags`]; `vt`, `vn`, `usemtl`, `mtllib`, `o`, `g`, `s` are ignored.
 
-use crate::error::{MeshError, MeshProblem};
+use crate::crease::Sharpness;
+use crate::error::{MeshError, MeshProblem, TagProblem};
+use crate::ids::VertexId;
 use crate::topology::{Check, PolyMesh};
 use glam::DVec3;
 use std::path::{Path, PathBuf};
 
-/// A validated control mesh (faces in OBJ order, vertices 0-based in OBJ order).
+/// A validated control mesh (faces in OBJ order, vertices 0-based in OBJ order), with the
+/// crease and corner sharpness of its tags in `mesh`.
 #[derive(Clone, Debug)]
 pub struct ControlMesh {
     pub mesh: PolyMesh,
     pub path: Option<PathBuf>,
+    /// Tag lines that were read but not applied, one entry per tag name.
+    pub ignored_tags: Vec<IgnoredTag>,
+}
+
+/// A kind of tag line that was not applied (e.g. `interpolateboundary`: boundaries are
+/// always EDGE_AND_CORNER here), with where it first occurred and how often.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct IgnoredTag {
+    pub name: String,
+    /// 1-based line of the first occurrence.
+    pub first_line: usize,
+    pub lines: usize,
+}
+
+impl IgnoredTag {
+    /// Why the tag has no effect, in a few words.
+    pub fn reason(&self) -> &'static str {
+        match self.name.as_str() {
+            "interpolateboundary" => "boundaries are always EDGE_AND_CORNER",
+            "creasemethod" => "creases always use the uniform method",
+            "smoothtriangles" => "triangles always use the Catmull-Clark rules",
+            "facevaryinginterpolateboundary" | "facevaryingpropagatecorners" => {
+                "no face-varying data is read"
+            }
+            "hole" => "holes are not supported (the faces are kept)",
+            "vertexedit" | "edgeedit" | "faceedit" => "hierarchical edits are not supported",
+            _ => "unknown tag",
+        }
+    }
+}
+
+/// One `t crease` / `t corner` line, parsed but not yet checked against the mesh.
+#[derive(Clone, Debug)]
+enum Tag {
+    /// Sharpness per vertex pair.
+    Crease(Vec<(i64, i64, Sharpness)>),
+    Corner(Vec<(i64, Sharpness)>),
 }
 
 impl ControlMesh {
@@ -27,14 +70,46 @@ impl ControlMesh {
         let text = String::from_utf8_lossy(&bytes);
         let mut m = Self::parse_obj(&text).map_err(|e| e.in_file(path))?;
         m.path = Some(path.to_path_buf());
+        for note in m.notes() {
+            eprintln!("note: {note}");
+        }
         Ok(m)
+    }
+
+    /// One line per ignored tag name, naming the file (printed by [`Self::load_obj`]).
+    pub fn notes(&self) -> Vec<String> {
+        let file = self
+            .path
+            .as_ref()
+            .map(|p| p.display().to_string())
+            .unwrap_or_else(|| "<mesh>".into());
+        self.ignored_tags
+            .iter()
+            .map(|t| {
+                let more = match t.lines {
+                    1 => String::new(),
+                    n => format!(", and {} more line{}", n - 1, if n == 2 { "" } else { "s" }),
+                };
+                format!(
+                    "{file}: line {}: tag '{}' ignored ({}{more})",
+                    t.first_line,
+                    t.name,
+                    t.reason()
+                )
+            })
+            .collect()
     }
 
     /// Parses OBJ text (see [`Self::load_obj`]).
     pub fn parse_obj(text: &str) -> Result<Self, MeshError> {
+        // A UTF-8 byte order mark would otherwise glue onto the first keyword ("\u{feff}v")
+        // and silently drop that line.
+        let text = text.strip_prefix('\u{feff}').unwrap_or(text);
         let mut positions = Vec::new();
         let mut face_start = vec![0u32];
         let mut face_verts: Vec<u32> = Vec::new();
+        let mut tags: Vec<(Option<usize>, Tag)> = Vec::new();
+        let mut ignored: Vec<IgnoredTag> = Vec::new();
         for (lineno, raw) in text.lines().enumerate() {
             let line = raw.split('#').next().unwrap_or("").trim();
             let mut it = line.split_ascii_whitespace();
@@ -82,10 +157,57 @@ impl ControlMesh {
                     }
                     face_start.push(face_verts.len() as u32);
                 }
+                Some("t") => {
+                    let toks: Vec<&str> = it.collect();
+                    match parse_tag(&toks).map_err(|problem| tag_err(Some(lineno), problem))? {
+                        ParsedTag::Applied(t) => tags.push((Some(lineno), t)),
+                        ParsedTag::Ignored(name) => {
+                            match ignored.iter_mut().find(|t| t.name == name) {
+                                Some(t) => t.lines += 1,
+                                None => ignored.push(IgnoredTag {
+                                    name,
+                                    first_line: lineno + 1,
+                                    lines: 1,
+                                }),
+                            }
+                        }
+                    }
+                }
                 _ => {}
             }
         }
-        Self::from_polygons(positions, face_start, face_verts)
+        let mut m = Self::from_polygons(positions, face_start, face_verts)?;
+        apply_tags(&mut m.mesh, &tags)?;
+        m.ignored_tags = ignored;
+        Ok(m)
+    }
+
+    /// Gives edges and vertices sharpness, as `t crease` / `t corner` lines would (vertex
+    /// indices 0-based; later entries win). For generators and tests.
+    pub fn with_sharpness(
+        mut self,
+        edges: &[(u32, u32, f32)],
+        vertices: &[(u32, f32)],
+    ) -> Result<Self, MeshError> {
+        let sharp = |s: f32, tag| {
+            Sharpness::new(s).ok_or_else(|| TagProblem::BadSharpness {
+                tag,
+                value: s.to_string(),
+            })
+        };
+        let mut crease = Vec::new();
+        for &(a, b, s) in edges {
+            let s = sharp(s, "crease").map_err(|p| tag_err(None, p))?;
+            crease.push((a as i64, b as i64, s));
+        }
+        let mut corner = Vec::new();
+        for &(v, s) in vertices {
+            let s = sharp(s, "corner").map_err(|p| tag_err(None, p))?;
+            corner.push((v as i64, s));
+        }
+        let tags = [(None, Tag::Crease(crease)), (None, Tag::Corner(corner))];
+        apply_tags(&mut self.mesh, &tags)?;
+        Ok(self)
     }
 
     /// Builds a control mesh from positions and polygons (`face_start` has F+1 offsets).
@@ -95,7 +217,11 @@ impl ControlMesh {
         face_verts: Vec<u32>,
     ) -> Result<Self, MeshError> {
         let mesh = PolyMesh::new(positions, face_start, face_verts, Check::Strict)?;
-        Ok(Self { mesh, path: None })
+        Ok(Self {
+            mesh,
+            path: None,
+            ignored_tags: Vec::new(),
+        })
     }
 
     /// Convenience for tests and generators: polygons as slices of vertex indices.
@@ -156,6 +282,17 @@ impl ControlMesh {
         Self::from_faces(pos, &faces).expect("a box is a valid mesh")
     }
 
+    /// The mesh refined once (Catmull-Clark with its creases, whose sharpness drops by one):
+    /// the same limit surface, with four times the quads. Tags carry over, as OpenSubdiv's
+    /// refined levels do.
+    pub fn refined(&self) -> ControlMesh {
+        ControlMesh {
+            mesh: crate::refine::refine(&self.mesh),
+            path: self.path.clone(),
+            ignored_tags: self.ignored_tags.clone(),
+        }
+    }
+
     /// Number of Ptex face domains: 1 per quad, n per n-gon.
     pub fn num_domains(&self) -> usize {
         (0..self.mesh.num_faces())
@@ -186,9 +323,170 @@ fn parse_err(lineno: usize, msg: String) -> MeshError {
     MeshProblem::Parse(format!("line {}: {msg}", lineno + 1)).into()
 }
 
+fn tag_err(line: Option<usize>, problem: TagProblem) -> MeshError {
+    MeshProblem::Tag { line, problem }.into()
+}
+
+enum ParsedTag {
+    Applied(Tag),
+    /// The tag's name (not applied).
+    Ignored(String),
+}
+
+/// Parses the tokens after `t`: `NAME nint/nfloat/nstring ints... floats... strings...`,
+/// as OpenSubdiv's `shape_utils.cpp` reads them (sharpness as `f32`). Only `crease` and
+/// `corner` are checked and kept.
+fn parse_tag(toks: &[&str]) -> Result<ParsedTag, TagProblem> {
+    let Some(&name) = toks.first() else {
+        return Err(TagProblem::NoName);
+    };
+    let tag: &'static str = match name {
+        "crease" => "crease",
+        "corner" => "corner",
+        other => {
+            // Names are quoted in notes: keep them short and printable.
+            let clean: String = other
+                .chars()
+                .take(40)
+                .map(|c| if c.is_control() { '\u{fffd}' } else { c })
+                .collect();
+            return Ok(ParsedTag::Ignored(clean));
+        }
+    };
+    let count = toks.get(1).copied().unwrap_or("");
+    let malformed = || TagProblem::MalformedCount {
+        tag,
+        count: count.chars().take(40).collect(),
+    };
+    let parts: Vec<&str> = count.split('/').collect();
+    if parts.len() != 3 {
+        return Err(malformed());
+    }
+    let mut n = [0usize; 3];
+    for (slot, p) in n.iter_mut().zip(&parts) {
+        *slot = p.parse().map_err(|_| malformed())?;
+    }
+    let [ni, nf, ns] = n;
+    let values = &toks[2..];
+    let declared = ni.saturating_add(nf).saturating_add(ns);
+    if values.len() != declared {
+        return Err(TagProblem::CountMismatch {
+            tag,
+            count: count.to_string(),
+            declared,
+            found: values.len(),
+        });
+    }
+    let bad = |what, token: &str| TagProblem::BadValue {
+        tag,
+        what,
+        token: token.chars().take(40).collect(),
+    };
+    let ints = values[..ni]
+        .iter()
+        .map(|t| t.parse::<i64>().map_err(|_| bad("vertex index", t)))
+        .collect::<Result<Vec<_>, _>>()?;
+    let floats = values[ni..ni + nf]
+        .iter()
+        .map(|t| {
+            let x = t.parse::<f32>().map_err(|_| bad("sharpness", t))?;
+            Sharpness::new(x).ok_or_else(|| TagProblem::BadSharpness {
+                tag,
+                value: t.chars().take(40).collect(),
+            })
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    // Strings (the third count) carry nothing for creases and corners.
+    let items = if tag == "crease" {
+        if ni < 2 || ni % 2 != 0 {
+            return Err(TagProblem::CreaseVertexCount(ni));
+        }
+        ni / 2
+    } else {
+        if ni == 0 {
+            return Err(TagProblem::CornerVertexCount);
+        }
+        ni
+    };
+    // One sharpness for all items, or one each. (OpenSubdiv's far_utils reads a crease's
+    // j-th pair from floats[2j] when there are several, past the end of a list of one per
+    // pair; one per pair is what the format means.)
+    if nf != 1 && nf != items {
+        return Err(TagProblem::SharpnessCount {
+            tag,
+            values: nf,
+            items,
+            item: if tag == "crease" { "edge" } else { "vertex" },
+        });
+    }
+    let s = |i: usize| floats[if nf == 1 { 0 } else { i }];
+    Ok(ParsedTag::Applied(if tag == "crease" {
+        Tag::Crease(
+            (0..items)
+                .map(|i| (ints[2 * i], ints[2 * i + 1], s(i)))
+                .collect(),
+        )
+    } else {
+        Tag::Corner((0..items).map(|i| (ints[i], s(i))).collect())
+    }))
+}
+
+/// Checks tags against the mesh and stores their sharpness in it (in file order: a later
+/// tag on the same edge or vertex wins, as in OpenSubdiv).
+fn apply_tags(mesh: &mut PolyMesh, tags: &[(Option<usize>, Tag)]) -> Result<(), MeshError> {
+    if tags.iter().all(|(_, t)| match t {
+        Tag::Crease(v) => v.is_empty(),
+        Tag::Corner(v) => v.is_empty(),
+    }) {
+        return Ok(());
+    }
+    let nv = mesh.num_vertices();
+    let vertex = |line: Option<usize>, tag: &'static str, i: i64| {
+        if i < 0 || i as u64 >= nv as u64 {
+            Err(tag_err(
+                line,
+                TagProblem::VertexOutOfRange {
+                    tag,
+                    index: i,
+                    count: nv,
+                },
+            ))
+        } else {
+            Ok(VertexId(i as u32))
+        }
+    };
+    let mut edges: Vec<Sharpness> = (0..mesh.num_edges())
+        .map(|e| mesh.tagged_edge_sharpness(e))
+        .collect();
+    let mut verts: Vec<Sharpness> = (0..nv)
+        .map(|v| mesh.tagged_vertex_sharpness(VertexId::from_idx(v)))
+        .collect();
+    for (line, tag) in tags {
+        match tag {
+            Tag::Crease(pairs) => {
+                for &(a, b, s) in pairs {
+                    let (va, vb) = (vertex(*line, "crease", a)?, vertex(*line, "crease", b)?);
+                    let h = mesh
+                        .find_edge(va, vb)
+                        .ok_or_else(|| tag_err(*line, TagProblem::NoEdge { a, b }))?;
+                    edges[mesh.edge_of(h)] = s;
+                }
+            }
+            Tag::Corner(vs) => {
+                for &(v, s) in vs {
+                    verts[vertex(*line, "corner", v)?.idx()] = s;
+                }
+            }
+        }
+    }
+    mesh.set_sharpness(edges, verts);
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::error::TagProblem;
 
     fn err(text: &str) -> MeshProblem {
         ControlMesh::parse_obj(text).unwrap_err().problem
@@ -282,6 +580,187 @@ mod tests {
         ));
         assert!(matches!(err("v 0 0\n"), MeshProblem::Parse(_)));
         assert!(matches!(err("v 0 0 0\nf 1 a 2\n"), MeshProblem::Parse(_)));
+    }
+
+    /// A cube (8 vertices, 6 quads) as OBJ text.
+    const CUBE: &str = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nv 0 0 1\nv 1 0 1\nv 0 1 1\nv 1 1 1\n\
+                        f 1 3 4 2\nf 5 6 8 7\nf 1 2 6 5\nf 3 7 8 4\nf 1 5 7 3\nf 2 4 8 6\n";
+
+    /// Issue 18: a UTF-8 byte order mark used to glue onto the first `v` and drop that line
+    /// ("face 2 refers to vertex 8, but the mesh has only 7 vertices").
+    #[test]
+    fn byte_order_mark_is_skipped() {
+        let m = ControlMesh::parse_obj(&format!("\u{feff}{CUBE}")).unwrap();
+        assert_eq!(m.mesh.num_vertices(), 8);
+        assert_eq!(m.mesh.pos(VertexId(0)), DVec3::ZERO);
+        let dir = std::env::temp_dir().join(format!("surfsynth-bom-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("cube.obj");
+        std::fs::write(
+            &path,
+            [b"\xef\xbb\xbf".as_slice(), CUBE.as_bytes()].concat(),
+        )
+        .unwrap();
+        let m = ControlMesh::load_obj(&path).unwrap();
+        assert_eq!(m.mesh.num_faces(), 6);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    fn edge_sharpness(m: &ControlMesh, a: u32, b: u32) -> f32 {
+        let h = m.mesh.find_edge(VertexId(a), VertexId(b)).unwrap();
+        m.mesh.tagged_edge_sharpness(m.mesh.edge_of(h)).value()
+    }
+
+    #[test]
+    fn reads_crease_and_corner_tags_as_opensubdiv_writes_them() {
+        let text = format!(
+            "{CUBE}t crease 2/1/0 0 1 10.0\nt crease 4/1/0 1 3 3 2 2.5\nt crease 4/2/0 4 5 5 7 0.5 1.4\n\
+             t corner 1/1/0 6 3.0\nt interpolateboundary 1/0/0 1\nt interpolateboundary 1/0/0 2\n\
+             t creasemethod 0/0/1 chaikin\nt crease 2/1/0 1 0 0.25\n"
+        );
+        let m = ControlMesh::parse_obj(&text).unwrap();
+        // A later tag on the same edge wins (either direction names it).
+        assert_eq!(edge_sharpness(&m, 0, 1), 0.25);
+        assert_eq!(edge_sharpness(&m, 3, 1), 2.5);
+        assert_eq!(edge_sharpness(&m, 2, 3), 2.5);
+        assert_eq!(edge_sharpness(&m, 4, 5), 0.5);
+        // Sharpness is OpenSubdiv's float.
+        assert_eq!(edge_sharpness(&m, 5, 7), 1.4f32);
+        assert_eq!(edge_sharpness(&m, 0, 2), 0.0);
+        assert_eq!(m.mesh.tagged_vertex_sharpness(VertexId(6)).value(), 3.0);
+        assert_eq!(
+            m.ignored_tags,
+            vec![
+                IgnoredTag {
+                    name: "interpolateboundary".into(),
+                    first_line: 19,
+                    lines: 2
+                },
+                IgnoredTag {
+                    name: "creasemethod".into(),
+                    first_line: 21,
+                    lines: 1
+                }
+            ]
+        );
+        let notes = m.notes();
+        assert_eq!(notes.len(), 2);
+        assert!(
+            notes[0].starts_with("<mesh>: line 19: tag 'interpolateboundary' ignored"),
+            "{}",
+            notes[0]
+        );
+        // Sharpness 0 everywhere is the untagged mesh.
+        let zero = ControlMesh::parse_obj(&format!(
+            "{CUBE}t crease 2/1/0 0 1 0\nt corner 1/1/0 3 0.0\n"
+        ))
+        .unwrap();
+        assert!(!zero.mesh.has_tags());
+    }
+
+    /// Bad tags: one line naming the line and the problem.
+    #[test]
+    fn rejects_bad_tags() {
+        let bad = |tag: &str| {
+            let e = ControlMesh::parse_obj(&format!("{CUBE}{tag}\n")).unwrap_err();
+            let s = e.to_string();
+            assert!(s.starts_with("<mesh>: line 15: t "), "{tag}: {s}");
+            assert!(!s.contains('\n'));
+            match e.problem {
+                MeshProblem::Tag {
+                    line: Some(14),
+                    problem,
+                } => problem,
+                p => panic!("{tag}: {p:?}"),
+            }
+        };
+        assert_eq!(
+            bad("t crease 2/1/0 0 8 1.0"),
+            TagProblem::VertexOutOfRange {
+                tag: "crease",
+                index: 8,
+                count: 8
+            }
+        );
+        assert!(matches!(
+            bad("t corner 1/1/0 -1 1.0"),
+            TagProblem::VertexOutOfRange { index: -1, .. }
+        ));
+        assert_eq!(
+            bad("t crease 2/1/0 0 7 1.0"),
+            TagProblem::NoEdge { a: 0, b: 7 }
+        );
+        assert_eq!(
+            bad("t crease 2/1/0 3 3 1.0"),
+            TagProblem::NoEdge { a: 3, b: 3 }
+        );
+        assert!(matches!(
+            bad("t crease 2/1/0 0 1 -2"),
+            TagProblem::BadSharpness { .. }
+        ));
+        assert!(matches!(
+            bad("t corner 1/1/0 0 nan"),
+            TagProblem::BadSharpness { .. }
+        ));
+        assert!(matches!(
+            bad("t crease 2/1 0 1 2"),
+            TagProblem::MalformedCount { .. }
+        ));
+        assert!(matches!(
+            bad("t crease x/1/0 0 1 2"),
+            TagProblem::MalformedCount { .. }
+        ));
+        assert!(matches!(bad("t crease"), TagProblem::MalformedCount { .. }));
+        assert!(matches!(
+            bad("t crease 2/1/0 0 1"),
+            TagProblem::CountMismatch {
+                declared: 3,
+                found: 2,
+                ..
+            }
+        ));
+        assert!(matches!(
+            bad("t crease 2/1/0 0 1 2 3"),
+            TagProblem::CountMismatch { .. }
+        ));
+        assert_eq!(
+            bad("t crease 3/1/0 0 1 3 2"),
+            TagProblem::CreaseVertexCount(3)
+        );
+        assert!(matches!(
+            bad("t crease 4/3/0 0 1 1 3 2 2 2"),
+            TagProblem::SharpnessCount {
+                values: 3,
+                items: 2,
+                ..
+            }
+        ));
+        assert!(matches!(
+            bad("t corner 0/1/0 2"),
+            TagProblem::CornerVertexCount
+        ));
+        assert!(matches!(
+            bad("t crease 2/1/0 0 1.5 2"),
+            TagProblem::BadValue {
+                what: "vertex index",
+                ..
+            }
+        ));
+        assert!(matches!(
+            bad("t corner 1/1/0 0 2x"),
+            TagProblem::BadValue {
+                what: "sharpness",
+                ..
+            }
+        ));
+        // Through a file: the message names it.
+        let e = ControlMesh::parse_obj(&format!("{CUBE}t crease 2/1/0 0 7 1.0\n"))
+            .unwrap_err()
+            .in_file("/m/cube.obj");
+        assert_eq!(
+            e.to_string(),
+            "/m/cube.obj: line 15: t crease: vertices 0 and 7 share no edge (tags count vertices from 0)"
+        );
     }
 
     #[test]

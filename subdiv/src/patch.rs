@@ -1,9 +1,12 @@
 //! Regular Catmull-Clark patches: bicubic uniform B-splines over 4x4 control points.
 //!
-//! A quad whose four corners are regular (see [`PolyMesh::is_regular_vertex`]) is exactly a
+//! A quad whose four corners are regular (see [`PolyMesh::corner_is_regular`]) is exactly a
 //! bicubic B-spline patch. On a sharp boundary the missing row or column of control points
 //! is a "ghost" extrapolated linearly (P_ghost = 2 P_boundary - P_inner); this reproduces the
 //! EDGE_AND_CORNER boundary rules exactly, including corners (one face), which stay fixed.
+//! An infinitely sharp edge is a boundary to each side (the limit surface on either side is
+//! the one of the mesh cut open along it), so gathering never crosses one
+//! ([`PolyMesh::smooth_twin`]) and the same ghosts make the patches along creases.
 
 use crate::ids::FaceId;
 use crate::topology::PolyMesh;
@@ -96,19 +99,19 @@ impl BSplinePatch {
             let a_at = at(cx - px, cy - py);
             let b_at = at(cx - nx, cy - ny);
             let d_at = at(cx - px - nx, cy - py - ny);
-            if let Some(t) = m.twin(h) {
+            if let Some(t) = m.smooth_twin(h) {
                 let ha = m.next(t); // corner i -> A
                 grid[a_at] = Some(m.pos(m.dest(ha)));
-                if let Some(t2) = m.twin(ha) {
+                if let Some(t2) = m.smooth_twin(ha) {
                     let hb = m.next(t2); // corner i -> B in the opposite face
                     grid[b_at] = Some(m.pos(m.dest(hb)));
                     grid[d_at] = Some(m.pos(m.dest(m.next(hb))));
                 }
             }
-            if let Some(t) = m.twin(m.prev(h)) {
+            if let Some(t) = m.smooth_twin(m.prev(h)) {
                 let hb = m.prev(t); // B -> corner i
                 grid[b_at] = Some(m.pos(m.origin(hb)));
-                if let Some(t3) = m.twin(hb) {
+                if let Some(t3) = m.smooth_twin(hb) {
                     grid[d_at] = Some(m.pos(m.dest(m.next(t3))));
                 }
             }

@@ -1,11 +1,23 @@
-//! One step of Catmull-Clark refinement with the EDGE_AND_CORNER boundary rule.
+//! One step of Catmull-Clark refinement with creases (OpenSubdiv's rules, uniform creasing)
+//! and the EDGE_AND_CORNER boundary rule.
 //!
-//! Rules (as in `shared/data/opensubdiv-reference/README.md`):
+//! Rules (as in `shared/data/opensubdiv-reference/README.md` and OpenSubdiv's
+//! `Sdc::Scheme<CATMARK>`; sharpness and vertex rules in [`crate::crease`]):
 //! - face point: centroid;
-//! - interior edge point: (v0 + v1 + F0 + F1) / 4; boundary edge point: midpoint;
-//! - interior vertex point: (Q + 2R + (n-3) S) / n, Q mean of adjacent face points,
-//!   R mean of incident edge midpoints, n the valence;
-//! - boundary vertex: (prev + 6 S + next) / 8; a corner (one face) stays fixed.
+//! - edge point: smooth edge (v0 + v1 + F0 + F1) / 4; sharp edge (sharpness > 1, or
+//!   infinite, e.g. a boundary) the midpoint; sharpness s in (0, 1] (it decays to 0 in this
+//!   step) the blend s · midpoint + (1 − s) · smooth point;
+//! - vertex point by the vertex's rule: smooth or dart (Q + 2R + (n−3) S) / n, Q the mean
+//!   of the adjacent face points, R of the incident edge midpoints, n the valence; crease
+//!   (a + 6 S + b) / 8 with a, b the far ends of its two sharp edges (a boundary vertex:
+//!   its boundary neighbours); corner S (a sharp vertex, three or more sharp edges, or a
+//!   boundary vertex with one face). Where the rule of the child (with every sharpness one
+//!   lower) differs, the parent's and the child's points are blended by
+//!   [`crate::crease::fractional_weight`].
+//!
+//! Sharpness is subdivided with the mesh: the two halves of an edge get its sharpness
+//! minus one, edges inside a face are smooth, a vertex point gets its vertex's sharpness
+//! minus one.
 //!
 //! Child vertices are numbered like OpenSubdiv: vertex points by parent vertex, then face
 //! points by parent face, then edge points by parent edge. Child faces are quads numbered by
@@ -13,6 +25,7 @@
 //! of edge (c, c+1), face point, edge point of edge (c-1, c)). That is exactly the Ptex
 //! sub-face c of an n-gon, with (u, v) = (0, 0) at the corner.
 
+use crate::crease::{fractional_weight, Rule, Sharpness};
 use crate::ids::{FaceId, VertexId};
 use crate::topology::{Check, PolyMesh};
 use glam::DVec3;
@@ -23,6 +36,7 @@ pub fn refine(m: &PolyMesh) -> PolyMesh {
     let nv = m.num_vertices();
     let nf = m.num_faces();
     let ne = m.num_edges();
+    let tagged = m.has_tags();
     let mut pos = vec![DVec3::ZERO; nv + nf + ne];
     let (vpts, rest) = pos.split_at_mut(nv);
     let (fpts, epts) = rest.split_at_mut(nf);
@@ -37,12 +51,30 @@ pub fn refine(m: &PolyMesh) -> PolyMesh {
         let a = m.pos(m.origin(h));
         let b = m.pos(m.dest(h));
         *ep = match m.twin(h) {
-            Some(t) => (a + b + fpts[m.face_of(h).idx()] + fpts[m.face_of(t).idx()]) * 0.25,
+            Some(t) => {
+                let smooth =
+                    || (a + b + fpts[m.face_of(h).idx()] + fpts[m.face_of(t).idx()]) * 0.25;
+                let s = m.tagged_edge_sharpness(e);
+                if s.is_smooth() {
+                    smooth()
+                } else if s.value() > 1.0 {
+                    (a + b) * 0.5
+                } else {
+                    // Crease to smooth in this step: OpenSubdiv's transitional edge mask.
+                    let w = s.value() as f64;
+                    (a + b) * 0.5 * w + smooth() * (1.0 - w)
+                }
+            }
             None => (a + b) * 0.5,
         };
     }
     for (v, vp) in vpts.iter_mut().enumerate() {
-        *vp = vertex_point(m, VertexId::from_idx(v), fpts);
+        let v = VertexId::from_idx(v);
+        *vp = if tagged {
+            tagged_vertex_point(m, v, fpts)
+        } else {
+            vertex_point(m, v, fpts)
+        };
     }
 
     let nh = m.num_half_edges();
@@ -65,10 +97,43 @@ pub fn refine(m: &PolyMesh) -> PolyMesh {
             face_start.push(face_verts.len() as u32);
         }
     }
-    PolyMesh::new(pos, face_start, face_verts, Check::Trusted)
-        .expect("refinement of a valid mesh is valid")
+    let mut child = PolyMesh::new(pos, face_start, face_verts, Check::Trusted)
+        .expect("refinement of a valid mesh is valid");
+    if tagged {
+        subdivide_sharpness(m, &mut child);
+    }
+    child
 }
 
+/// Sharpness of the child mesh: child half-edges 0 and 3 of child face (f, c) are the
+/// halves of the parent's edges (c, c+1) and (c−1, c) at corner c; the other two lie inside
+/// the face (smooth). Vertex points inherit their vertex's sharpness, one lower.
+fn subdivide_sharpness(m: &PolyMesh, child: &mut PolyMesh) {
+    let mut edges = Vec::new();
+    if (0..m.num_edges()).any(|e| m.tagged_edge_sharpness(e).is_sharp()) {
+        edges = vec![Sharpness::SMOOTH; child.num_edges()];
+        for h in 0..m.num_half_edges() as u32 {
+            // Child face h (numbered like the parent's half-edges).
+            let ch = child.face_he(FaceId(h));
+            let hp = m.prev(h);
+            edges[child.edge_of(ch)] = m.tagged_edge_sharpness(m.edge_of(h)).decremented();
+            edges[child.edge_of(ch + 3)] = m.tagged_edge_sharpness(m.edge_of(hp)).decremented();
+        }
+    }
+    let mut verts = Vec::new();
+    if (0..m.num_vertices()).any(|v| m.tagged_vertex_sharpness(VertexId::from_idx(v)).is_sharp()) {
+        verts = vec![Sharpness::SMOOTH; child.num_vertices()];
+        for (v, s) in verts.iter_mut().enumerate().take(m.num_vertices()) {
+            *s = m
+                .tagged_vertex_sharpness(VertexId::from_idx(v))
+                .decremented();
+        }
+    }
+    child.set_sharpness(edges, verts);
+}
+
+/// The vertex point of an untagged mesh (smooth inside, crease along a boundary, corner at
+/// a boundary vertex with one face).
 fn vertex_point(m: &PolyMesh, v: VertexId, fpts: &[DVec3]) -> DVec3 {
     let s = m.pos(v);
     let nfaces = m.vertex_faces(v);
@@ -87,7 +152,13 @@ fn vertex_point(m: &PolyMesh, v: VertexId, fpts: &[DVec3]) -> DVec3 {
         let b = m.pos(m.origin(m.prev(last)));
         return (a + 6.0 * s + b) * 0.125;
     }
-    let n = nfaces as f64;
+    smooth_vertex_point(m, v, fpts)
+}
+
+/// (Q + 2R + (n−3) S) / n.
+fn smooth_vertex_point(m: &PolyMesh, v: VertexId, fpts: &[DVec3]) -> DVec3 {
+    let s = m.pos(v);
+    let n = m.vertex_faces(v) as f64;
     let mut q = DVec3::ZERO;
     let mut r = DVec3::ZERO;
     for h in m.outgoing(v) {
@@ -95,6 +166,60 @@ fn vertex_point(m: &PolyMesh, v: VertexId, fpts: &[DVec3]) -> DVec3 {
         r += (s + m.pos(m.dest(h))) * 0.5;
     }
     (q / n + 2.0 * r / n + (n - 3.0) * s) / n
+}
+
+/// Most edges a vertex can have here (valence is capped at `MAX_VALENCE` on input;
+/// refinement never raises it).
+const MAX_EDGES: usize = crate::topology::MAX_VALENCE + 1;
+
+/// The vertex point with tags: the parent rule's point, blended with the child rule's where
+/// sharpness decays in this step (OpenSubdiv's `ComputeVertexVertexMask`).
+fn tagged_vertex_point(m: &PolyMesh, v: VertexId, fpts: &[DVec3]) -> DVec3 {
+    let s = m.pos(v);
+    if m.vertex_faces(v) == 0 {
+        return s;
+    }
+    // Incident edges (counter-clockwise, see `PolyMesh::vertex_edges`): sharpness and far end.
+    let mut sharp = [Sharpness::SMOOTH; MAX_EDGES];
+    let mut far = [VertexId(0); MAX_EDGES];
+    let mut k = 0;
+    for (h, w) in m.vertex_edges(v).take(MAX_EDGES) {
+        sharp[k] = m.edge_sharpness(h);
+        far[k] = w;
+        k += 1;
+    }
+    let (sharp, far) = (&sharp[..k], &far[..k]);
+    let vs = m.vertex_sharpness(v);
+    let rule_of = |vertex: Sharpness, edges: &mut dyn Iterator<Item = Sharpness>| {
+        Rule::of(vertex, edges.filter(|e| e.is_sharp()).count())
+    };
+    let parent = rule_of(vs, &mut sharp.iter().copied());
+    if parent.is_smooth_mask() {
+        return smooth_vertex_point(m, v, fpts);
+    }
+    // The point by `rule` with the edges whose sharpness passes `is_sharp`.
+    let point = |rule: Rule, is_sharp: &dyn Fn(Sharpness) -> bool| match rule {
+        Rule::Smooth | Rule::Dart => smooth_vertex_point(m, v, fpts),
+        Rule::Crease => {
+            let mut ends = far
+                .iter()
+                .zip(sharp)
+                .filter(|(_, &e)| is_sharp(e))
+                .map(|(&w, _)| m.pos(w));
+            let a = ends.next().expect("a crease has two sharp edges");
+            let b = ends.next().expect("a crease has two sharp edges");
+            (a + 6.0 * s + b) * 0.125
+        }
+        Rule::Corner => s,
+    };
+    let p = point(parent, &|e| e.is_sharp());
+    let child = rule_of(vs.decremented(), &mut sharp.iter().map(|e| e.decremented()));
+    if child == parent {
+        return p;
+    }
+    let c = point(child, &|e| e.decremented().is_sharp());
+    let w = fractional_weight(vs, sharp.iter().copied()) as f64;
+    p * w + c * (1.0 - w)
 }
 
 #[cfg(test)]

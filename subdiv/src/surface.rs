@@ -19,7 +19,7 @@
 use crate::deep::{self, CacheId, DeepCache, DeepNode, DeepTree, DEEP_CACHE};
 use crate::error::MeshError;
 use crate::ids::{BaseQuadId, FaceId, VertexId};
-use crate::limit::vertex_limit;
+use crate::limit::corner_limit;
 use crate::mesh::ControlMesh;
 use crate::patch::{BSplinePatch, PatchPoint};
 use crate::refine::refine;
@@ -473,15 +473,8 @@ impl Surface {
                     DeepNode::Mesh { m, .. } => m,
                 };
                 if let Some(c) = exact_corner(s, t) {
-                    let v = VertexId(m.face_vertices(FaceId(0))[c]);
-                    if !m.is_regular_vertex(v) {
-                        let l = vertex_limit(m, v);
-                        return Some(LimitSample {
-                            p: l.position,
-                            du: l.tangent1,
-                            dv: l.tangent2,
-                            n: l.normal,
-                        });
+                    if needs_limit(m, FaceId(0), c) {
+                        return Some(limit_sample(m, FaceId(0), c));
                     }
                 }
                 let c = quadrant(s, t);
@@ -505,24 +498,14 @@ impl Surface {
         let mut m = m0.clone();
         for _ in 0..64 {
             let q = FaceId(0);
-            if m.face_vertices(q)
-                .iter()
-                .all(|&v| m.is_regular_vertex(VertexId(v)))
-            {
+            if is_regular_quad(&m, q) {
                 if let Some(p) = BSplinePatch::gather(&m, q) {
                     return finish(p.eval(s, t), &jac);
                 }
             }
             if let Some(c) = exact_corner(s, t) {
-                let v = VertexId(m.face_vertices(q)[c]);
-                if !m.is_regular_vertex(v) {
-                    let l = vertex_limit(&m, v);
-                    return LimitSample {
-                        p: l.position,
-                        du: l.tangent1,
-                        dv: l.tangent2,
-                        n: l.normal,
-                    };
+                if needs_limit(&m, q, c) {
+                    return limit_sample(&m, q, c);
                 }
             }
             let r = refine(&m);
@@ -532,17 +515,10 @@ impl Surface {
             m = extract_submesh(&r, FaceId::from_idx(c));
         }
         // Within 2^-64 of the extraordinary vertex: its limit point.
-        let v = (0..4)
-            .map(|c| VertexId(m.face_vertices(FaceId(0))[c]))
-            .find(|&v| !m.is_regular_vertex(v))
-            .unwrap_or(VertexId(m.face_vertices(FaceId(0))[0]));
-        let l = vertex_limit(&m, v);
-        LimitSample {
-            p: l.position,
-            du: l.tangent1,
-            dv: l.tangent2,
-            n: l.normal,
-        }
+        let c = (0..4)
+            .find(|&c| !m.corner_is_regular(m.face_he(FaceId(0)) + c as u32))
+            .unwrap_or(0);
+        limit_sample(&m, FaceId(0), c)
     }
 
     /// Axis-aligned bounds of the control points (the limit surface lies inside).
@@ -562,8 +538,7 @@ struct Arena {
 
 impl Arena {
     fn build(&mut self, m: &PolyMesh, q: FaceId, depth: u32, max_depth: u32) -> u32 {
-        let corners: Vec<VertexId> = m.face_vertices(q).iter().map(|&v| VertexId(v)).collect();
-        if corners.iter().all(|&v| m.is_regular_vertex(v)) {
+        if is_regular_quad(m, q) {
             if let Some(p) = BSplinePatch::gather(m, q) {
                 self.patches.push(p);
                 return self.push(Node::Regular(self.patches.len() as u32 - 1));
@@ -574,11 +549,11 @@ impl Arena {
         }
         let sub = extract_submesh(m, q);
         let mut corner_limit = [NO_LIMIT; 4];
-        for (i, &v) in corners.iter().enumerate() {
-            if !m.is_regular_vertex(v) {
-                let l = vertex_limit(m, v);
+        for (i, slot) in corner_limit.iter_mut().enumerate() {
+            if needs_limit(m, q, i) {
+                let l = crate::limit::corner_limit(m, m.face_he(q) + i as u32);
                 self.limits.push((l.position, l.normal));
-                corner_limit[i] = self.limits.len() as u32 - 1;
+                *slot = self.limits.len() as u32 - 1;
             }
         }
         let r = refine(&sub);
@@ -599,6 +574,36 @@ impl Arena {
     fn push(&mut self, n: Node) -> u32 {
         self.nodes.push(n);
         self.nodes.len() as u32 - 1
+    }
+}
+
+/// Whether quad `q` of `m` is exactly one bicubic B-spline patch: every corner regular
+/// on the quad's side of its sharp edges, no semi-sharp value left at any
+/// ([`PolyMesh::corner_is_regular`]).
+#[inline]
+pub(crate) fn is_regular_quad(m: &PolyMesh, q: FaceId) -> bool {
+    let h = m.face_he(q);
+    (0..4).all(|i| m.corner_is_regular(h + i))
+}
+
+/// Whether corner `c` of quad `q` is a point no patch of the tree reaches, whose value
+/// the limit masks give: an irregular corner with no semi-sharp value left (where one is
+/// left, the tree refines further first; there its rule still changes).
+#[inline]
+pub(crate) fn needs_limit(m: &PolyMesh, q: FaceId, c: usize) -> bool {
+    let h = m.face_he(q) + c as u32;
+    !m.corner_is_regular(h) && !m.has_semi_sharp_at(m.origin(h))
+}
+
+/// The limit sample at corner `c` of quad `q` (position, normal on the quad's side, unit
+/// tangents).
+fn limit_sample(m: &PolyMesh, q: FaceId, c: usize) -> LimitSample {
+    let l = corner_limit(m, m.face_he(q) + c as u32);
+    LimitSample {
+        p: l.position,
+        du: l.tangent1,
+        dv: l.tangent2,
+        n: l.normal,
     }
 }
 
@@ -705,7 +710,7 @@ pub(crate) fn extract_submesh(m: &PolyMesh, q: FaceId) -> PolyMesh {
     let mut face_start = Vec::with_capacity(faces.len() + 1);
     let mut face_verts = Vec::with_capacity(faces.len() * 4);
     face_start.push(0);
-    for f in faces {
+    for &f in &faces {
         for &v in m.face_vertices(f) {
             let local = match map.iter().find(|(g, _)| *g == v) {
                 Some(&(_, l)) => l,
@@ -720,8 +725,10 @@ pub(crate) fn extract_submesh(m: &PolyMesh, q: FaceId) -> PolyMesh {
         }
         face_start.push(face_verts.len() as u32);
     }
-    PolyMesh::new(positions, face_start, face_verts, Check::Trusted)
-        .expect("submesh of a valid mesh")
+    let mut sub = PolyMesh::new(positions, face_start, face_verts, Check::Trusted)
+        .expect("submesh of a valid mesh");
+    sub.inherit_tags(m, &faces, &map);
+    sub
 }
 
 #[cfg(test)]
@@ -732,11 +739,15 @@ mod tests {
     /// stored to depth 1 must give exactly what a tree stored to depth 10 gives.
     #[test]
     fn on_demand_levels_match_stored_levels() {
-        for shape in ["catmark_nonquads", "catmark_edgecorner", "catmark_pole8"] {
-            let cm = crate::ControlMesh::load_obj(crate::test_data::opensubdiv_reference(
-                &format!("{shape}.obj"),
-            ))
-            .unwrap();
+        for shape in [
+            "catmark_nonquads",
+            "catmark_edgecorner",
+            "catmark_pole8",
+            "catmark_single_crease",
+            "catmark_cubes_infsharp",
+            "catmark_pyramid_creases1",
+        ] {
+            let cm = crate::ControlMesh::load_obj(crate::test_data::shape(shape)).unwrap();
             let shallow = Surface::with_options(cm.clone(), SurfaceOptions { max_depth: 1 });
             let deep = Surface::with_options(cm, SurfaceOptions { max_depth: 10 });
             for b in 0..deep.num_base_quads() {
@@ -768,11 +779,10 @@ mod tests {
             ("catmark_edgecorner", 2),
             ("catmark_pole8", 1),
             ("catmark_cube", 3),
+            ("catmark_cube_creases1", 1),
+            ("catmark_inf_crease0", 2),
         ] {
-            let cm = crate::ControlMesh::load_obj(crate::test_data::opensubdiv_reference(
-                &format!("{shape}.obj"),
-            ))
-            .unwrap();
+            let cm = crate::ControlMesh::load_obj(crate::test_data::shape(shape)).unwrap();
             let s = Surface::with_options(cm, SurfaceOptions { max_depth: depth });
             // Points spiralling into every corner (down to 2^-30 of it), the corners
             // themselves and a few interior points: every depth below the stored one.
@@ -819,11 +829,14 @@ mod tests {
     /// remembered patch, on its boundary, in other patches and other base quads.
     #[test]
     fn hinted_derivs_match_eval_base() {
-        for shape in ["catmark_pole8", "catmark_nonquads", "catmark_edgecorner"] {
-            let cm = crate::ControlMesh::load_obj(crate::test_data::opensubdiv_reference(
-                &format!("{shape}.obj"),
-            ))
-            .unwrap();
+        for shape in [
+            "catmark_pole8",
+            "catmark_nonquads",
+            "catmark_edgecorner",
+            "catmark_chaikin0",
+            "catmark_cubes_infsharp",
+        ] {
+            let cm = crate::ControlMesh::load_obj(crate::test_data::shape(shape)).unwrap();
             let s = Surface::with_options(cm, SurfaceOptions { max_depth: 4 });
             let mut hint = LeafHint::default();
             for b in 0..s.num_base_quads() as u32 {

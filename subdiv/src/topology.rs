@@ -6,6 +6,7 @@
 //! `h -> twin(prev(h))` walks the outgoing half-edges of a vertex counter-clockwise (seen
 //! from the side the faces' normals point to).
 
+use crate::crease::{Rule, Sharpness};
 use crate::error::{MeshError, MeshProblem};
 use crate::ids::{FaceId, VertexId};
 use glam::DVec3;
@@ -34,6 +35,11 @@ pub struct PolyMesh {
     vert_out: Vec<u32>,
     vert_faces: Vec<u32>,
     vert_boundary: Vec<bool>,
+    /// Tagged sharpness per edge (OpenSubdiv's `t crease`), or empty when no edge has any:
+    /// the smooth case, which every caller can then skip cheaply.
+    edge_sharp: Vec<Sharpness>,
+    /// Tagged sharpness per vertex (`t corner`), or empty when no vertex has any.
+    vert_sharp: Vec<Sharpness>,
 }
 
 /// How strictly to check a mesh when building its topology.
@@ -111,6 +117,8 @@ impl PolyMesh {
             vert_out: vec![NONE; nv],
             vert_faces: vec![0; nv],
             vert_boundary: vec![false; nv],
+            edge_sharp: Vec::new(),
+            vert_sharp: Vec::new(),
         };
         m.link_twins(check)?;
         m.build_vertex_fans(check)?;
@@ -446,6 +454,255 @@ impl PolyMesh {
     pub fn half_edge_vertices(&self) -> &[u32] {
         &self.he_vert
     }
+
+    // --- Sharpness (see `crate::crease`) ---
+
+    /// Whether any edge or vertex carries a tagged sharpness (boundaries do not count: their
+    /// sharpness is implied by the topology).
+    #[inline]
+    pub fn has_tags(&self) -> bool {
+        !self.edge_sharp.is_empty() || !self.vert_sharp.is_empty()
+    }
+
+    /// Sets the tagged sharpness of every edge and vertex (`edges` by edge index, `verts`
+    /// by vertex; either may be empty for "all smooth"). All-smooth lists are stored empty,
+    /// so a mesh tagged with zeros is exactly the untagged mesh.
+    pub fn set_sharpness(&mut self, edges: Vec<Sharpness>, verts: Vec<Sharpness>) {
+        debug_assert!(edges.is_empty() || edges.len() == self.num_edges());
+        debug_assert!(verts.is_empty() || verts.len() == self.num_vertices());
+        let any = |v: &[Sharpness]| v.iter().any(|s| s.is_sharp());
+        self.edge_sharp = if any(&edges) { edges } else { Vec::new() };
+        self.vert_sharp = if any(&verts) { verts } else { Vec::new() };
+    }
+
+    /// The tagged sharpness of edge `e` (smooth if untagged; boundaries not included).
+    #[inline]
+    pub fn tagged_edge_sharpness(&self, e: usize) -> Sharpness {
+        self.edge_sharp.get(e).copied().unwrap_or(Sharpness::SMOOTH)
+    }
+
+    /// The tagged sharpness of vertex `v` (smooth if untagged; corners not included).
+    #[inline]
+    pub fn tagged_vertex_sharpness(&self, v: VertexId) -> Sharpness {
+        self.vert_sharp
+            .get(v.idx())
+            .copied()
+            .unwrap_or(Sharpness::SMOOTH)
+    }
+
+    /// Sharpness of the edge of half-edge `h`: infinite on a boundary (EDGE_AND_CORNER),
+    /// else as tagged.
+    #[inline]
+    pub fn edge_sharpness(&self, h: u32) -> Sharpness {
+        if self.he_twin[h as usize] == NONE {
+            Sharpness::INFINITE
+        } else {
+            self.tagged_edge_sharpness(self.edge_of(h))
+        }
+    }
+
+    /// Sharpness of vertex `v`: infinite at a boundary vertex with one face (a corner, kept
+    /// fixed by EDGE_AND_CORNER), else as tagged.
+    #[inline]
+    pub fn vertex_sharpness(&self, v: VertexId) -> Sharpness {
+        if self.vert_boundary[v.idx()] && self.vert_faces[v.idx()] == 1 {
+            Sharpness::INFINITE
+        } else {
+            self.tagged_vertex_sharpness(v)
+        }
+    }
+
+    /// The edges at `v` counter-clockwise, as half-edges whose edge it is, each with the
+    /// vertex at its other end: the outgoing half-edges, then (at a boundary vertex) the
+    /// incoming boundary half-edge that closes the fan.
+    pub fn vertex_edges(&self, v: VertexId) -> impl Iterator<Item = (u32, VertexId)> + '_ {
+        let closing = if self.is_boundary_vertex(v) {
+            self.outgoing(v).last().map(|h| {
+                let p = self.prev(h);
+                (p, self.origin(p))
+            })
+        } else {
+            None
+        };
+        self.outgoing(v).map(|h| (h, self.dest(h))).chain(closing)
+    }
+
+    /// The subdivision rule of vertex `v` (`Rule::of` its sharpness and its sharp edges).
+    pub fn vertex_rule(&self, v: VertexId) -> Rule {
+        if !self.has_tags() {
+            return self.untagged_rule(v);
+        }
+        let sharp = self
+            .vertex_edges(v)
+            .filter(|&(h, _)| self.edge_sharpness(h).is_sharp())
+            .count();
+        Rule::of(self.vertex_sharpness(v), sharp)
+    }
+
+    /// [`Self::vertex_rule`] without tags: smooth inside, crease along a boundary, corner
+    /// at a boundary vertex with one face.
+    #[inline]
+    fn untagged_rule(&self, v: VertexId) -> Rule {
+        match (self.vert_boundary[v.idx()], self.vert_faces[v.idx()]) {
+            (false, _) => Rule::Smooth,
+            (true, 1) => Rule::Corner,
+            (true, _) => Rule::Crease,
+        }
+    }
+
+    /// Whether a semi-sharp value sits at `v` (its own or an incident edge's): its
+    /// neighbourhood still changes rules with refinement, so neither a regular patch nor a
+    /// limit mask describes the surface there yet.
+    pub fn has_semi_sharp_at(&self, v: VertexId) -> bool {
+        if !self.has_tags() {
+            return false;
+        }
+        self.vertex_sharpness(v).is_semi_sharp()
+            || self
+                .vertex_edges(v)
+                .any(|(h, _)| self.edge_sharpness(h).is_semi_sharp())
+    }
+
+    /// The opposite half-edge on the same side of every infinitely sharp edge: `None` on a
+    /// boundary and across an infinitely sharp crease, where the limit surface on either
+    /// side is the one of a mesh cut open there.
+    #[inline]
+    pub fn smooth_twin(&self, h: u32) -> Option<u32> {
+        let t = self.twin(h)?;
+        (self.edge_sharp.is_empty() || !self.tagged_edge_sharpness(self.edge_of(h)).is_infinite())
+            .then_some(t)
+    }
+
+    /// The *sector* of the face of `h` at its origin v: the faces around v reached from it
+    /// without crossing an infinitely sharp edge or a boundary. On either side of such an
+    /// edge the limit surface is the one of the mesh cut open there, so a sector is what
+    /// a boundary vertex's fan is without tags.
+    pub fn sector(&self, h: u32) -> Sector {
+        let v = self.origin(h);
+        let total = self.vertex_faces(v);
+        // Clockwise (h -> next(twin(h)), across edge h) to the first sharp edge.
+        let mut first = h;
+        for _ in 0..total {
+            let Some(t) = self.smooth_twin(first) else {
+                break;
+            };
+            let cw = self.next(t);
+            if cw == h {
+                return Sector {
+                    first: self.vertex_out(v).unwrap_or(h),
+                    faces: total,
+                    closed: true,
+                };
+            }
+            first = cw;
+        }
+        // Counter-clockwise (h -> twin(prev(h))) to the next one.
+        let (mut faces, mut cur) = (1, first);
+        while faces < total {
+            let Some(t) = self.smooth_twin(self.prev(cur)) else {
+                break;
+            };
+            cur = t;
+            faces += 1;
+        }
+        Sector {
+            first,
+            faces,
+            closed: false,
+        }
+    }
+
+    /// Whether the corner of the face of `h` at its origin is one where a regular bicubic
+    /// B-spline patch is exact (with [`BSplinePatch::gather`](crate::patch::BSplinePatch)'s
+    /// ghost points across sharp edges): no semi-sharp value at the vertex, and on the
+    /// face's side of every infinitely sharp edge the configuration of a regular interior
+    /// (smooth, 4 faces), boundary (crease rule, 2 faces in the sector) or corner (corner
+    /// rule, 1 face) vertex. Without tags this is [`Self::is_regular_vertex`].
+    pub fn corner_is_regular(&self, h: u32) -> bool {
+        let v = self.origin(h);
+        if !self.has_tags() {
+            return self.is_regular_vertex(v);
+        }
+        if self.has_semi_sharp_at(v) {
+            return false;
+        }
+        match self.vertex_rule(v) {
+            Rule::Smooth => self.vertex_faces(v) == 4,
+            Rule::Dart => false,
+            Rule::Crease => self.sector(h).faces == 2,
+            Rule::Corner => self.sector(h).faces == 1,
+        }
+    }
+
+    /// Whether the limit normal at `v` is one vector: not where infinitely sharp edges
+    /// split its faces into several sectors (a crease or corner of the surface), nor at an
+    /// infinitely sharp vertex with two or more faces (a cone point).
+    pub fn normal_is_unique(&self, v: VertexId) -> bool {
+        if !self.has_tags() {
+            return true;
+        }
+        let Some(h) = self.vertex_out(v) else {
+            return true;
+        };
+        if self.vertex_sharpness(v).is_infinite() && self.vertex_faces(v) >= 2 {
+            return false;
+        }
+        self.sector(h).faces == self.vertex_faces(v)
+    }
+
+    /// Copies the tags of `parent` onto this mesh, made of `parent`'s faces `faces` (face
+    /// k here is `faces[k]` there, with the same corner order) and vertices
+    /// `(parent vertex, vertex here)`. For the small meshes cut out of a larger one.
+    pub(crate) fn inherit_tags(
+        &mut self,
+        parent: &PolyMesh,
+        faces: &[FaceId],
+        vertices: &[(u32, u32)],
+    ) {
+        if !parent.has_tags() {
+            return;
+        }
+        let mut edges = Vec::new();
+        if !parent.edge_sharp.is_empty() {
+            edges = vec![Sharpness::SMOOTH; self.num_edges()];
+            for (k, &f) in faces.iter().enumerate() {
+                let (h, g) = (self.face_start[k], parent.face_he(f));
+                for i in 0..self.face_size(FaceId::from_idx(k)) as u32 {
+                    edges[self.edge_of(h + i)] =
+                        parent.tagged_edge_sharpness(parent.edge_of(g + i));
+                }
+            }
+        }
+        let mut verts = Vec::new();
+        if !parent.vert_sharp.is_empty() {
+            verts = vec![Sharpness::SMOOTH; self.num_vertices()];
+            for &(p, l) in vertices {
+                verts[l as usize] = parent.tagged_vertex_sharpness(VertexId(p));
+            }
+        }
+        self.set_sharpness(edges, verts);
+    }
+
+    /// The edge joining vertices `a` and `b`, as one of its half-edges.
+    pub fn find_edge(&self, a: VertexId, b: VertexId) -> Option<u32> {
+        if a.idx() >= self.num_vertices() || b.idx() >= self.num_vertices() {
+            return None;
+        }
+        self.vertex_edges(a).find(|&(_, w)| w == b).map(|(h, _)| h)
+    }
+}
+
+/// The faces around a vertex between two infinitely sharp edges ([`PolyMesh::sector`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Sector {
+    /// The clockwise-most outgoing half-edge of the sector (its edge is the sector's
+    /// leading sharp edge, unless `closed`).
+    pub first: u32,
+    /// Number of faces.
+    pub faces: usize,
+    /// No sharp edge bounds it: the whole fan of an interior vertex (then `first` is
+    /// [`PolyMesh::vertex_out`]).
+    pub closed: bool,
 }
 
 /// Iterator over the outgoing half-edges of a vertex, counter-clockwise.
