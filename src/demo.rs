@@ -50,6 +50,7 @@ pub fn command(out: &Path) -> SynthCommand {
         displace: None,
         appearance: Default::default(),
         decimate: None,
+        patch_size: None,
         handedness: Default::default(),
         out: out.to_path_buf(),
     }

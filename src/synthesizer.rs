@@ -61,7 +61,9 @@ use std::time::Instant;
 use subdiv::Surface;
 
 pub use crate::synth::matching::appearance::AppearanceMode;
-pub use crate::synth::{CoherentParams, Method, MultiscaleParams, PatchParams, Settings, Weights};
+pub use crate::synth::{
+    CoherentParams, Method, MultiscaleParams, OptimiseParams, PatchParams, Settings, Weights,
+};
 
 /// Which way round the example is laid on the surface (`--handedness`).
 ///
@@ -340,6 +342,15 @@ impl Synthesizer {
     pub fn patch_params(mut self, p: PatchParams) -> Self {
         self.settings.patches = p;
         self
+    }
+    /// Tuning of texture optimisation.
+    pub fn optimise_params(mut self, p: OptimiseParams) -> Self {
+        self.settings.optimise = p;
+        self
+    }
+    /// The synthesis settings as configured so far.
+    pub fn current_settings(&self) -> &Settings {
+        &self.settings
     }
     /// What matchers compare (`--appearance`): appearance space (default) or raw channels.
     pub fn appearance(mut self, a: AppearanceMode) -> Self {
@@ -879,6 +890,8 @@ pub struct SynthCommand {
     pub appearance: AppearanceMode,
     /// `--decimate TOL`.
     pub decimate: Option<f64>,
+    /// `--patch-size` (patches, and the start of optimise; `None`: automatic).
+    pub patch_size: Option<usize>,
     /// `--handedness`.
     pub handedness: Handedness,
     pub out: PathBuf,
@@ -903,6 +916,12 @@ impl SynthCommand {
         }
         if let Some(search) = self.search {
             s = s.search(search);
+        }
+        if self.patch_size.is_some() {
+            let mut settings = s.current_settings().clone();
+            settings.patches.size = self.patch_size;
+            settings.optimise.start.size = self.patch_size;
+            s = s.settings(settings);
         }
         s
     }

@@ -59,6 +59,10 @@ pub struct SynthArgs {
     /// What neighbourhoods are compared in: appearance space (pca) or raw channels (rgb).
     #[arg(long, value_enum, default_value_t = Appearance::Pca)]
     pub appearance: Appearance,
+    /// Patch side in example pixels for --method patches and the start of optimise (default:
+    /// 64, at most half the example's shorter side). Larger patches keep larger structure.
+    #[arg(long, value_name = "PIXELS", value_parser = parse_patch_size)]
+    pub patch_size: Option<usize>,
     /// Neighbourhood search of the multiscale method (default: kcoherence, the faster at
     /// equal quality).
     #[arg(long, value_enum)]
@@ -100,6 +104,16 @@ pub struct SynthArgs {
     pub max_memory: Option<u64>,
 }
 
+fn parse_patch_size(s: &str) -> Result<usize, String> {
+    let v: usize = s
+        .parse()
+        .map_err(|_| format!("'{s}' is not a whole number of pixels"))?;
+    if !(4..=1024).contains(&v) {
+        return Err(format!("patch size {v} is out of range: use 4 to 1024 pixels"));
+    }
+    Ok(v)
+}
+
 pub fn run(a: SynthArgs) -> anyhow::Result<()> {
     // The handler lives in the library (surfsynth::synthesizer::run_command).
     if a.search.is_some() && a.method != Method::Multiscale {
@@ -132,6 +146,7 @@ pub fn run(a: SynthArgs) -> anyhow::Result<()> {
             Appearance::Rgb => surfsynth::synthesizer::AppearanceMode::Rgb,
         },
         decimate: a.decimate,
+        patch_size: a.patch_size,
         handedness: match a.handedness {
             Handedness::Tiles => surfsynth::synthesizer::Handedness::Tiles,
             Handedness::Outside => surfsynth::synthesizer::Handedness::Outside,

@@ -233,41 +233,6 @@ impl Footprints {
             .par_iter()
             .map(|&c| scratch.with(|| Flood::new(n), |fl| flood(level, fl, c as usize, half)))
             .collect();
-        if std::env::var("PP_FPDBG").is_ok() {
-            // DEV: distortion of local coordinates between graph neighbours in a footprint.
-            let mut r: Vec<f32> = Vec::new();
-            for (t, l) in per.iter().step_by(7) {
-                let idx: std::collections::HashMap<u32, usize> =
-                    t.iter().enumerate().map(|(i, &x)| (x, i)).collect();
-                let mut nb = Vec::new();
-                for (i, &a) in t.iter().enumerate() {
-                    nb.clear();
-                    level.graph.neighbours(a as usize, &mut nb);
-                    for &b in nb.iter().take(4) {
-                        if let Some(&j) = idx.get(&b) {
-                            let dl =
-                                ((l[i][0] - l[j][0]).powi(2) + (l[i][1] - l[j][1]).powi(2)).sqrt();
-                            let dp = level.geometry.pos[a as usize]
-                                .distance(level.geometry.pos[b as usize])
-                                / level.step as f32;
-                            if dp > 0.0 {
-                                r.push(dl / dp);
-                            }
-                        }
-                    }
-                }
-            }
-            r.sort_by(f32::total_cmp);
-            let q = |f: f32| r[((r.len() - 1) as f32 * f) as usize];
-            eprintln!(
-                "footprint edge ratio p1 {:.3} p10 {:.3} p50 {:.3} p90 {:.3} p99 {:.3}",
-                q(0.01),
-                q(0.1),
-                q(0.5),
-                q(0.9),
-                q(0.99)
-            );
-        }
         let mut start = Vec::with_capacity(per.len() + 1);
         start.push(0);
         let total: usize = per.iter().map(|p| p.0.len()).sum();

@@ -305,37 +305,7 @@ fn run_patches<const K: usize>(
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Output {
     let ex = Exemplar::<K>::build(weighted, settings.appearance);
-    // DEV
-    let mut pp = settings.patches;
-    {
-        let env = |k: &str| std::env::var(k).ok().and_then(|v| v.parse::<f64>().ok());
-        if let Some(v) = env("PP_SIZE") {
-            pp.size = v as usize;
-        }
-        if let Some(v) = env("PP_SPACING") {
-            pp.spacing = v as f32;
-        }
-        if let Some(v) = env("PP_TOL") {
-            pp.tolerance = v as f32;
-        }
-        if let Some(v) = env("PP_GRID") {
-            pp.grid_step = v as u32;
-        }
-        if let Some(v) = env("PP_GSAMP") {
-            pp.grid_samples = v as u32;
-        }
-        if let Some(v) = env("PP_REFINE") {
-            pp.refine = v as u32;
-        }
-        if let Some(v) = env("PP_EVAL") {
-            pp.eval_samples = v as u32;
-        }
-        if let Some(v) = env("PP_RANDOM") {
-            pp.random = v as u32;
-        }
-    }
-    let out = patches::run(&ex, target.texels, &pp, target.seed, progress);
-    eprintln!("{:?}", out.stats);
+    let out = patches::run(&ex, target.texels, &settings.patches, target.seed, progress);
     Output {
         source: out.source,
         appearance: ex.info,

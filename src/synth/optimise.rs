@@ -83,10 +83,7 @@ impl Default for OptimiseParams {
             eval_samples: 128,
             random: 2,
             proposers: 8,
-            start: PatchParams {
-                size: 32,
-                ..PatchParams::default()
-            },
+            start: PatchParams::default(),
         }
     }
 }

@@ -50,8 +50,10 @@ use serde::Serialize;
 /// Tuning of patch sampling (defaults measured, see docs/synthesis.md).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct PatchParams {
-    /// Patch side in example pixels (clamped to the example).
-    pub size: usize,
+    /// Patch side in example pixels; `None`: [`AUTO_SIZE`], at most half the example's
+    /// shorter side (so that a patch can be placed at many positions). Clamped to the
+    /// example either way.
+    pub size: Option<usize>,
     /// Distance between patch centres as a fraction of the side.
     pub spacing: f32,
     /// A candidate is eligible when its error is at most (1 + tolerance) × the best.
@@ -75,7 +77,7 @@ pub struct PatchParams {
 impl Default for PatchParams {
     fn default() -> Self {
         Self {
-            size: 32,
+            size: None,
             spacing: 0.5,
             tolerance: 0.1,
             random: 8,
@@ -88,6 +90,16 @@ impl Default for PatchParams {
         }
     }
 }
+
+/// Texels within this fraction of the half-size of a patch's centre always take the new
+/// patch: every patch contributes its core, so later patches cannot be swallowed whole
+/// by earlier ones that happen to match their overlap well.
+const CORE: f32 = 0.25;
+
+/// Largest automatic patch side (example pixels): larger patches keep more structure
+/// (measured on the flat grid: pf8 0.029 at 64 against 0.041 at 32 on bricks) but fold on
+/// curved parts more often (those parts get smaller patches, see [`MIN_SIZE`]).
+pub const AUTO_SIZE: usize = 64;
 
 /// Smallest patch side of the hole-filling passes (example pixels).
 pub const MIN_SIZE: usize = 8;
@@ -120,10 +132,13 @@ pub struct Output {
     pub stats: Stats,
 }
 
-/// The patch side used for an example of `w x h` pixels: the requested side, at most
-/// the example's shorter side minus 2 (a patch must fit with its bilinear taps), at least 4.
-pub fn effective_size(requested: usize, w: usize, h: usize) -> usize {
-    requested.min(w.min(h).saturating_sub(2)).max(4)
+/// The patch side used for an example of `w x h` pixels: the requested side (or the
+/// automatic one, see [`PatchParams::size`]), at most the example's shorter side minus 2 (a
+/// patch must fit with its bilinear taps), even, at least 4.
+pub fn effective_size(requested: Option<usize>, w: usize, h: usize) -> usize {
+    let short = w.min(h);
+    let size = requested.unwrap_or(AUTO_SIZE.min(short / 2));
+    (size.min(short.saturating_sub(2)) & !1).max(4)
 }
 
 struct Ctx<'a, const K: usize> {
@@ -679,7 +694,7 @@ fn join<const K: usize>(
     const OLD: u8 = 1;
     const NEW: u8 = 2;
     let edges = c.level.edges();
-    let core = core_fraction() * c.fp.half;
+    let core = CORE * c.fp.half;
     s.class.clear();
     s.index.clear();
     let mut free = 0usize;
@@ -733,15 +748,7 @@ fn join<const K: usize>(
         }
     }
     let mut side = std::mem::take(&mut s.side);
-    let tq = std::time::Instant::now();
     s.graph.solve(&mut side);
-    if std::env::var("PP_DBG").is_ok() {
-        eprintln!(
-            "cut m={m} free={free} arcs={} secs={:.6}",
-            s.graph.arcs(),
-            tq.elapsed().as_secs_f64()
-        );
-    }
     let mut out_t = Vec::new();
     let mut out_s = Vec::new();
     let mut replaced = 0;
@@ -813,12 +820,4 @@ fn fill_uncovered<const K: usize>(
         frontier = next;
     }
     filled
-}
-
-// DEV
-fn core_fraction() -> f32 {
-    std::env::var("PP_CORE")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(0.25)
 }
