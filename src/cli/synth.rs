@@ -109,7 +109,9 @@ fn parse_patch_size(s: &str) -> Result<usize, String> {
         .parse()
         .map_err(|_| format!("'{s}' is not a whole number of pixels"))?;
     if !(4..=1024).contains(&v) {
-        return Err(format!("patch size {v} is out of range: use 4 to 1024 pixels"));
+        return Err(format!(
+            "patch size {v} is out of range: use 4 to 1024 pixels"
+        ));
     }
     Ok(v)
 }

@@ -492,18 +492,26 @@ pub fn run(
 /// `continuous_sources`.
 pub const PATCH_TOLERANCE: f32 = 1.5;
 
+/// Smoothing steps of [`continuous_sources`] after the tree layout.
+pub const CONTINUATION_ITERATIONS: usize = 4;
+
 /// Continuous source positions for the finest level.
 ///
 /// Multiscale synthesis copies whole example pixels, so a texel's source is a pixel
 /// centre. Where texels are denser or sparser than example pixels (faces of different
-/// sizes, N·h/S not a power of two) neighbouring texels of one copied patch then get
-/// sources rounded to whole pixels: steps of 0 or 2 pixels where 1.3 would be right, which
-/// shows as blocky magnification and as a wrong local scale. Each texel's source is
-/// therefore replaced by the mean of its own and its neighbours' *continuations* —
-/// neighbour source minus the neighbour's offset in example pixels (the rule of coherent
-/// synthesis, 000 §5) — over the 3x3 texel neighbours that continue the same patch (within
-/// [`PATCH_TOLERANCE`] pixels of its own source). A texel whose neighbours all come from
-/// other patches keeps its pixel centre. Colours are then looked up bilinearly at these
+/// sizes, N·h/S not a power of two), neighbouring texels of one copied patch then step by
+/// 0 or 2 pixels where 1.3 would be right: a wrong local scale (measured on a creased
+/// frustum: scale fidelity median 1.06, p10–p90 0.0–1.89; the 3x3 mean of continuations
+/// used before brought it only to 0.68–1.37, and the issue saw 0.62–2.07 on a penguin),
+/// shown as blocky magnification and stretched copies. So each *patch* — texels whose
+/// discrete sources continue each other: a neighbour's source minus the offset between
+/// them, in example pixels (the rule of coherent synthesis, 000 §5), within
+/// [`PATCH_TOLERANCE`] pixels — is laid out anew as an exact continuation: breadth-first
+/// from its first texel, each texel at its tree parent's source plus their offset, then
+/// moved as a whole to fit its discrete sources on average (where the synthesis put it).
+/// [`CONTINUATION_ITERATIONS`] half-Jacobi steps then spread what the field's curl leaves
+/// between tree branches. Measured after: median 1.000, p10–p90 0.97–1.06. Texels with no
+/// coherent neighbour keep their pixel centre. Colours are looked up bilinearly at these
 /// positions, so patches are resampled rather than repeated or skipped.
 fn continuous_sources(
     surface: &Surface,
@@ -516,12 +524,13 @@ fn continuous_sources(
     let r = geo.r;
     let tol = PATCH_TOLERANCE * up;
     let tol2 = tol * tol;
-    let out: Vec<([f32; 2], bool)> = (0..geo.len())
+    // Coherent neighbours of every texel: (neighbour, offset e(t, q) in example pixels).
+    let links: Vec<Vec<(u32, [f32; 2])>> = (0..geo.len())
         .into_par_iter()
         .map(|t| {
             let loc = geo.location(t);
             let p = src[t];
-            let (mut sx, mut sy, mut n) = (p[0] as f64, p[1] as f64, 1.0f64);
+            let mut out = Vec::with_capacity(8);
             for b in -1i32..=1 {
                 for a in -1i32..=1 {
                     if a == 0 && b == 0 {
@@ -534,24 +543,94 @@ fn continuous_sources(
                     let Some(q) = nearest_texel(&geo.layout.taps(l)) else {
                         continue;
                     };
-                    if q == t {
+                    if q == t || out.iter().any(|&(o, _)| o as usize == q) {
                         continue;
                     }
                     let e = geo.offset_pixels(t, q, scale);
                     let c = [src[q][0] - e[0], src[q][1] - e[1]];
                     let (dx, dy) = (c[0] - p[0], c[1] - p[1]);
                     if dx * dx + dy * dy <= tol2 {
-                        sx += c[0] as f64;
-                        sy += c[1] as f64;
-                        n += 1.0;
+                        out.push((q as u32, e));
                     }
                 }
             }
-            ([(sx / n) as f32, (sy / n) as f32], n > 1.0)
+            out
         })
         .collect();
-    stats.continued = out.iter().filter(|o| o.1).count() as u64;
-    out.into_iter().map(|o| o.0).collect()
+    stats.continued = links.iter().filter(|l| !l.is_empty()).count() as u64;
+    // Each connected patch (over links in either direction) is laid out by a breadth-first
+    // tree from its first texel — exact continuation along the tree — and moved as a whole
+    // to fit its discrete sources on average; Jacobi steps then spread what the field's
+    // curl leaves between tree branches.
+    let n_t = geo.len();
+    let mut back: Vec<Vec<(u32, [f32; 2])>> = vec![Vec::new(); n_t];
+    for (t, l) in links.iter().enumerate() {
+        for &(q, e) in l {
+            // t's link to q with offset e(t, q): q's link back to t has offset ≈ −e.
+            back[q as usize].push((t as u32, [-e[0], -e[1]]));
+        }
+    }
+    let mut cur: Vec<[f64; 2]> = src.iter().map(|s| [s[0] as f64, s[1] as f64]).collect();
+    let mut seen = vec![false; n_t];
+    let mut queue = std::collections::VecDeque::new();
+    let mut members = Vec::new();
+    for root in 0..n_t {
+        if seen[root] || (links[root].is_empty() && back[root].is_empty()) {
+            continue;
+        }
+        seen[root] = true;
+        members.clear();
+        queue.push_back(root);
+        let mut pos_of = std::collections::HashMap::new();
+        pos_of.insert(root, [0.0f64, 0.0f64]);
+        while let Some(t) = queue.pop_front() {
+            members.push(t);
+            let st = pos_of[&t];
+            for &(q, e) in links[t].iter().chain(back[t].iter()) {
+                let q = q as usize;
+                if !seen[q] {
+                    seen[q] = true;
+                    // s(q) = s(t) + e(t, q).
+                    pos_of.insert(q, [st[0] + e[0] as f64, st[1] + e[1] as f64]);
+                    queue.push_back(q);
+                }
+            }
+        }
+        let (mut dx, mut dy) = (0.0f64, 0.0f64);
+        for &t in &members {
+            let p = pos_of[&t];
+            dx += src[t][0] as f64 - p[0];
+            dy += src[t][1] as f64 - p[1];
+        }
+        let m = members.len() as f64;
+        for &t in &members {
+            let p = pos_of[&t];
+            cur[t] = [p[0] + dx / m, p[1] + dy / m];
+        }
+    }
+    for _ in 0..CONTINUATION_ITERATIONS {
+        cur = (0..n_t)
+            .into_par_iter()
+            .map(|t| {
+                let l = &links[t];
+                if l.is_empty() && back[t].is_empty() {
+                    return cur[t];
+                }
+                let (mut sx, mut sy, mut w) = (0.0f64, 0.0f64, 0.0f64);
+                for &(q, e) in l.iter().chain(back[t].iter()) {
+                    let c = cur[q as usize];
+                    sx += c[0] - e[0] as f64;
+                    sy += c[1] - e[1] as f64;
+                    w += 1.0;
+                }
+                // Half a step: keeps the tree's layout where the links agree.
+                [0.5 * (cur[t][0] + sx / w), 0.5 * (cur[t][1] + sy / w)]
+            })
+            .collect();
+    }
+    cur.into_iter()
+        .map(|c| [c[0] as f32, c[1] as f32])
+        .collect()
 }
 
 /// Output texel sources continued from the nearest texel of the finest synthesis level.
