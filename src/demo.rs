@@ -41,7 +41,7 @@ pub fn command(out: &Path) -> SynthCommand {
         mesh: inputs.join(MESH_NAME),
         example: inputs.join(EXAMPLE_NAME),
         height: None,
-        method: Method::Coherent,
+        method: Method::DEFAULT,
         resolution: RESOLUTION,
         scale: None,
         orientation: Orientation::Auto,

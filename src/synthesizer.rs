@@ -6,7 +6,7 @@
 //!
 //! # fn main() -> surfsynth::Result<()> {
 //! let result = Synthesizer::new("spot_control_mesh.obj", "gravel.png")
-//!     .method(Method::Coherent)
+//!     .method(Method::Optimise)
 //!     .resolution(32)
 //!     .seed(7)
 //!     .run()?;
@@ -268,7 +268,7 @@ pub struct SynthResult {
 
 impl Synthesizer {
     /// A run on `mesh` (an OBJ path or a [`Surface`]) with `example` (a PNG/JPEG path or an
-    /// [`Example`]). Defaults: coherent, resolution 32, scale = median texel spacing,
+    /// [`Example`]). Defaults: [`Method::DEFAULT`], resolution 32, scale = median texel spacing,
     /// orientation `auto`, seed 1, all threads of the current rayon pool.
     pub fn new(mesh: impl Into<MeshSource>, example: impl Into<ExampleSource>) -> Self {
         Self {
@@ -293,7 +293,8 @@ impl Synthesizer {
         self.height = Some(path.into());
         self
     }
-    /// Synthesis method: [`Method::Coherent`] (default) or [`Method::Multiscale`].
+    /// Synthesis method (default [`Method::DEFAULT`], texture optimisation; see
+    /// docs/synthesis.md for what each is for).
     pub fn method(mut self, m: Method) -> Self {
         self.settings.method = m;
         self

@@ -202,19 +202,22 @@ fn texture(name: &str, size: usize) -> surfsynth::example::Example {
 }
 
 /// The methods the synthesis test runs, with the scale-fidelity spread each is held to
-/// (`None`: the median only). Multiscale copies whole example pixels per level and spreads
-/// 0.7–1.9 on smooth curved meshes as well (docs/multiscale.md), so BRIEF's spread is
-/// asked of coherent synthesis. Add methods here as they land.
+/// (`None`: the median only). Coherent synthesis projects 3D offsets onto the texel's own
+/// plane, which foreshortens neighbours across a sharp crease (p90 ~1.06 here), so it is
+/// held to a wider spread than BRIEF's; the patch methods lay coordinates by geodesic
+/// steps and multiscale makes its patches exact continuations.
 const METHODS: &[(Method, Option<(f64, f64)>)] = &[
     (Method::Coherent, Some((0.85, 1.15))),
-    (Method::Multiscale, None),
+    (Method::Multiscale, Some((0.9, 1.1))),
+    (Method::Patches, Some((0.9, 1.1))),
+    (Method::Optimise, Some((0.9, 1.1))),
 ];
 
-/// Coherent and multiscale synthesis on creased meshes (the sharp frustum, and the same with
-/// semi-sharp edges of sharpness 2), N = 24, a 64² gravel example: coverage 1, seam ratio
-/// ≤ 1.10, scale fidelity median within 5% of 1 (and the spread of `METHODS`). Measured
-/// (seeds 1–4): coherent seams 0.71–0.83, p10–p90 0.980–1.064; multiscale seams 0.97–1.09,
-/// medians 0.978–0.988.
+/// Every method on creased meshes (the sharp frustum, and the same with semi-sharp edges
+/// of sharpness 2), N = 24, a 64² gravel example: coverage 1, seam ratio ≤ 1.10, scale
+/// fidelity median within 3% of 1 (BRIEF) and the spread of `METHODS`. Measured (seed 3):
+/// coherent seams 0.72–0.83, p10–p90 0.98–1.06; multiscale seams 0.93–0.96, p10–p90
+/// 0.97–1.06.
 #[test]
 fn synthesis_on_creased_meshes_meets_the_quality_bar() {
     let ex = texture("etr_gravel.png", 64);
@@ -246,7 +249,7 @@ fn synthesis_on_creased_meshes_meets_the_quality_bar() {
             println!("{what}");
             assert_eq!(q.coverage, 1.0, "{what}");
             assert!(q.seam_ratio.unwrap() <= 1.10, "{what}");
-            assert!((sf.median - 1.0).abs() <= 0.05, "{what}");
+            assert!((sf.median - 1.0).abs() <= 0.03, "{what}");
             if let Some((lo, hi)) = spread {
                 assert!(sf.p10 >= lo && sf.p90 <= hi, "{what}");
             }

@@ -9,7 +9,14 @@ use std::path::{Path, PathBuf};
 use surfsynth::field::Orientation;
 use surfsynth::io::exr::FaceMaps;
 use surfsynth::synth::coherent::Order;
-use surfsynth::synthesizer::{CoherentParams, SynthResult, Synthesizer};
+use surfsynth::synthesizer::{
+    CoherentParams, ExampleSource, MeshSource, Method, SynthResult, Synthesizer,
+};
+
+/// This file tests the coherent method (000 §5): a builder set to it.
+fn coherent(mesh: impl Into<MeshSource>, example: impl Into<ExampleSource>) -> Synthesizer {
+    Synthesizer::new(mesh, example).method(Method::Coherent)
+}
 
 fn fixture(rel: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -126,7 +133,7 @@ fn explore() {
         ),
     ] {
         for (name, p) in &variants {
-            let r = Synthesizer::new(data(mesh), data(ex))
+            let r = coherent(data(mesh), data(ex))
                 .resolution(16)
                 .coherent_params(p.clone())
                 .seed(7)
@@ -157,7 +164,7 @@ fn explore_flat() {
         ("weave", data("textures/gimp_burlap_weave.png")),
     ] {
         for rc in [0, 1, 4] {
-            let r = Synthesizer::new(flat_grid(k), ex.clone())
+            let r = coherent(flat_grid(k), ex.clone())
                 .resolution(32)
                 .seed(3)
                 .orientation(Orientation::Axis(glam::DVec3::X))
@@ -184,7 +191,7 @@ fn explore_flat() {
 
 /// Runs and checks BRIEF's quality bar (issue 4's acceptance numbers).
 fn assert_quality(mesh: PathBuf, example: PathBuf, n: usize, seed: u64) -> Measures {
-    let r = Synthesizer::new(&mesh, &example)
+    let r = coherent(&mesh, &example)
         .resolution(n)
         .seed(seed)
         .run()
@@ -245,7 +252,7 @@ fn curved_meshes_with_reptile_scales_meet_the_quality_bar() {
     ] {
         let mut seams: Vec<f64> = (1..=5)
             .map(|seed| {
-                let r = Synthesizer::new(data(mesh), &scales)
+                let r = coherent(data(mesh), &scales)
                     .resolution(32)
                     .seed(seed)
                     .run()
@@ -288,7 +295,7 @@ fn bits(m: &FaceMaps) -> Vec<(String, Vec<u32>)> {
 fn library_result_is_bit_identical_for_one_and_two_threads() {
     // Bricks on Spot: T-junctions, extraordinary corners, many waves with several domains.
     let run = |t: usize| {
-        Synthesizer::new(
+        coherent(
             data("meshes/spot_control_mesh.obj"),
             data("textures/skimage_brick.png"),
         )
@@ -303,7 +310,7 @@ fn library_result_is_bit_identical_for_one_and_two_threads() {
     assert_eq!(b.report.threads, 2);
     assert_eq!(bits(&a.maps), bits(&b.maps));
     // And the seed matters.
-    let c = Synthesizer::new(
+    let c = coherent(
         data("meshes/spot_control_mesh.obj"),
         data("textures/skimage_brick.png"),
     )
@@ -503,7 +510,7 @@ fn resolution_zero_fails_cleanly() {
         &["resolution"],
     );
     // The library refuses it too, with the same kind of message.
-    let e = Synthesizer::new(fixture("spot_control_mesh.obj"), fixture("gravel.png"))
+    let e = coherent(fixture("spot_control_mesh.obj"), fixture("gravel.png"))
         .resolution(0)
         .run()
         .unwrap_err()
@@ -533,7 +540,7 @@ fn height_and_alpha_channels_are_synthesized_from_the_same_source() {
     image::GrayImage::from_fn(w, h, |x, y| image::Luma([((x * 7 + y * 3) % 256) as u8]))
         .save(&hpath)
         .unwrap();
-    let r = Synthesizer::new(data("meshes/cube_no_bottom.obj"), &ex_path)
+    let r = coherent(data("meshes/cube_no_bottom.obj"), &ex_path)
         .height(&hpath)
         .resolution(8)
         .run()
@@ -577,7 +584,7 @@ fn explore_scales() {
     ] {
         for (name, p) in &variants {
             for orient in [Orientation::Auto, Orientation::Axis(glam::DVec3::Z)] {
-                let r = Synthesizer::new(data(mesh), data("textures/krita_reptile_scales.png"))
+                let r = coherent(data(mesh), data("textures/krita_reptile_scales.png"))
                     .resolution(32)
                     .orientation(orient.clone())
                     .coherent_params(p.clone())
@@ -651,7 +658,7 @@ fn seam_tail() {
         let (mut coh, mut p10, mut p90, mut secs) = (f64::INFINITY, f64::INFINITY, 0.0f64, 0.0);
         let mut waves = 0;
         for seed in first..first + seeds {
-            let r = Synthesizer::new(data(mesh), tail_path(ex))
+            let r = coherent(data(mesh), tail_path(ex))
                 .resolution(n)
                 .seed(seed)
                 .handedness(hand)
@@ -699,7 +706,7 @@ fn diagnose_seams() {
     let seed: u64 = env_or("DIAG_SEED", 5);
     let n: usize = env_or("DIAG_N", 32);
     let top: usize = env_or("DIAG_TOP", 25);
-    let r = Synthesizer::new(data(&mesh), tail_path(&ex))
+    let r = coherent(data(&mesh), tail_path(&ex))
         .resolution(n)
         .seed(seed)
         .appearance(surfsynth::synthesizer::AppearanceMode::Rgb)

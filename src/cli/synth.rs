@@ -6,9 +6,11 @@ use clap::{Args, ValueEnum};
 use std::path::PathBuf;
 use surfsynth::field::Orientation;
 
+/// The CLI's names of [`surfsynth::synthesizer::Method`] (default: optimise, the library's
+/// `Method::DEFAULT`).
 #[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Method {
-    /// Single pass, copies coherent patches (000 §5).
+    /// Single pass, copies coherent patches (000 §5): the fast preview.
     Coherent,
     /// Gaussian pyramid, two passes per level (000 §4).
     Multiscale,
@@ -54,7 +56,7 @@ pub struct SynthArgs {
     #[arg(long, value_name = "H.png")]
     pub height: Option<PathBuf>,
     /// Synthesis method.
-    #[arg(long, value_enum, default_value_t = Method::Coherent)]
+    #[arg(long, value_enum, default_value_t = Method::Optimise)]
     pub method: Method,
     /// What neighbourhoods are compared in: appearance space (pca) or raw channels (rgb).
     #[arg(long, value_enum, default_value_t = Appearance::Pca)]

@@ -167,6 +167,65 @@ pub fn centres(level: &LevelTexels, spacing: f64, seed: u64, mask: Option<&[bool
     out
 }
 
+/// Cosine of the angle between neighbouring normals beyond which a step is taken to cross
+/// a crease (~8°; smooth surfaces turn by well under a degree per texel).
+const CREASE_COS: f32 = 0.99;
+
+/// `e1` carried from a point with normal `from` to one with normal `to` by the smallest
+/// rotation taking `from` to `to` (parallel transport over one step; across a sharp crease
+/// this is the unfolding about the crease line, where projecting onto the new tangent
+/// plane would lose a direction that points across the crease).
+fn transport(e1: Vec3, from: Vec3, to: Vec3) -> Vec3 {
+    let axis = from.cross(to);
+    let s = axis.length();
+    let c = from.dot(to);
+    let r = if s > 1e-7 {
+        // Rodrigues' rotation about axis / s by the angle with sin s and cos c.
+        let k = axis / s;
+        e1 * c + k.cross(e1) * s + k * k.dot(e1) * (1.0 - c)
+    } else {
+        e1
+    };
+    let t = r - to * r.dot(to);
+    if t.length_squared() > 1e-12 {
+        t.normalize()
+    } else {
+        e1
+    }
+}
+
+/// The step `dp` from a point with normal `a` to one with normal `b`, as it runs *on the
+/// surface*, expressed in `a`'s tangent plane. On smooth parts this is `dp` itself (the
+/// chord of one texel differs from the arc by (h·κ)²/24). Across a sharp crease the chord
+/// cuts the corner: the surface path runs along `a`'s plane to the crease line and on
+/// along `b`'s plane, so the part of `dp` across the crease is split into its two in-plane
+/// legs (directions `u_a`, `u_b` perpendicular to the crease line `d = a × b`), whose
+/// lengths are summed along `u_a` — the step unfolded into `a`'s plane.
+fn unfolded(dp: Vec3, a: Vec3, b: Vec3) -> Vec3 {
+    if a.dot(b) >= CREASE_COS {
+        return dp;
+    }
+    let d = a.cross(b);
+    let dl = d.length();
+    if dl < 1e-6 {
+        return dp;
+    }
+    let d = d / dl;
+    let (ua, ub) = (d.cross(a), d.cross(b));
+    let along = dp.dot(d);
+    let perp = dp - d * along;
+    // perp = α·ua + β·ub.
+    let (g11, g12, g22) = (1.0, ua.dot(ub), 1.0);
+    let (r1, r2) = (perp.dot(ua), perp.dot(ub));
+    let det = g11 * g22 - g12 * g12;
+    if det.abs() < 1e-6 {
+        return dp;
+    }
+    let alpha = (r1 * g22 - r2 * g12) / det;
+    let beta = (g11 * r2 - g12 * r1) / det;
+    d * along + ua * (alpha + beta)
+}
+
 /// The footprints of a set of patches (CSR): texels and their local coordinates.
 pub struct Footprints {
     /// Half-size r in example pixels: footprints hold the texels with |l|∞ ≤ r.
@@ -338,13 +397,7 @@ fn flood(level: &LevelTexels, fl: &mut Flood, c: usize, half: f32) -> (Vec<u32>,
             fl.coord[s] = [0.0, 0.0];
         } else {
             let p = fl.parent[s] as usize;
-            let n = normal[s];
-            let e = fl.e1[p] - n * fl.e1[p].dot(n);
-            fl.e1[s] = if e.length_squared() > 1e-12 {
-                e.normalize()
-            } else {
-                fl.e1[p]
-            };
+            fl.e1[s] = transport(fl.e1[p], normal[p], normal[s]);
             fl.nb.clear();
             level.graph.neighbours(s, &mut fl.nb);
             let (mut sx, mut sy, mut sw) = (0.0f32, 0.0f32, 0.0f32);
@@ -353,7 +406,7 @@ fn flood(level: &LevelTexels, fl: &mut Flood, c: usize, half: f32) -> (Vec<u32>,
                 if fl.stamp[q] != gen || !fl.done[q] || !fl.coord[q][0].is_finite() {
                     continue;
                 }
-                let dp = pos[s] - pos[q];
+                let dp = unfolded(pos[s] - pos[q], normal[q], normal[s]);
                 let len = dp.length();
                 if len <= 0.0 {
                     continue;
@@ -383,7 +436,7 @@ fn flood(level: &LevelTexels, fl: &mut Flood, c: usize, half: f32) -> (Vec<u32>,
                 if fl.stamp[q] != gen || !fl.done[q] || !fl.coord[q][0].is_finite() {
                     continue;
                 }
-                let dp = pos[s].distance(pos[q]) * inv_step;
+                let dp = unfolded(pos[s] - pos[q], normal[q], normal[s]).length() * inv_step;
                 let lq = fl.coord[q];
                 let dl = (l[0] - lq[0]).hypot(l[1] - lq[1]);
                 if dp > 0.0 && !(STRETCH_MIN..=STRETCH_MAX).contains(&(dl / dp)) {

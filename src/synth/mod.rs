@@ -69,6 +69,10 @@ pub enum Method {
 }
 
 impl Method {
+    /// The method `synth` uses without `--method`: the one that keeps the example's
+    /// structure best at good speed (docs/synthesis.md has the table it was chosen from).
+    pub const DEFAULT: Method = Method::Optimise;
+
     /// Every method, in the order of docs/synthesis.md's table.
     pub const ALL: [Method; 4] = [
         Method::Coherent,
@@ -140,7 +144,7 @@ pub struct Settings {
 impl Default for Settings {
     fn default() -> Self {
         Self {
-            method: Method::Coherent,
+            method: Method::DEFAULT,
             weights: Weights::default(),
             appearance: AppearanceMode::default(),
             coherent: CoherentParams::default(),
