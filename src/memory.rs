@@ -16,8 +16,10 @@
 //! - `synth`: the orientation field's limit mesh (at most 400,000 faces), per texel
 //!   `domains x N²` x (fixed overhead + 4 bytes x channels) — positions, normals, frames,
 //!   the neighbourhood graph, source positions, both map sets, the atlas — plus the border
-//!   texels' neighbour lists, plus the example; the multiscale method adds per-channel
-//!   feature costs per texel and per example pixel;
+//!   texels' neighbour lists, plus the example and its appearance space; patch sampling
+//!   and texture optimisation add their per-texel working sets (footprints, cuts, the
+//!   optimised sources and colours), and the multiscale method per-channel feature costs
+//!   per texel and per example pixel;
 //! - `bake`: only the tiles in flight (two batches, see [`crate::io::exr::write_tiles`]) and
 //!   the per-thread scratch: the maps are streamed, never held whole.
 //!
@@ -25,6 +27,7 @@
 //! nothing large has been allocated yet when it refuses.
 
 use crate::error::{Error, Result};
+use crate::synth::Method;
 use std::path::Path;
 use std::sync::atomic::{AtomicU64, Ordering};
 use subdiv::{ControlMesh, FaceId, Surface};
@@ -49,20 +52,33 @@ const IRREGULAR_QUAD_PER_LEVEL: u64 = 2867;
 const FIELD_FACE: u64 = 430;
 /// `synth`, per texel, besides 4 bytes per map channel: position + normal (24), frames,
 /// graph starts, source positions, geometry maps (24), atlas and tessellation shares,
-/// and the transient copies of the stages (measured slope: 118–121 B/texel at 5 channels;
-/// two more channels added only ~2 B/texel, so 4 B per channel is on the safe side).
-const SYNTH_TEXEL: u64 = 100;
+/// the appearance-space image of the texels, and the transient copies of the stages
+/// (measured on Spot with the coherent method at N = 32–128: 163–214 B/texel at 5
+/// channels, the slope falling as N grows; two more channels added only ~2 B/texel, so 4 B
+/// per channel is on the safe side).
+const SYNTH_TEXEL: u64 = 160;
+/// `synth --method patches`, per texel on top of [`SYNTH_TEXEL`]: footprints (texel lists
+/// and their example positions), the min-cut graphs in flight, the assembled sources.
+/// Measured on Spot at N = 32–128: 90–100 B/texel more than coherent.
+const PATCHES_TEXEL: u64 = 100;
+/// `synth --method optimise`, per texel on top of [`SYNTH_TEXEL`]: the footprints of
+/// every level, the per-texel accumulators of the M-step, the optimised sources and
+/// colours, and the patch sampling that starts the coarsest level. Measured on Spot at
+/// N = 32–128: 200–250 B/texel more than coherent.
+const OPTIMISE_TEXEL: u64 = 240;
 /// `synth`, per border texel (4N per domain): its neighbour list across the face edges.
 const SYNTH_BORDER_TEXEL: u64 = 64;
-/// `synth`, per example pixel: decoded image, linear copy, alpha/height.
-const EXAMPLE_PIXEL: u64 = 64;
+/// `synth`, per example pixel: decoded image, linear copy, alpha/height, the appearance
+/// space (8 floats) and its similar-pixel lists (measured: ~220 B per pixel between a
+/// 128² and a 256² example).
+const EXAMPLE_PIXEL: u64 = 240;
 /// `synth --method multiscale`, per texel and per example pixel, for each synthesized
 /// channel (R G B [A] [height]): the texel pyramid's neighbourhood features and the
-/// example pyramid's features, PCA projections and search structures. Measured on Spot
-/// at N = 16–64 with 64–256 px examples: ~900 B/texel and ~2.9 KB/example pixel with
-/// three channels.
-const MULTISCALE_TEXEL_PER_CHANNEL: u64 = 260;
-const MULTISCALE_PIXEL_PER_CHANNEL: u64 = 950;
+/// example pyramid's features, appearance spaces per level, PCA projections and search
+/// structures. Measured on Spot at N = 16–48 with 128² and 256² examples: 1.65–1.96
+/// KB/texel and 5.5–8.8 KB/example pixel with three channels.
+const MULTISCALE_TEXEL_PER_CHANNEL: u64 = 560;
+const MULTISCALE_PIXEL_PER_CHANNEL: u64 = 2500;
 /// `--displace`, per vertex of the tessellation: the limit mesh (its half-edge topology,
 /// f64 positions, normals and locations) and the displaced f32 copy with texture
 /// coordinates and quads. Measured: 341 MB peak with vs 108 MB without on Spot at N = 32
@@ -300,11 +316,11 @@ impl MeshSize {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Job {
     /// `synth`: `channels` of facemaps.exr (R G B \[A\] \[height\] source.u source.v) from an
-    /// example of `example_pixels` pixels, with the multiscale method or the coherent one.
+    /// example of `example_pixels` pixels, by `method`.
     Synth {
         channels: usize,
         example_pixels: usize,
-        multiscale: bool,
+        method: Method,
         /// `--displace`: displaced.obj is tessellated at texel resolution.
         displace: bool,
     },
@@ -369,7 +385,7 @@ pub fn estimate(size: &MeshSize, n: usize, job: &Job) -> Estimate {
         Job::Synth {
             channels,
             example_pixels,
-            multiscale,
+            method,
             displace,
         } => {
             parts.push((
@@ -382,7 +398,15 @@ pub fn estimate(size: &MeshSize, n: usize, job: &Job) -> Estimate {
                 sat(sat(domains, 4 * n64), SYNTH_BORDER_TEXEL),
             ));
             parts.push(("example", sat(example_pixels as u64, EXAMPLE_PIXEL)));
-            if multiscale {
+            match method {
+                Method::Coherent => {}
+                Method::Patches => {
+                    parts.push(("patch sampling", sat(texels, PATCHES_TEXEL)));
+                }
+                Method::Optimise => {
+                    parts.push(("texture optimisation", sat(texels, OPTIMISE_TEXEL)));
+                }
+                Method::Multiscale => {
                 let c = channels.saturating_sub(2).max(1) as u64;
                 parts.push((
                     "multiscale texel features",
@@ -392,6 +416,7 @@ pub fn estimate(size: &MeshSize, n: usize, job: &Job) -> Estimate {
                     "multiscale example features",
                     sat(example_pixels as u64, MULTISCALE_PIXEL_PER_CHANNEL * c),
                 ));
+                }
             }
             if displace {
                 parts.push((
@@ -603,14 +628,14 @@ mod tests {
         let job = |c| Job::Synth {
             channels: c,
             example_pixels: 128 * 128,
-            multiscale: false,
+            method: Method::Coherent,
             displace: false,
         };
         let a = estimate(&s, 32, &job(5));
         let b = estimate(&s, 64, &job(5));
         let c = estimate(&s, 64, &job(7));
         assert!(b.bytes > a.bytes && c.bytes > b.bytes);
-        // The texel part at N = 64: 16 domains x 4096 texels x (112 + 20) bytes.
+        // The texel part at N = 64: 16 domains x 4096 texels x (SYNTH_TEXEL + 20) bytes.
         let texel_part = b.parts.iter().find(|p| p.0 == "texel maps").unwrap().1;
         assert_eq!(texel_part, 16 * 4096 * (SYNTH_TEXEL + 20));
         assert!(
@@ -618,14 +643,28 @@ mod tests {
             "{}",
             b.shape
         );
-        // The multiscale method needs more per texel and per example pixel.
-        let ms = Job::Synth {
-            channels: 5,
-            example_pixels: 128 * 128,
-            multiscale: true,
-            displace: false,
+        // The other methods need more per texel (and multiscale per example pixel), in
+        // the order measured: coherent < patches < optimise < multiscale.
+        let by = |method| {
+            let job = Job::Synth {
+                channels: 5,
+                example_pixels: 128 * 128,
+                method,
+                displace: false,
+            };
+            estimate(&s, 64, &job).bytes
         };
-        assert!(estimate(&s, 64, &ms).bytes > b.bytes + 16 * 4096 * 3 * 200);
+        let costs: Vec<u64> = [
+            Method::Coherent,
+            Method::Patches,
+            Method::Optimise,
+            Method::Multiscale,
+        ]
+        .map(by)
+        .into();
+        assert_eq!(costs[0], b.bytes);
+        assert!(costs.windows(2).all(|w| w[0] < w[1]), "{costs:?}");
+        assert!(costs[3] > b.bytes + 16 * 4096 * 3 * 200);
         // Absurd sizes saturate instead of overflowing.
         let huge = estimate(
             &MeshSize {

@@ -531,7 +531,7 @@ impl Synthesizer {
         let job = crate::memory::Job::Synth {
             channels: example.num_channels() + 2,
             example_pixels: example.width * example.height,
-            multiscale: self.settings.method == Method::Multiscale,
+            method: self.settings.method,
             displace: self.displace.is_some(),
         };
         let surface = match self.mesh {

@@ -895,7 +895,7 @@ fn g02_synth_normal_run_passes_the_default_guard_and_the_estimate_is_close() {
     let job = surfsynth::memory::Job::Synth {
         channels: 5,
         example_pixels: 128 * 128,
-        multiscale: false,
+        method: surfsynth::synth::Method::DEFAULT,
         displace: false,
     };
     let est = surfsynth::memory::estimate(&size, n, &job).bytes;
