@@ -407,15 +407,15 @@ pub fn estimate(size: &MeshSize, n: usize, job: &Job) -> Estimate {
                     parts.push(("texture optimisation", sat(texels, OPTIMISE_TEXEL)));
                 }
                 Method::Multiscale => {
-                let c = channels.saturating_sub(2).max(1) as u64;
-                parts.push((
-                    "multiscale texel features",
-                    sat(texels, MULTISCALE_TEXEL_PER_CHANNEL * c),
-                ));
-                parts.push((
-                    "multiscale example features",
-                    sat(example_pixels as u64, MULTISCALE_PIXEL_PER_CHANNEL * c),
-                ));
+                    let c = channels.saturating_sub(2).max(1) as u64;
+                    parts.push((
+                        "multiscale texel features",
+                        sat(texels, MULTISCALE_TEXEL_PER_CHANNEL * c),
+                    ));
+                    parts.push((
+                        "multiscale example features",
+                        sat(example_pixels as u64, MULTISCALE_PIXEL_PER_CHANNEL * c),
+                    ));
                 }
             }
             if displace {
