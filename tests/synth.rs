@@ -85,7 +85,7 @@ fn flat_picture(maps: &FaceMaps, k: usize) -> image::RgbImage {
 }
 
 #[test]
-#[ignore = "exploration: prints measures for tuning (docs/synthesis.md)"]
+#[ignore = "exploration: prints measures for tuning (docs/coherent.md)"]
 fn explore() {
     let variants: Vec<(&str, CoherentParams)> = vec![
         (
@@ -239,7 +239,7 @@ fn genus2_double_torus_meets_the_quality_bar() {
 
 #[test]
 fn curved_meshes_with_reptile_scales_meet_the_quality_bar() {
-    // The hardest pair measured (docs/synthesis.md): large smooth structures, so every
+    // The hardest pair measured (docs/coherent.md): large smooth structures, so every
     // forced join between patches shows. With the breadth-first domain order single runs
     // varied a lot (N = 32, seeds 1-8: Blub 0.70-1.97, double torus 1.02-1.41): fronts met
     // in clusters of small, densely sampled domains. With the area-weighted order

@@ -33,7 +33,7 @@
 //!   an escape from "garbage growth", where a poor patch keeps continuing because all
 //!   candidates are its own continuations, and from forced joins where two grown regions
 //!   meet. They only win when strictly better than every continuation (about 1% of texels),
-//!   so they act where patches meet. Measured (docs/synthesis.md): on curved meshes with
+//!   so they act where patches meet. Measured (docs/coherent.md): on curved meshes with
 //!   structured examples they cut the seam ratio from up to 1.96 to below 1.0, at the cost
 //!   of ~4 points of coherence; more than one only adds noise.
 //! - **No neighbour at all** (the first texel of a connected component): a random position.
@@ -54,7 +54,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 use serde::Serialize;
 
-/// Tuning of the coherent synthesizer (defaults measured, see docs/synthesis.md).
+/// Tuning of the coherent synthesizer (defaults measured, see docs/coherent.md).
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct CoherentParams {
     /// Random candidates added to every texel's continuations.

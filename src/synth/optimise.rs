@@ -70,6 +70,10 @@ pub struct OptimiseParams {
     pub proposers: u32,
     /// Patch sampling that starts the coarsest level.
     pub start: PatchParams,
+    /// Also measure every example position on a grid of this step (pixels) in each
+    /// E-step: the exhaustive search k-coherence is compared against (docs/synthesis.md, "E-step").
+    /// `None` (the default) searches only the k-coherence candidates.
+    pub exhaustive: Option<u32>,
 }
 
 impl Default for OptimiseParams {
@@ -84,6 +88,7 @@ impl Default for OptimiseParams {
             random: 2,
             proposers: 8,
             start: PatchParams::default(),
+            exhaustive: None,
         }
     }
 }
@@ -328,7 +333,7 @@ fn optimise_size<const K: usize>(
                     push(&mut cands, [lo + a * (hi_x - lo), lo + b * (hi_y - lo)]);
                 }
                 let mut best = (f32::INFINITY, z[p]);
-                for &q in &cands {
+                let mut measure = |q: [f32; 2]| {
                     let mut e = 0.0f32;
                     let mut i = 0;
                     while i < m {
@@ -342,9 +347,26 @@ fn optimise_size<const K: usize>(
                     if e < best.0 {
                         best = (e, q);
                     }
+                };
+                for &q in &cands {
+                    measure(q);
+                }
+                let mut measured = cands.len() as u64;
+                if let Some(step) = params.exhaustive {
+                    let step = step.max(1) as f32;
+                    let mut qy = lo;
+                    while qy <= hi_y.max(lo) {
+                        let mut qx = lo;
+                        while qx <= hi_x.max(lo) {
+                            measure([qx, qy]);
+                            measured += 1;
+                            qx += step;
+                        }
+                        qy += step;
+                    }
                 }
                 let samples = m.div_ceil(stride) as f32;
-                (best.1, best.0 / samples.max(1.0), cands.len() as u64)
+                (best.1, best.0 / samples.max(1.0), measured)
             })
             .collect();
         for (p, (q, e, c)) in chosen.into_iter().enumerate() {

@@ -357,9 +357,9 @@ pub fn assemble<const K: usize>(
         &mut stats,
         &|_, _| {},
     );
-    for t in 0..n {
-        if !state.set[t] {
-            state.src[t] = fallback[t];
+    for ((src, &set), &fb) in state.src.iter_mut().zip(&state.set).zip(fallback) {
+        if !set {
+            *src = fb;
         }
     }
     state.src
@@ -715,9 +715,9 @@ fn join<const K: usize>(
         }
     }
     s.graph.reset(free);
-    for i in 0..m {
+    for (i, &t) in texels.iter().enumerate().take(m) {
         let ci = s.class[i];
-        let t = texels[i] as usize;
+        let t = t as usize;
         for &u in edges.of(t) {
             let u = u as usize;
             // Each edge once (from its lower texel), inside the footprint.

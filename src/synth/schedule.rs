@@ -10,7 +10,7 @@
 //! layer by layer, colour by colour, discovery order inside a colour.
 //! [`Schedule::plan_weighted`] is the coherent synthesizer's default instead: a flood by
 //! surface area, so that small, densely sampled domains do not become the place where
-//! fronts meet (docs/synthesis.md, "Domain order").
+//! fronts meet (docs/coherent.md, "Domain order").
 //!
 //! **Waves**: a domain only reads texels of the domains it conflicts with. So a domain can
 //! start as soon as every *earlier* conflicting domain is finished, and running the

@@ -1,0 +1,251 @@
+//! Every synthesis method against BRIEF's quality measures (issue 13): structure (patch
+//! fidelity pf4/pf8) on the flat grid against the peer's figures, and coverage, seams and
+//! stretch on curved meshes with quads, triangles (n-gon sub-faces), open boundaries and
+//! genus 2; bit-identical results for any thread count.
+//!
+//! The peer (Embark texture-synthesis 0.8.2, default settings, 512² output) cannot run in
+//! CI: its figures were measured with `bench/peer.sh` on the same crops (the lowest of
+//! three seeds, so the bound is the peer at its best) and are written down below. Ours
+//! are measured in the test, on BRIEF's flat 16x16 grid at N = 32 with `--orient +x`.
+
+mod common;
+
+use common::data;
+use surfsynth::example::Example;
+use surfsynth::field::Orientation;
+use surfsynth::synthesizer::{Method, SynthResult, Synthesizer};
+
+/// A structured example from the shared data, cropped as `bench/peer.sh` crops it.
+struct Structured {
+    name: &'static str,
+    file: &'static str,
+    /// Top-left corner and side of the square crop (`None`: the whole image).
+    crop: Option<(usize, usize, usize)>,
+    /// The peer's pf4 and pf8 on its 512² output of this example (best of seeds 1–3).
+    peer_pf4: f64,
+    peer_pf8: f64,
+}
+
+const STRUCTURED: [Structured; 3] = [
+    Structured {
+        name: "bricks",
+        file: "textures/skimage_brick.png",
+        crop: Some((128, 128, 256)),
+        peer_pf4: 0.035,
+        peer_pf8: 0.093,
+    },
+    Structured {
+        name: "reptile scales",
+        file: "textures/krita_reptile_scales.png",
+        crop: Some((128, 128, 256)),
+        peer_pf4: 0.074,
+        peer_pf8: 0.240,
+    },
+    Structured {
+        name: "gravel",
+        file: "textures/etr_gravel.png",
+        crop: None,
+        peer_pf4: 0.156,
+        peer_pf8: 0.269,
+    },
+];
+
+fn load(s: &Structured) -> Example {
+    let ex = Example::load(data(s.file)).unwrap();
+    let Some((x0, y0, side)) = s.crop else {
+        return ex;
+    };
+    let rgb = (0..side * side)
+        .map(|i| ex.rgb[(y0 + i / side) * ex.width + x0 + i % side])
+        .collect();
+    Example::from_linear(side, side, rgb)
+}
+
+struct Measured {
+    pf4: f64,
+    pf8: f64,
+    q: surfsynth::eval::Quality,
+}
+
+fn measure(r: &SynthResult) -> Measured {
+    let geometry = r.geometry_maps();
+    let q = surfsynth::eval::evaluate_maps(&r.maps, &geometry, Some(r.report.scale), None).unwrap();
+    let pf =
+        surfsynth::eval::patch_fidelities(&r.maps, &geometry, &r.example, Some(r.report.scale));
+    Measured {
+        pf4: pf.pf4.unwrap(),
+        pf8: pf.pf8.unwrap(),
+        q,
+    }
+}
+
+/// BRIEF's stretch bar as the project holds it: scale fidelity median within 1 ± 0.03 and
+/// p10–p90 inside `spread` — [0.9, 1.1] for the methods that copy whole patches, [0.85,
+/// 1.15] for the per-texel ones (coherent, multiscale), whose sources are only pieced
+/// together into continuations (docs/synthesis.md).
+fn unstretched(q: &surfsynth::eval::Quality, spread: (f64, f64)) -> bool {
+    let s = q.scale_fidelity.unwrap();
+    (s.median - 1.0).abs() <= 0.03 && s.p10 >= spread.0 && s.p90 <= spread.1
+}
+
+fn spread_of(method: Method) -> (f64, f64) {
+    match method {
+        Method::Coherent | Method::Multiscale => (0.85, 1.15),
+        _ => (0.9, 1.1),
+    }
+}
+
+/// Issue 13's seam bar (≤ 1.10) for the methods that copy whole patches. The per-texel
+/// methods are regression-guarded only: coherent at the older bar of tests/synth.rs
+/// (≤ 1.2), multiscale at what it measures — 0.76–1.33 over seeds 1–3 on the open cube
+/// at N = 32, its cuts at face borders matching worse than inside faces (docs/synthesis.md,
+/// known limits).
+fn seam_bar(method: Method) -> f64 {
+    match method {
+        Method::Coherent => 1.2,
+        Method::Multiscale => 1.35,
+        _ => 1.10,
+    }
+}
+
+fn assert_unstretched(what: &str, q: &surfsynth::eval::Quality) {
+    assert!(
+        unstretched(q, (0.9, 1.1)),
+        "{what}: scale fidelity {:?}",
+        q.scale_fidelity
+    );
+}
+
+/// The acceptance of issue 13 on the flat grid, for the methods made to keep structure:
+/// pf4 ≤ the peer's and pf8 ≤ 0.9x the peer's on every structured example, with no
+/// stretch and full coverage. (Measured, seed 1: patches pf8 0.024 / 0.12 / 0.19,
+/// optimise 0.023 / 0.10 / 0.13 for bricks / scales / gravel.)
+#[test]
+fn structure_methods_beat_the_peer_on_the_flat_grid() {
+    for s in &STRUCTURED {
+        let ex = load(s);
+        for method in [Method::Patches, Method::Optimise] {
+            let r = Synthesizer::new(
+                subdiv::Surface::new(subdiv::ControlMesh::grid(16)),
+                ex.clone(),
+            )
+            .method(method)
+            .resolution(32)
+            .orientation(Orientation::Axis(glam::DVec3::X))
+            .seed(1)
+            .run()
+            .unwrap();
+            let m = measure(&r);
+            let what = format!(
+                "{} on the flat grid, {}: pf4 {:.3} (peer {:.3}), pf8 {:.3} (peer {:.3})",
+                method.name(),
+                s.name,
+                m.pf4,
+                s.peer_pf4,
+                m.pf8,
+                s.peer_pf8
+            );
+            println!("{what}");
+            assert_eq!(m.q.coverage, 1.0, "{what}");
+            assert!(m.pf4 <= s.peer_pf4, "{what}");
+            assert!(m.pf8 <= 0.9 * s.peer_pf8, "{what}");
+            assert_unstretched(&what, &m.q);
+        }
+    }
+}
+
+/// Every method on curved meshes of every kind the reader takes: coverage 1, seam ratio
+/// ([`seam_bar`]), no stretch ([`spread_of`]). Resolutions are kept small for CI; the structure
+/// methods are also held to a pf8 bound there (reptile scales: the peer's flat pf8 x 1.1,
+/// the acceptance of issue 13, on Spot and the double torus).
+#[test]
+fn every_method_meets_the_bar_on_curved_meshes() {
+    let scales = load(&STRUCTURED[1]);
+    let mut failures = Vec::new();
+    let cases: [(&str, usize); 4] = [
+        ("meshes/spot_control_mesh.obj", 16),
+        ("meshes/double_torus_genus2.obj", 16),
+        // Five domains: at N = 16 a few hundred seam pairs, too few for a stable ratio.
+        ("meshes/cube_no_bottom.obj", 32),
+        // 17,568 triangle sub-faces; at N = 4 every texel is a border texel.
+        ("meshes/spot_triangulated.obj", 8),
+    ];
+    for (mesh, n) in cases {
+        for method in Method::ALL {
+            if method == Method::Multiscale && n < 16 {
+                continue; // multiscale needs a few levels of maps (docs/multiscale.md)
+            }
+            let r = Synthesizer::new(data(mesh), scales.clone())
+                .method(method)
+                .resolution(n)
+                .seed(2)
+                .run()
+                .unwrap();
+            let m = measure(&r);
+            let what = format!(
+                "{} on {mesh} N={n}: coverage {}, seam {:?}, pf4 {:.3}, pf8 {:.3}",
+                method.name(),
+                m.q.coverage,
+                m.q.seam_ratio,
+                m.pf4,
+                m.pf8
+            );
+            println!("{what}: scale fidelity {:?}", m.q.scale_fidelity);
+            if m.q.coverage != 1.0
+                || m.q.seam_ratio.unwrap() > seam_bar(method)
+                || !unstretched(&m.q, spread_of(method))
+            {
+                failures.push(format!("{what}: scale fidelity {:?}", m.q.scale_fidelity));
+            }
+        }
+    }
+    // Structure on curved surfaces at the acceptance's resolution.
+    for mesh in [
+        "meshes/spot_control_mesh.obj",
+        "meshes/double_torus_genus2.obj",
+    ] {
+        let r = Synthesizer::new(data(mesh), scales.clone())
+            .method(Method::DEFAULT)
+            .resolution(32)
+            .seed(1)
+            .run()
+            .unwrap();
+        let m = measure(&r);
+        let bound = 1.1 * STRUCTURED[1].peer_pf8;
+        println!(
+            "default on {mesh} N=32: pf8 {:.3} (bound {bound:.3})",
+            m.pf8
+        );
+        if m.pf8 > bound {
+            failures.push(format!("default on {mesh}: pf8 {:.3} > {bound:.3}", m.pf8));
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+/// The structure methods give bit-identical maps for 1 and 2 threads.
+#[test]
+fn structure_methods_do_not_depend_on_the_thread_count() {
+    let ex = load(&STRUCTURED[0]);
+    for method in [Method::Patches, Method::Optimise] {
+        let run = |threads: usize| {
+            Synthesizer::new(data("meshes/spot_control_mesh.obj"), ex.clone())
+                .method(method)
+                .resolution(12)
+                .seed(4)
+                .threads(threads)
+                .run()
+                .unwrap()
+                .maps
+        };
+        let (a, b) = (run(1), run(2));
+        for ((na, da), (nb, db)) in a.channels.iter().zip(&b.channels) {
+            assert_eq!(na, nb);
+            assert!(
+                da.iter().zip(db).all(|(x, y)| x.to_bits() == y.to_bits()),
+                "{}: channel {na} differs between 1 and 2 threads",
+                method.name()
+            );
+        }
+    }
+}
