@@ -142,6 +142,11 @@ impl From<&PathBuf> for MeshSource {
         MeshSource::Path(p.clone())
     }
 }
+impl From<String> for MeshSource {
+    fn from(p: String) -> Self {
+        MeshSource::Path(p.into())
+    }
+}
 impl From<Surface> for MeshSource {
     fn from(s: Surface) -> Self {
         MeshSource::Surface(Box::new(s))
@@ -173,6 +178,11 @@ impl From<PathBuf> for ExampleSource {
 impl From<&PathBuf> for ExampleSource {
     fn from(p: &PathBuf) -> Self {
         ExampleSource::Path(p.clone())
+    }
+}
+impl From<String> for ExampleSource {
+    fn from(p: String) -> Self {
+        ExampleSource::Path(p.into())
     }
 }
 impl From<Example> for ExampleSource {

@@ -3,7 +3,7 @@
 //! material, for viewers, engines and Blender), without the command line.
 //!
 //! ```sh
-//! cargo run --release --example export_ptex_gltf -- out/example
+//! cargo run --release --example 05_export_ptex_gltf -- out/example
 //! ```
 //!
 //! `SynthResult::write` writes these (and every other output) in one call; this shows the
