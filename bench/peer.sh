@@ -4,7 +4,7 @@
 # every synthesis once, a few minutes in all on 2 cores.
 #
 # Usage: bench/peer.sh [-m METHOD]... [-o DIR] [EXAMPLE[@X,Y,SIZE]]...
-#   -m METHOD   a `surfsynth synth --method` (repeatable; default: coherent multiscale)
+#   -m METHOD   a `surfsynth synth --method` (repeatable; default: all four, the default first)
 #   -o DIR      work directory (default: target/peer-bench); the table is DIR/peer.md
 #   EXAMPLE     an image; @X,Y,SIZE takes its SIZE² crop at (X, Y) first
 #               (default: bricks, scales and gravel from ../shared/data/textures, below)
@@ -31,7 +31,7 @@ while [ $# -gt 0 ]; do
         *) examples+=("$1"); shift ;;
     esac
 done
-[ ${#methods[@]} -gt 0 ] || methods=(coherent multiscale)
+[ ${#methods[@]} -gt 0 ] || methods=(optimise patches coherent multiscale)
 if [ ${#examples[@]} -eq 0 ]; then
     # Default list (all ≤ 256² so that the 512² output is a real extension):
     # bricks (mortar lines), reptile scales (whole scales ~30 px), gravel (stochastic).

@@ -7,6 +7,8 @@
 //! - [`multiscale`]: the multiscale method of Ying et al. 2001, §4 (Wei–Levoy on the
 //!   surface), with its 2D reference [`synth2d`].
 //! - [`patches`]: patch sampling along the field (paper 001 §5.2).
+//! - [`optimise`]: texture optimisation over surface patches, multilevel (paper 001
+//!   §4.2–4.4, after Kwatra et al. 2005) — the default, which keeps structure best.
 //!
 //! Below them, what they share:
 //! - [`matching`]: appearance space, example tables, similar-place lists, neighbourhood
