@@ -52,6 +52,7 @@ pub fn command(out: &Path) -> SynthCommand {
         decimate: None,
         patch_size: None,
         handedness: Default::default(),
+        cache: Default::default(),
         out: out.to_path_buf(),
     }
 }

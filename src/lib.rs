@@ -8,6 +8,7 @@
 
 pub mod bake;
 pub mod bench;
+pub mod cache;
 pub mod demo;
 pub mod error;
 pub mod eval;

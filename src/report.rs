@@ -102,6 +102,9 @@ pub struct Report {
     /// [`crate::eval::summary_fidelity`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub patch_fidelity: Option<crate::eval::PfSummary>,
+    /// Per-example analysis of the run: where each came from (memory, the disk cache, or
+    /// computed), and whether the cache was hit ([`crate::synth::analysis`]).
+    pub cache: crate::synth::analysis::CacheReport,
 }
 
 impl Report {

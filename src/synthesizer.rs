@@ -60,9 +60,11 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 use subdiv::Surface;
 
+pub use crate::cache::CacheDir;
 pub use crate::synth::matching::appearance::AppearanceMode;
 pub use crate::synth::{
-    CoherentParams, Method, MultiscaleParams, OptimiseParams, PatchParams, Settings, Weights,
+    Analyses, CoherentParams, JumpParams, Method, MultiscaleParams, OptimiseParams, PatchParams,
+    Settings, Weights,
 };
 
 /// Which way round the example is laid on the surface (`--handedness`).
@@ -238,6 +240,8 @@ pub struct Synthesizer {
     handedness: Handedness,
     write_options: WriteOptions,
     progress: Option<std::sync::Arc<Progress>>,
+    cache: CacheDir,
+    analyses: Option<std::sync::Arc<Analyses>>,
 }
 
 impl std::fmt::Debug for Synthesizer {
@@ -295,6 +299,8 @@ impl Synthesizer {
             handedness: Handedness::default(),
             write_options: WriteOptions::default(),
             progress: None,
+            cache: CacheDir::Default,
+            analyses: None,
         }
     }
 
@@ -357,6 +363,23 @@ impl Synthesizer {
     /// Tuning of texture optimisation.
     pub fn optimise_params(mut self, p: OptimiseParams) -> Self {
         self.settings.optimise = p;
+        self
+    }
+    /// Tuning of jump-map synthesis.
+    pub fn jump_params(mut self, p: JumpParams) -> Self {
+        self.settings.jump = p;
+        self
+    }
+    /// Where per-example analysis is saved (`--cache DIR`, `--no-cache`; default: the
+    /// platform's user cache folder, [`crate::cache`]).
+    pub fn cache(mut self, c: CacheDir) -> Self {
+        self.cache = c;
+        self
+    }
+    /// Shares one store of per-example analysis between runs of this process (its own
+    /// cache folder then applies instead of [`Synthesizer::cache`]).
+    pub fn analyses(mut self, a: std::sync::Arc<Analyses>) -> Self {
+        self.analyses = Some(a);
         self
     }
     /// The synthesis settings as configured so far.
@@ -602,16 +625,27 @@ impl Synthesizer {
                 &flipped
             }
         };
+        let derived = crate::synth::Derived::default();
         let target = Target {
             surface: &surface,
             field: &field,
             texels: &texels,
             spacing,
             seed: self.seed,
+            derived: &derived,
         };
-        let out = crate::synth::synthesize(synth_example, &target, &self.settings, &|d, t| {
-            progress(Stage::Synthesis, d * faces / t.max(1), faces)
-        })?;
+        let analyses = self
+            .analyses
+            .clone()
+            .unwrap_or_else(|| std::sync::Arc::new(Analyses::new(&self.cache)));
+        let out = crate::synth::synthesize(
+            synth_example,
+            &target,
+            &self.settings,
+            &analyses,
+            &|d, t| progress(Stage::Synthesis, d * faces / t.max(1), faces),
+        )?;
+        let cache = analyses.report(analyses.take_events());
         let mut source = out.source;
         if self.handedness == Handedness::Tiles {
             let h = example.height as f32;
@@ -677,6 +711,7 @@ impl Synthesizer {
             synthesis_texels_per_second: 0.0,
             peak_memory_bytes: None,
             patch_fidelity: None,
+            cache,
         };
         report.update_rates();
         Ok(SynthResult {
@@ -905,6 +940,8 @@ pub struct SynthCommand {
     pub patch_size: Option<usize>,
     /// `--handedness`.
     pub handedness: Handedness,
+    /// `--cache DIR` / `--no-cache`.
+    pub cache: CacheDir,
     pub out: PathBuf,
 }
 
@@ -921,7 +958,8 @@ impl SynthCommand {
             .displace(self.displace)
             .appearance(self.appearance)
             .decimate(self.decimate)
-            .handedness(self.handedness);
+            .handedness(self.handedness)
+            .cache(self.cache.clone());
         if let Some(h) = &self.height {
             s = s.height(h);
         }

@@ -18,6 +18,8 @@ pub enum Method {
     Patches,
     /// Texture optimisation: EM over overlapping surface patches, multilevel (001 §4).
     Optimise,
+    /// Jump maps: region growing, continuations and weighted jumps, no matching (002).
+    Jump,
 }
 
 #[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
@@ -100,6 +102,13 @@ pub struct SynthArgs {
     /// Output directory (created if missing).
     #[arg(long, value_name = "DIR")]
     pub out: PathBuf,
+    /// Folder of saved per-example analysis (default: the user cache folder, or
+    /// $SURFSYNTH_CACHE).
+    #[arg(long, value_name = "DIR", conflicts_with = "no_cache")]
+    pub cache: Option<PathBuf>,
+    /// Neither load nor save per-example analysis.
+    #[arg(long)]
+    pub no_cache: bool,
     /// Refuse to start when the estimated peak memory is above this (e.g. 512M, 4G,
     /// unlimited; default: 75% of physical memory).
     #[arg(long, value_name = "SIZE", value_parser = surfsynth::memory::parse_size)]
@@ -130,6 +139,12 @@ pub fn run(a: SynthArgs) -> anyhow::Result<()> {
         Method::Multiscale => surfsynth::synthesizer::Method::Multiscale,
         Method::Patches => surfsynth::synthesizer::Method::Patches,
         Method::Optimise => surfsynth::synthesizer::Method::Optimise,
+        Method::Jump => surfsynth::synthesizer::Method::Jump,
+    };
+    let cache = match (a.cache, a.no_cache) {
+        (_, true) => surfsynth::synthesizer::CacheDir::Off,
+        (Some(d), false) => surfsynth::synthesizer::CacheDir::Dir(d),
+        (None, false) => surfsynth::synthesizer::CacheDir::Default,
     };
     surfsynth::synthesizer::run_command(&surfsynth::synthesizer::SynthCommand {
         mesh: a.mesh,
@@ -155,6 +170,7 @@ pub fn run(a: SynthArgs) -> anyhow::Result<()> {
             Handedness::Tiles => surfsynth::synthesizer::Handedness::Tiles,
             Handedness::Outside => surfsynth::synthesizer::Handedness::Outside,
         },
+        cache,
         out: a.out,
     })?;
     Ok(())

@@ -9,13 +9,17 @@
 //! - [`patches`]: patch sampling along the field (paper 001 §5.2).
 //! - [`optimise`]: texture optimisation over surface patches, multilevel (paper 001
 //!   §4.2–4.4, after Kwatra et al. 2005) — the default, which keeps structure best.
+//! - [`jump`]: jump-map synthesis (paper 002, Zelinka & Garland): no matching at
+//!   synthesis time, the example analysed once ([`matching::jumpmap`]).
 //!
 //! Below them, what they share:
 //! - [`matching`]: appearance space, example tables, similar-place lists, neighbourhood
 //!   search;
 //! - [`footprint`]: surface patches (texels with their coordinates in an example patch laid
 //!   along the field) and the per-level texel sets; [`mincut`]: seams between patches;
-//! - [`schedule`]: domain orders and deterministic parallel waves; [`per_thread`]: scratch.
+//! - [`schedule`]: domain orders and deterministic parallel waves; [`per_thread`]: scratch;
+//! - [`analysis`]: per-example analysis computed once per process and saved in the cache
+//!   ([`crate::cache`]).
 //!
 //! Every method takes the same [`Target`] (the surface's texels at the output resolution,
 //! the field, the scale) and the example, and returns a source position per texel
@@ -24,9 +28,11 @@
 //! [`crate::synthesizer`] strings this together with loading and writing; this module is
 //! the pure computation (no files).
 
+pub mod analysis;
 pub mod bench;
 pub mod coherent;
 pub mod footprint;
+pub mod jump;
 pub mod matching;
 pub mod mincut;
 pub mod multiscale;
@@ -36,7 +42,9 @@ pub mod per_thread;
 pub mod schedule;
 pub mod synth2d;
 
+pub use analysis::Analyses;
 pub use coherent::{CoherentParams, DomainOrder, Order};
+pub use jump::JumpParams;
 pub use multiscale::MultiscaleParams;
 pub use optimise::OptimiseParams;
 pub use patches::PatchParams;
@@ -68,6 +76,8 @@ pub enum Method {
     Patches,
     /// Paper 001 §4.3–4.4: texture optimisation (Kwatra et al.), multilevel.
     Optimise,
+    /// Paper 002: jump maps (Zelinka & Garland), region growing over the texels.
+    Jump,
 }
 
 impl Method {
@@ -76,11 +86,12 @@ impl Method {
     pub const DEFAULT: Method = Method::Optimise;
 
     /// Every method, in the order of docs/synthesis.md's table.
-    pub const ALL: [Method; 4] = [
+    pub const ALL: [Method; 5] = [
         Method::Coherent,
         Method::Multiscale,
         Method::Patches,
         Method::Optimise,
+        Method::Jump,
     ];
 
     /// The name used on the command line and in report.json.
@@ -90,6 +101,7 @@ impl Method {
             Method::Multiscale => "multiscale",
             Method::Patches => "patches",
             Method::Optimise => "optimise",
+            Method::Jump => "jump",
         }
     }
 }
@@ -122,6 +134,24 @@ pub struct Target<'a> {
     /// h: median distance between adjacent texel centres at the output resolution.
     pub spacing: f64,
     pub seed: u64,
+    /// What methods derive from the texels alone, kept for later runs on the same mesh.
+    pub derived: &'a Derived,
+}
+
+/// Mesh-side structures some methods derive from [`Target::texels`] on first use and keep
+/// (a prepared session computes each once for all its runs).
+#[derive(Debug, Default)]
+pub struct Derived {
+    /// The jump method's region-growing order ([`jump::growth_order`]).
+    pub growth: std::sync::OnceLock<Vec<u32>>,
+}
+
+impl Derived {
+    /// The region-growing order of `texels`.
+    pub fn growth(&self, texels: &LevelTexels) -> &[u32] {
+        self.growth
+            .get_or_init(|| jump::growth_order(texels.edges(), texels.len(), texels.resolution()))
+    }
 }
 
 impl Target<'_> {
@@ -141,6 +171,7 @@ pub struct Settings {
     pub multiscale: MultiscaleParams,
     pub patches: PatchParams,
     pub optimise: OptimiseParams,
+    pub jump: JumpParams,
 }
 
 impl Default for Settings {
@@ -153,6 +184,7 @@ impl Default for Settings {
             multiscale: MultiscaleParams::default(),
             patches: PatchParams::default(),
             optimise: OptimiseParams::default(),
+            jump: JumpParams::default(),
         }
     }
 }
@@ -175,6 +207,10 @@ pub enum Details {
     Optimise {
         params: OptimiseParams,
         stats: optimise::Stats,
+    },
+    Jump {
+        params: JumpParams,
+        stats: jump::Stats,
     },
 }
 
@@ -221,12 +257,15 @@ macro_rules! with_dims {
 }
 
 /// Synthesizes `example` over `target` with `settings` (the one interface of every
-/// method). `progress(done, total)` reports the method's own units (domains, patches,
-/// texel passes).
+/// method). Per-example analysis (appearance space, jump maps, k-coherence lists) is
+/// asked of `analyses`, which keeps it for later runs and in the disk cache.
+/// `progress(done, total)` reports the method's own units (domains, patches, texel
+/// passes).
 pub fn synthesize(
     example: &Example,
     target: &Target<'_>,
     settings: &Settings,
+    analyses: &Analyses,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<Output> {
     let weighted = weighted_image(example, &settings.weights);
@@ -235,8 +274,33 @@ pub fn synthesize(
         Method::Coherent => Ok(with_dims!(
             mode,
             weighted.channels,
-            coherent_output(&weighted, target, settings, progress)
+            coherent_output(&weighted, target, settings, analyses, progress)
         )),
+        Method::Jump => {
+            let k = match mode {
+                AppearanceMode::Pca => DIMS,
+                AppearanceMode::Rgb => weighted.channels,
+            };
+            let p = settings.jump;
+            let app = appearance(analyses, &weighted, mode, k);
+            let key = crate::cache::KeyBuilder::new("jumpmap")
+                .image(&app.image)
+                .u64(p.map.jumps as u64)
+                .u64(p.map.spacing as u64)
+                .u64(p.map.exclude as u64)
+                .u64(p.map.candidates as u64)
+                .finish();
+            let map = analyses.get("jumpmap", key, || {
+                matching::jumpmap::JumpMap::from_appearance(&app.image, app.info, p.map)
+            });
+            let order = target.derived.growth(target.texels);
+            let (source, stats) = jump::run(&map, target.texels, order, &p, target.seed, progress);
+            Ok(Output {
+                source,
+                appearance: map.appearance,
+                details: Details::Jump { params: p, stats },
+            })
+        }
         Method::Multiscale => {
             let weights = settings.weights.per_channel(example);
             let inputs = multiscale::Inputs {
@@ -261,7 +325,7 @@ pub fn synthesize(
         Method::Patches => Ok(with_dims!(
             mode,
             weighted.channels,
-            run_patches(&weighted, target, settings, progress)
+            run_patches(&weighted, target, settings, analyses, progress)
         )),
         Method::Optimise => Ok(with_dims!(
             mode,
@@ -271,13 +335,33 @@ pub fn synthesize(
     }
 }
 
+/// The appearance space of `weighted` in `mode` with `k` values per pixel, through the
+/// analyses (memory, then the disk cache).
+pub fn appearance(
+    analyses: &Analyses,
+    weighted: &Image,
+    mode: AppearanceMode,
+    k: usize,
+) -> std::sync::Arc<Appearance> {
+    let key = crate::cache::KeyBuilder::new("appearance")
+        .image(weighted)
+        .str(mode.name())
+        .u64(k as u64)
+        .u64(WINDOW as u64)
+        .finish();
+    analyses.get("appearance", key, || {
+        Appearance::build(weighted, mode, WINDOW, k)
+    })
+}
+
 fn coherent_output<const K: usize>(
     weighted: &Image,
     target: &Target<'_>,
     settings: &Settings,
+    analyses: &Analyses,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Output {
-    let app = Appearance::build(weighted, settings.appearance, WINDOW, K);
+    let app = appearance(analyses, weighted, settings.appearance, K);
     let features = Features::<K>::from_image(&app.image);
     let t = target.texels;
     let params = &settings.coherent;
@@ -308,9 +392,11 @@ fn run_patches<const K: usize>(
     weighted: &Image,
     target: &Target<'_>,
     settings: &Settings,
+    analyses: &Analyses,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Output {
-    let ex = Exemplar::<K>::build(weighted, settings.appearance);
+    let app = appearance(analyses, weighted, settings.appearance, K);
+    let ex = Exemplar::<K>::from_appearance(&app);
     let out = patches::run(&ex, target.texels, &settings.patches, target.seed, progress);
     Output {
         source: out.source,

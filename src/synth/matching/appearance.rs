@@ -145,6 +145,25 @@ impl Appearance {
     }
 }
 
+impl crate::cache::Persist for Appearance {
+    fn save(&self, w: &mut crate::cache::Writer) {
+        w.image(&self.image);
+        w.usize(self.info.dims);
+        w.usize(self.info.window);
+        w.f64(self.info.kept_variance);
+    }
+    fn load(r: &mut crate::cache::Reader<'_>) -> Option<Self> {
+        let image = r.image()?;
+        let info = AppearanceInfo {
+            dims: r.usize()?,
+            window: r.usize()?,
+            kept_variance: r.f64()?,
+        };
+        (info.dims == image.channels && image.data.iter().all(|v| v.is_finite()))
+            .then_some(Self { image, info })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -27,7 +27,17 @@ impl<const K: usize> Exemplar<K> {
     /// weights). `K` must be [`super::appearance::DIMS`] for [`AppearanceMode::Pca`] and the
     /// channel count for [`AppearanceMode::Rgb`].
     pub fn build(weighted: &Image, mode: AppearanceMode) -> Self {
-        let app = Appearance::build(weighted, mode, super::appearance::WINDOW, K);
+        Self::from_appearance(&Appearance::build(
+            weighted,
+            mode,
+            super::appearance::WINDOW,
+            K,
+        ))
+    }
+
+    /// The exemplar of an appearance space already built (e.g. loaded from the cache,
+    /// [`crate::synth::appearance`]); the similar-place lists start empty and fill lazily.
+    pub fn from_appearance(app: &Appearance) -> Self {
         let features = Features::<K>::from_image(&app.image);
         let similar = Similar::new(&features, SIMILAR_EXCLUDE, SIMILAR_STRIDE);
         Self {

@@ -1,0 +1,223 @@
+//! The example side of synthesis, computed once: every per-example analysis a method
+//! needs (appearance space, jump maps, k-coherence lists) is asked for through an
+//! [`Analyses`] store, which keeps it in memory for further runs of the same process (a
+//! prepared session re-synthesizing with another seed or method) and in the on-disk cache
+//! of [`crate::cache`] for further processes.
+//!
+//! A method names what it needs by a [`Key`] built from the pixels and parameters the
+//! analysis depends on, and gives the function that computes it; the store returns the
+//! shared result, saying in [`Analyses::events`] whether it came from memory, from the
+//! disk cache, or was built (and why: no entry, or an entry that failed its checks and was
+//! rebuilt). report.json carries those events.
+
+use crate::cache::{self, CacheDir, Key, Lookup, Persist, Reader, Writer};
+use serde::Serialize;
+use std::any::Any;
+use std::collections::HashMap;
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+/// Where an analysis came from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Source {
+    /// Already in this process (e.g. an earlier run of the same session).
+    Memory,
+    /// Loaded from the disk cache.
+    Hit,
+    /// Computed: no cache entry (saved afterwards when there is a cache).
+    Miss,
+    /// Computed: the entry was truncated, corrupt or of another version (rewritten).
+    Rebuilt,
+    /// Computed without a disk cache.
+    Off,
+}
+
+/// One analysis a run used (report.json `cache.entries`).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Event {
+    /// What was analysed ("jumpmap", "multiscale-model", ...).
+    pub kind: String,
+    pub source: Source,
+    /// Seconds spent getting it (loading or computing, and saving).
+    pub seconds: f64,
+    /// Bytes of the saved entry (0 when nothing was read or written).
+    pub bytes: u64,
+}
+
+/// What report.json says about the cache.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct CacheReport {
+    /// The cache folder, `null` without one.
+    pub dir: Option<String>,
+    /// True when every analysis of the run came from memory or the disk cache.
+    pub hit: bool,
+    pub entries: Vec<Event>,
+}
+
+type Shared = Arc<dyn Any + Send + Sync>;
+
+/// Per-example analyses of one process (see the module docs). Cheap to share: clone the
+/// `Arc` around it, or keep one per example.
+pub struct Analyses {
+    dir: Option<PathBuf>,
+    memo: Mutex<HashMap<(String, Key), Shared>>,
+    events: Mutex<Vec<Event>>,
+}
+
+impl std::fmt::Debug for Analyses {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Analyses")
+            .field("dir", &self.dir)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Default for Analyses {
+    /// No disk cache.
+    fn default() -> Self {
+        Self::new(&CacheDir::Off)
+    }
+}
+
+impl Analyses {
+    /// A store saving into `dir` ([`CacheDir::resolve`]).
+    pub fn new(dir: &CacheDir) -> Self {
+        Self {
+            dir: dir.resolve(),
+            memo: Mutex::new(HashMap::new()),
+            events: Mutex::new(Vec::new()),
+        }
+    }
+
+    /// The disk cache folder.
+    pub fn dir(&self) -> Option<&std::path::Path> {
+        self.dir.as_deref()
+    }
+
+    /// The analysis of `kind` under `key`: from memory, else the disk cache, else
+    /// `build()` (then saved). A bad entry is reported with one warning line on stderr and
+    /// rebuilt.
+    pub fn get<T, F>(&self, kind: &str, key: Key, build: F) -> Arc<T>
+    where
+        T: Persist + Send + Sync + 'static,
+        F: FnOnce() -> T,
+    {
+        self.try_get(kind, key, || Ok::<T, std::convert::Infallible>(build()))
+            .unwrap_or_else(|e| match e {})
+    }
+
+    /// [`Analyses::get`] with a fallible build (its error is returned, nothing saved).
+    pub fn try_get<T, E, F>(&self, kind: &str, key: Key, build: F) -> Result<Arc<T>, E>
+    where
+        T: Persist + Send + Sync + 'static,
+        F: FnOnce() -> Result<T, E>,
+    {
+        let t0 = Instant::now();
+        let id = (kind.to_string(), key);
+        let memo = self
+            .memo
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .get(&id)
+            .cloned();
+        if let Some(v) = memo.and_then(|v| v.downcast::<T>().ok()) {
+            self.record(kind, Source::Memory, t0, 0);
+            return Ok(v);
+        }
+        let mut source = Source::Off;
+        if let Some(dir) = &self.dir {
+            source = Source::Miss;
+            match cache::load(dir, kind, key) {
+                Lookup::Hit(bytes) => {
+                    let mut r = Reader::new(&bytes);
+                    match T::load(&mut r).filter(|_| r.at_end()) {
+                        Some(v) => {
+                            let v = Arc::new(v);
+                            self.remember(id, v.clone());
+                            self.record(kind, Source::Hit, t0, bytes.len() as u64);
+                            return Ok(v);
+                        }
+                        None => {
+                            warn_corrupt(dir, kind, key, "its contents do not decode");
+                            source = Source::Rebuilt;
+                        }
+                    }
+                }
+                Lookup::Miss => {}
+                Lookup::Corrupt(why) => {
+                    warn_corrupt(dir, kind, key, &why);
+                    source = Source::Rebuilt;
+                }
+            }
+        }
+        let v = Arc::new(build()?);
+        let mut bytes = 0;
+        if let Some(dir) = &self.dir {
+            let mut w = Writer::default();
+            v.save(&mut w);
+            match cache::store(dir, kind, key, &w.0) {
+                Ok(_) => bytes = w.0.len() as u64,
+                Err(e) => eprintln!(
+                    "warning: cannot save the {kind} analysis in the cache folder {}: {e} (the run goes on without it)",
+                    dir.display()
+                ),
+            }
+        }
+        self.remember(id, v.clone());
+        self.record(kind, source, t0, bytes);
+        Ok(v)
+    }
+
+    fn remember(&self, id: (String, Key), v: Shared) {
+        self.memo
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .insert(id, v);
+    }
+
+    fn record(&self, kind: &str, source: Source, t0: Instant, bytes: u64) {
+        self.events
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .push(Event {
+                kind: kind.into(),
+                source,
+                seconds: t0.elapsed().as_secs_f64(),
+                bytes,
+            });
+    }
+
+    /// Every look-up so far, in order.
+    pub fn events(&self) -> Vec<Event> {
+        self.events
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone()
+    }
+
+    /// Takes the events recorded so far (one run's share, for its report).
+    pub fn take_events(&self) -> Vec<Event> {
+        std::mem::take(&mut *self.events.lock().unwrap_or_else(|e| e.into_inner()))
+    }
+
+    /// The report of `events` (usually one run's [`Analyses::take_events`]).
+    pub fn report(&self, events: Vec<Event>) -> CacheReport {
+        CacheReport {
+            dir: self.dir.as_ref().map(|d| d.display().to_string()),
+            hit: !events.is_empty()
+                && events
+                    .iter()
+                    .all(|e| matches!(e.source, Source::Memory | Source::Hit)),
+            entries: events,
+        }
+    }
+}
+
+fn warn_corrupt(dir: &std::path::Path, kind: &str, key: Key, why: &str) {
+    eprintln!(
+        "warning: cache entry {} is not usable ({why}); rebuilding it",
+        cache::entry_path(dir, kind, key).display()
+    );
+}
