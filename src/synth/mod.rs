@@ -313,9 +313,13 @@ pub fn synthesize(
                 weights: &weights,
                 appearance: mode,
             };
-            let out = multiscale::run(example, &inputs, &settings.multiscale, &|d, t| {
-                progress(d as usize, t as usize)
-            })?;
+            let models = |key: crate::cache::Key, build: &dyn Fn() -> Result<multiscale::Model>| {
+                analyses.try_get("multiscale-model", key, build)
+            };
+            let out =
+                multiscale::run_with(example, &inputs, &settings.multiscale, &models, &|d, t| {
+                    progress(d as usize, t as usize)
+                })?;
             Ok(Output {
                 source: out.source,
                 appearance: out.stats.appearance,

@@ -325,12 +325,43 @@ impl Ctx<'_> {
     }
 }
 
+/// The example side of a run: the search model over the (appearance-space) pyramid and
+/// what was matched. Saved in the cache as its pyramid and k-coherence lists
+/// ([`crate::cache::Persist`]); the features are gathered again on load.
+pub struct Model {
+    pub model: ExampleModel,
+    pub appearance: AppearanceInfo,
+}
+
+/// Where [`run_with`] gets its [`Model`]: `models(key, build)` returns the model of `key`
+/// (a hash of everything it depends on), calling `build` when it has none.
+pub type ModelSource<'a> =
+    dyn Fn(crate::cache::Key, &dyn Fn() -> Result<Model>) -> Result<std::sync::Arc<Model>> + 'a;
+
 /// Runs multiscale synthesis of `example` on the surface. `progress(done, total)` counts
 /// texel passes over all levels.
 pub fn run(
     example: &Example,
     inputs: &Inputs<'_>,
     params: &MultiscaleParams,
+    progress: &(dyn Fn(u64, u64) + Sync),
+) -> Result<Output> {
+    run_with(
+        example,
+        inputs,
+        params,
+        &|_, build| build().map(std::sync::Arc::new),
+        progress,
+    )
+}
+
+/// [`run`] with the example analysis from `models` (e.g. [`crate::synth::Analyses`]: kept
+/// for later runs and in the disk cache).
+pub fn run_with(
+    example: &Example,
+    inputs: &Inputs<'_>,
+    params: &MultiscaleParams,
+    models: &ModelSource<'_>,
     progress: &(dyn Fn(u64, u64) + Sync),
 ) -> Result<Output> {
     let n = inputs.resolution;
@@ -368,22 +399,29 @@ pub fn run(
     for _ in 0..j0 {
         img = img.downsample();
     }
-    // Appearance space per level: each level's own 5x5 neighbourhoods, projected.
-    let mut pyramid = crate::pyramid::Pyramid::build(img, n_levels);
-    let mut appearance = None;
-    if inputs.appearance == AppearanceMode::Pca {
-        for level in &mut pyramid.levels {
-            let a = Appearance::build(level, AppearanceMode::Pca, WINDOW, DIMS);
-            appearance.get_or_insert(a.info);
-            *level = a.image;
+    let key = model_key(&img, n_levels, inputs.appearance, &params.model);
+    let built = models(key, &|| {
+        // Appearance space per level: each level's own 5x5 neighbourhoods, projected.
+        let mut pyramid = crate::pyramid::Pyramid::build(img.clone(), n_levels);
+        let mut appearance = None;
+        if inputs.appearance == AppearanceMode::Pca {
+            for level in &mut pyramid.levels {
+                let a = Appearance::build(level, AppearanceMode::Pca, WINDOW, DIMS);
+                appearance.get_or_insert(a.info);
+                *level = a.image;
+            }
         }
-    }
-    let appearance = appearance.unwrap_or(AppearanceInfo {
-        dims: c,
-        window: 1,
-        kept_variance: 1.0,
-    });
-    let model = ExampleModel::from_pyramid(pyramid, params.model)?;
+        let appearance = appearance.unwrap_or(AppearanceInfo {
+            dims: c,
+            window: 1,
+            kept_variance: 1.0,
+        });
+        Ok(Model {
+            model: ExampleModel::from_pyramid(pyramid, params.model)?,
+            appearance,
+        })
+    })?;
+    let (model, appearance) = (&built.model, built.appearance);
     let model_seconds = t0.elapsed().as_secs_f64();
 
     let steps: Vec<f64> = (0..n_levels)
@@ -391,7 +429,7 @@ pub fn run(
         .collect();
     let sampler = Sampler::new(surface, inputs.field).with_tolerance(params.sampler_tolerance);
     let ctx = Ctx {
-        model: &model,
+        model,
         sampler: &sampler,
         seed: inputs.seed,
         steps,
@@ -1084,6 +1122,133 @@ fn pass_two(
         absorb(stats, &o.work);
     }
     state
+}
+
+/// The cache key of a [`Model`]: the weighted example level it starts from, the number of
+/// levels, what is matched and every search parameter.
+fn model_key(
+    img: &Image,
+    n_levels: usize,
+    appearance: AppearanceMode,
+    p: &ModelParams,
+) -> crate::cache::Key {
+    let mut k = crate::cache::KeyBuilder::new("multiscale-model")
+        .image(img)
+        .u64(n_levels as u64)
+        .str(appearance.name())
+        .u64(p.fine as u64)
+        .u64(p.coarse as u64)
+        .u64(p.coarsest as u64)
+        .str(p.method.name());
+    match p.method {
+        Method::Brute => {}
+        Method::Ann(a) => k = k.u64(a.dims as u64).u64(a.candidates as u64),
+        Method::KCoherence(kp) => {
+            k = k
+                .u64(kp.k as u64)
+                .u64(kp.m as u64)
+                .u64(kp.exact_max as u64)
+                .u64(kp.window as u64)
+        }
+    }
+    k.finish()
+}
+
+impl crate::cache::Persist for Model {
+    /// The pyramid (already in appearance space), the parameters and every level's
+    /// k-coherence lists; the neighbourhood features are gathered again on load (cheap
+    /// next to the lists, and several times their size).
+    fn save(&self, w: &mut crate::cache::Writer) {
+        let m = &self.model;
+        let p = &m.params;
+        w.usize(p.fine);
+        w.usize(p.coarse);
+        w.usize(p.coarsest);
+        match p.method {
+            Method::Brute => w.usize(0),
+            Method::Ann(a) => {
+                w.usize(1);
+                w.usize(a.dims);
+                w.usize(a.candidates);
+            }
+            Method::KCoherence(kp) => {
+                w.usize(2);
+                for v in [kp.k, kp.m, kp.exact_max, kp.window] {
+                    w.usize(v);
+                }
+            }
+        }
+        w.usize(self.appearance.dims);
+        w.usize(self.appearance.window);
+        w.f64(self.appearance.kept_variance);
+        w.usize(m.pyramid.len());
+        for (l, lists) in m.lists().into_iter().enumerate() {
+            w.image(m.pyramid.level(l));
+            match lists {
+                None => w.bool(false),
+                Some(k) => {
+                    w.bool(true);
+                    w.usize(k.len);
+                    w.bool(k.exact);
+                    w.u32s(&k.lists);
+                }
+            }
+        }
+    }
+
+    fn load(r: &mut crate::cache::Reader<'_>) -> Option<Self> {
+        use crate::synth::matching::search::{ann::AnnParams, kcoherence};
+        let (fine, coarse, coarsest) = (r.usize()?, r.usize()?, r.usize()?);
+        let method = match r.usize()? {
+            0 => Method::Brute,
+            1 => Method::Ann(AnnParams {
+                dims: r.usize()?,
+                candidates: r.usize()?,
+            }),
+            2 => Method::KCoherence(kcoherence::KParams {
+                k: r.usize()?,
+                m: r.usize()?,
+                exact_max: r.usize()?,
+                window: r.usize()?,
+            }),
+            _ => return None,
+        };
+        let appearance = AppearanceInfo {
+            dims: r.usize()?,
+            window: r.usize()?,
+            kept_variance: r.f64()?,
+        };
+        let n = r.usize_max(64)?;
+        let mut levels = Vec::with_capacity(n);
+        let mut lists = Vec::with_capacity(n);
+        for _ in 0..n {
+            let img = r.image()?;
+            if img.data.iter().any(|v| !v.is_finite()) {
+                return None;
+            }
+            levels.push(img);
+            lists.push(if r.bool()? {
+                Some(kcoherence::KnnLists {
+                    len: r.usize()?,
+                    exact: r.bool()?,
+                    lists: r.u32s()?,
+                })
+            } else {
+                None
+            });
+        }
+        if n == 0 {
+            return None;
+        }
+        let params = ModelParams {
+            fine,
+            coarse,
+            coarsest,
+            method,
+        };
+        let model = ExampleModel::with_lists(crate::pyramid::Pyramid { levels }, params, lists)?;
+        Some(Self { model, appearance })
+    }
 }
 
 #[cfg(test)]

@@ -135,6 +135,30 @@ impl ExampleModel {
     /// appearance space, [`crate::synth::matching::appearance`]): its levels are what is
     /// matched and what synthesized texels hold.
     pub fn from_pyramid(pyramid: Pyramid, params: ModelParams) -> Result<Self> {
+        Self::assemble(pyramid, params, None)
+    }
+
+    /// The model of a pyramid whose k-coherence lists were computed before (saved in the
+    /// cache, [`ExampleModel::lists`]): the features are gathered again (cheap), the lists
+    /// are taken as they are. `None` when they do not fit the pyramid and parameters.
+    pub fn with_lists(
+        pyramid: Pyramid,
+        params: ModelParams,
+        lists: Vec<Option<KnnLists>>,
+    ) -> Option<Self> {
+        Self::assemble(pyramid, params, Some(lists)).ok()
+    }
+
+    /// Every level's k-coherence lists (`None` where a level has none).
+    pub fn lists(&self) -> Vec<Option<&KnnLists>> {
+        self.levels.iter().map(|l| l.lists.as_ref()).collect()
+    }
+
+    fn assemble(
+        pyramid: Pyramid,
+        params: ModelParams,
+        saved: Option<Vec<Option<KnnLists>>>,
+    ) -> Result<Self> {
         let n_levels = pyramid.len();
         if n_levels == 0 {
             return Err(Error::invalid(
@@ -189,7 +213,24 @@ impl ExampleModel {
             };
             levels.push(lm);
         }
-        if let Method::KCoherence(kp) = params.method {
+        if let Some(saved) = saved {
+            let bad = || Error::invalid("saved k-coherence lists do not fit the example");
+            if saved.len() != n_levels {
+                return Err(bad());
+            }
+            for (lm, l) in levels.iter_mut().zip(saved) {
+                if let Some(l) = &l {
+                    let n = lm.pass2.features.len();
+                    if l.len == 0
+                        || l.lists.len() != n * l.len
+                        || l.lists.iter().any(|&i| i as usize >= n)
+                    {
+                        return Err(bad());
+                    }
+                }
+                lm.lists = l;
+            }
+        } else if let Method::KCoherence(kp) = params.method {
             if kp.k == 0 || kp.window % 2 == 0 {
                 return Err(Error::invalid(format!(
                     "k-coherence needs k >= 1 and an odd window, got k = {} and window = {}",
