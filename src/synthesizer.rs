@@ -610,6 +610,11 @@ impl Synthesizer {
             )));
         }
         let texels = LevelTexels::from_parts(&surface, geometry, graph, frames, scale);
+        // Mesh-side orders are set-up, not synthesis (a session computes them once).
+        let derived = crate::synth::Derived::default();
+        if self.settings.method == Method::Jump {
+            derived.growth(&texels);
+        }
         let graph_s = t0.elapsed().as_secs_f64();
         progress(Stage::Graph, 1, 1);
 
@@ -625,7 +630,6 @@ impl Synthesizer {
                 &flipped
             }
         };
-        let derived = crate::synth::Derived::default();
         let target = Target {
             surface: &surface,
             field: &field,

@@ -28,7 +28,9 @@
 //!   continued by d(s→t). One random number picks an entry by weight; several neighbours
 //!   proposing the same place add up ("probabilistically good matching").
 //! - **Validity** (§4.2.4): an address is valid for t when the box of t's incident edge
-//!   offsets around it stays inside the example's pixel-centre rectangle. Invalid entries
+//!   offsets around it stays inside the example's pixel-centre rectangle (for edges to
+//!   texels not yet synthesized the chord length stands in for the offset: it bounds both
+//!   of its components, and saves projecting an edge nobody continues). Invalid entries
 //!   are filtered out by rejection: a drawn invalid entry is drawn again (another random
 //!   number), which samples exactly the table of valid entries without building it, so the
 //!   common case (a continuation is drawn) never looks at the jump lists at all. "In the
@@ -206,14 +208,17 @@ pub fn run(
         table.clear();
         let mut margin = 0.0f32;
         let mut sum = 0.0f32;
+        let pt = pos[t];
         for &s in edges.of(t) {
             let s = s as usize;
-            let d = offset(pos, frames, s, t, inv_scale);
-            margin = margin.max(d[0].abs()).max(d[1].abs());
             let a = src[s];
             if a[0].is_nan() {
+                // The chord bounds both components of the projected offset (validity box).
+                margin = margin.max(pos[s].distance(pt) * inv_scale);
                 continue;
             }
+            let d = offset(pos, frames, s, t, inv_scale);
+            margin = margin.max(d[0].abs()).max(d[1].abs());
             let c = [a[0] + d[0], a[1] + d[1]];
             let len = (d[0] * d[0] + d[1] * d[1]).sqrt().max(0.25);
             // Border ramp on the continuation (distance from the pixel-centre rectangle).
