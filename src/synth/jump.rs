@@ -89,6 +89,10 @@ pub struct Stats {
     pub redraws: u64,
     /// What the jump map holds.
     pub map: super::matching::jumpmap::JumpMapStats,
+    /// Seconds of the texel pass alone (no analysis, no set-up): the jump-synthesis stage.
+    pub seconds: f64,
+    /// `texels / seconds`.
+    pub texels_per_second: f64,
 }
 
 /// The region-growing order (§4.1) over the edge graph: texel indices in synthesis order.
@@ -184,6 +188,7 @@ pub fn run(
     seed: u64,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> (Vec<[f32; 2]>, Stats) {
+    let started = std::time::Instant::now();
     let total = level.len();
     assert_eq!(order.len(), total);
     let pos = &level.geometry.pos;
@@ -309,6 +314,8 @@ pub fn run(
         });
     }
     progress(total, total);
+    stats.seconds = started.elapsed().as_secs_f64();
+    stats.texels_per_second = stats.texels as f64 / stats.seconds.max(1e-9);
     (src, stats)
 }
 
