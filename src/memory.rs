@@ -18,8 +18,9 @@
 //!   the neighbourhood graph, source positions, both map sets, the atlas — plus the border
 //!   texels' neighbour lists, plus the example and its appearance space; patch sampling
 //!   and texture optimisation add their per-texel working sets (footprints, cuts, the
-//!   optimised sources and colours), and the multiscale method per-channel feature costs
-//!   per texel and per example pixel;
+//!   optimised sources and colours), the multiscale method per-channel feature costs
+//!   per texel and per example pixel, and jump maps a cost per example pixel (the map and
+//!   what builds it);
 //! - `bake`: only the tiles in flight (two batches, see [`crate::io::exr::write_tiles`]) and
 //!   the per-thread scratch: the maps are streamed, never held whole.
 //!
@@ -66,6 +67,15 @@ const PATCHES_TEXEL: u64 = 100;
 /// colours, and the patch sampling that starts the coarsest level. Measured on Spot at
 /// N = 32–128: 200–250 B/texel more than coherent.
 const OPTIMISE_TEXEL: u64 = 240;
+/// `synth --method jump`, per example pixel: the jump map (4 targets, 4 weights, their
+/// sum: 36 B) and, while it is built (a cache miss), the 3x3-lattice vectors (72 floats),
+/// their tree projections and the kd-tree. Measured: a 512² example peaked 82 MB higher
+/// on a miss than on a hit (flat grid, N = 32). Per texel jump needs nothing on top of
+/// [`SYNTH_TEXEL`]: its growth order, buckets and sources (~16 B) take the room the
+/// other methods' appearance-space texels take (Spot with a 128² example, `--no-cache`,
+/// N = 32, 64, 128: 124, 281, 814 MB peak, 479, 272, 197 B/texel; the estimate is 1.25,
+/// 1.06, 1.06x of that).
+const JUMP_MAP_PIXEL: u64 = 360;
 /// `synth`, per border texel (4N per domain): its neighbour list across the face edges.
 const SYNTH_BORDER_TEXEL: u64 = 64;
 /// `synth`, per example pixel: decoded image, linear copy, alpha/height, the appearance
@@ -405,6 +415,9 @@ pub fn estimate(size: &MeshSize, n: usize, job: &Job) -> Estimate {
                 }
                 Method::Optimise => {
                     parts.push(("texture optimisation", sat(texels, OPTIMISE_TEXEL)));
+                }
+                Method::Jump => {
+                    parts.push(("jump map", sat(example_pixels as u64, JUMP_MAP_PIXEL)));
                 }
                 Method::Multiscale => {
                     let c = channels.saturating_sub(2).max(1) as u64;
