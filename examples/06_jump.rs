@@ -3,7 +3,7 @@
 //! costs only the set-up of the mesh and the texel pass.
 //!
 //! ```sh
-//! cargo run --release --example jump -- out/jump
+//! cargo run --release --example 06_jump -- out/jump
 //! ```
 //!
 //! Writes `out/jump/seed-1` and `out/jump/seed-2` (the usual outputs, report.json with
