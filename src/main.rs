@@ -2,7 +2,8 @@
 //! the work is in the library.
 //!
 //! Exit codes: 0 success, 1 error (one line `error: ...` on stderr), 2 usage error (also
-//! one line), 101 internal error (a bug: one line, never a panic dump).
+//! one line), 101 internal error (a bug: one line, never a panic dump), 130 / 143
+//! interrupted by SIGINT / SIGTERM (one line; nothing partial left in `--out`).
 
 mod cli;
 
@@ -37,6 +38,9 @@ fn install_panic_hook() {
 
 fn main() {
     install_panic_hook();
+    // SIGINT / SIGTERM: remove staging folders and temporaries, one line, exit 130 / 143
+    // (surfsynth::io::interrupt). Without it the default action (die at once) stays.
+    let _ = surfsynth::io::interrupt::install();
     // Unwinding (rather than exiting inside the hook) runs destructors, so atomic output
     // files remove their temporaries even after a bug.
     let code = panic::catch_unwind(cli::main).unwrap_or(101);

@@ -50,8 +50,8 @@
 use crate::error::{Error, Result};
 use crate::example::Example;
 use crate::field::{Orientation, OrientationField};
-use crate::io::atomic::prepare_out_dir;
 use crate::io::exr::{write_face_maps, FaceMaps, MAX_RESOLUTION};
+use crate::io::txn::OutputTxn;
 use crate::report::{ExampleInfo, Inputs, Report, Seconds};
 use crate::synth::footprint::LevelTexels;
 use crate::synth::Target;
@@ -494,28 +494,45 @@ impl Synthesizer {
 
     /// Loads, synthesizes and returns the result in memory.
     pub fn run(self) -> Result<SynthResult> {
-        self.run_in_pool(None)
+        Ok(self.run_in_pool(None)?.0)
     }
 
-    /// Loads the inputs, makes sure `dir` is a writable directory (creating it) — only
+    /// Loads the inputs, checks `dir` and opens it as a transaction ([`OutputTxn`]) — only
     /// once the inputs are known to be good, so bad inputs leave nothing behind, and before
     /// the expensive part, so a bad `--out` fails in a moment — then synthesizes and writes
-    /// everything ([`SynthResult::write`]). Returns the result and the final report.
+    /// everything into the transaction's staging folder ([`SynthResult::write`]) and moves
+    /// it into place. Returns the result and the final report.
     pub fn run_to(self, dir: impl AsRef<Path>) -> Result<(SynthResult, Report)> {
+        self.run_to_with(dir, |_| {})
+    }
+
+    /// [`Synthesizer::run_to`] with `finish` called on the result before anything is
+    /// written (e.g. to add measures to its report): everything lands in `dir` together.
+    pub fn run_to_with(
+        self,
+        dir: impl AsRef<Path>,
+        finish: impl FnOnce(&mut SynthResult),
+    ) -> Result<(SynthResult, Report)> {
         let dir = dir.as_ref();
         let progress = self.progress.clone();
-        let result = self.run_in_pool(Some(dir))?;
+        let (mut result, txn) = self.run_in_pool(Some(dir))?;
+        let txn = txn.expect("run_in_pool opens the transaction when given a directory");
+        // What `finish` measures is not part of the run's times.
+        let t = Instant::now();
+        finish(&mut result);
+        result.started += t.elapsed();
         if let Some(p) = &progress {
             p(Stage::Write, 0, 1);
         }
-        let report = result.write(dir)?;
+        let report = result.write_into(&txn)?;
+        txn.commit()?;
         if let Some(p) = &progress {
             p(Stage::Write, 1, 1);
         }
         Ok((result, report))
     }
 
-    fn run_in_pool(self, out: Option<&Path>) -> Result<SynthResult> {
+    fn run_in_pool(self, out: Option<&Path>) -> Result<(SynthResult, Option<OutputTxn>)> {
         self.validate()?;
         match self.threads {
             None => self.run_here(out),
@@ -529,7 +546,7 @@ impl Synthesizer {
         }
     }
 
-    fn run_here(self, out_dir: Option<&Path>) -> Result<SynthResult> {
+    fn run_here(self, out_dir: Option<&Path>) -> Result<(SynthResult, Option<OutputTxn>)> {
         let started = Instant::now();
         let progress = |s: Stage, d: usize, t: usize| {
             if let Some(p) = &self.progress {
@@ -576,9 +593,11 @@ impl Synthesizer {
         };
         let faces = surface.num_domains();
         check_size(faces, n)?;
-        if let Some(dir) = out_dir {
-            prepare_out_dir(dir)?;
-        }
+        // Inputs are good: check --out and open it (nothing appears in it until the end).
+        let txn = match out_dir {
+            Some(dir) => Some(OutputTxn::begin(dir, crate::io::txn::SYNTH_OUTPUTS)?),
+            None => None,
+        };
         let load = t0.elapsed().as_secs_f64();
         progress(Stage::Load, 1, 1);
 
@@ -718,7 +737,7 @@ impl Synthesizer {
             cache,
         };
         report.update_rates();
-        Ok(SynthResult {
+        let result = SynthResult {
             maps,
             geometry,
             surface,
@@ -727,7 +746,8 @@ impl Synthesizer {
             displace: self.displace,
             write_options: self.write_options,
             started,
-        })
+        };
+        Ok((result, txn))
     }
 }
 
@@ -762,10 +782,17 @@ impl SynthResult {
     /// atlas.png and surface.glb ([`crate::io::atlas`], [`crate::io::gltf`]), displaced.glb
     /// when the run was given [`Synthesizer::displace`] ([`crate::io::displace`], decimated
     /// with [`WriteOptions::decimate`]), and report.json, last. Every file is written
-    /// atomically; if one fails, the files written by this call are removed again, so the
-    /// directory never holds a partial result of this run.
+    /// atomically into a staging folder and the set is moved into place only when
+    /// complete ([`OutputTxn`]): if anything fails, `dir` is left exactly as it was.
     pub fn write(&self, dir: impl AsRef<Path>) -> Result<Report> {
         self.write_with(dir, |d| self.write_renderer_outputs(d))
+    }
+
+    /// [`SynthResult::write`] into an open transaction (its staging folder); the caller
+    /// commits.
+    pub fn write_into(&self, txn: &OutputTxn) -> Result<Report> {
+        self.write_staged(txn.dir(), |d| self.write_renderer_outputs(d))
+            .map_err(|e| txn.explain(e))
     }
 
     /// facemaps.ptx beside the textured meshes (independent, so side by side: PNG encoding
@@ -831,17 +858,29 @@ impl SynthResult {
         }
     }
 
-    /// Like [`SynthResult::write`] with other extra outputs: `extra(dir)` writes them
-    /// (while the EXR files are written, before the report; its time counts as writing)
-    /// and returns their paths, which are removed again if another step fails. It must
-    /// clean up after its own errors.
+    /// Like [`SynthResult::write`] with other extra outputs: `extra(dir)` writes them into
+    /// the staging folder `dir` (while the EXR files are written, before the report; its
+    /// time counts as writing) and returns their paths. They are moved into place with the
+    /// rest, or not at all.
     pub fn write_with(
         &self,
         dir: impl AsRef<Path>,
         extra: impl FnOnce(&Path) -> Result<Vec<PathBuf>> + Send,
     ) -> Result<Report> {
-        let dir = dir.as_ref();
-        prepare_out_dir(dir)?;
+        let txn = OutputTxn::begin(dir, crate::io::txn::SYNTH_OUTPUTS)?;
+        let report = self
+            .write_staged(txn.dir(), extra)
+            .map_err(|e| txn.explain(e))?;
+        txn.commit()?;
+        Ok(report)
+    }
+
+    /// Writes every file into `dir` (a staging folder).
+    fn write_staged(
+        &self,
+        dir: &Path,
+        extra: impl FnOnce(&Path) -> Result<Vec<PathBuf>> + Send,
+    ) -> Result<Report> {
         let t0 = Instant::now();
         // The two EXR files (parallel inside) and the extra outputs side by side.
         let ((mut written, exr), extra) = rayon::join(
@@ -985,17 +1024,18 @@ impl SynthCommand {
 /// `patch_fidelity`, outside the run's `seconds`) and prints the end summary on stdout.
 pub fn run_command(c: &SynthCommand) -> Result<Report> {
     let bars = StageBars::default();
-    let (result, mut report) = c
+    let (_, report) = c
         .synthesizer()
         .on_progress(move |s, d, t| bars.update(s, d, t))
-        .run_to(&c.out)?;
-    report.patch_fidelity = Some(crate::eval::summary_fidelity(
-        &result.maps,
-        &result.geometry_maps(),
-        &result.example,
-        report.scale,
-    ));
-    report.write(&c.out)?;
+        .run_to_with(&c.out, |r| {
+            // Measured before writing, so report.json is written once, with the rest.
+            r.report.patch_fidelity = Some(crate::eval::summary_fidelity(
+                &r.maps,
+                &r.geometry_maps(),
+                &r.example,
+                r.report.scale,
+            ));
+        })?;
     println!("{}", summary_line(&report, &c.out));
     Ok(report)
 }

@@ -5,7 +5,7 @@ use clap::Args;
 use std::path::PathBuf;
 use std::time::Instant;
 use surfsynth::bake::{bake_to_file, GEOMETRY_FILE};
-use surfsynth::io::atomic::prepare_out_dir;
+use surfsynth::io::txn::{OutputTxn, BAKE_OUTPUTS};
 use surfsynth::progress;
 
 #[derive(Args, Debug)]
@@ -38,11 +38,20 @@ pub fn run(a: BakeArgs) -> anyhow::Result<()> {
     let surface = surfsynth::memory::load_surface_checked(&a.mesh, a.resolution, &job)?;
     spin.finish_and_clear();
     let load_s = t0.elapsed().as_secs_f64();
-    // Inputs are valid: only now create the output directory.
-    prepare_out_dir(&a.out)?;
+    // Inputs are valid: only now check --out; geometry.exr is written into a staging
+    // folder and moved into place when complete (surfsynth::io::txn).
+    let txn = OutputTxn::begin(&a.out, BAKE_OUTPUTS)?;
     let path = a.out.join(GEOMETRY_FILE);
     let bar = progress::bar(surface.num_domains() as u64, "bake");
-    let stats = bake_to_file(&surface, a.resolution, &path, a.compression.to_exr(), &bar)?;
+    let stats = bake_to_file(
+        &surface,
+        a.resolution,
+        txn.dir().join(GEOMETRY_FILE),
+        a.compression.to_exr(),
+        &bar,
+    )
+    .map_err(|e| txn.explain(e))?;
+    txn.commit()?;
     println!(
         "bake: {} domains, {} texels ({n}x{n} each) in {:.2} s ({} texels/s; mesh load {:.2} s) -> {}",
         stats.domains,

@@ -51,13 +51,41 @@ pub fn main() -> i32 {
         Ok(c) => c,
         Err(e) => return usage_error(e),
     };
-    match run(cli) {
+    let r = run(cli);
+    // A signal arrived: its thread removes what is partial, prints the one line and picks
+    // the exit code (an error seen meanwhile is a consequence of the interruption).
+    if surfsynth::io::interrupt::interrupted().is_some() {
+        surfsynth::io::interrupt::wait_for_exit();
+    }
+    match r {
         Ok(()) => 0,
         Err(e) => {
             eprintln!("error: {}", one_line(&format!("{e:#}")));
-            1
+            if e.downcast_ref::<Usage>().is_some() {
+                2
+            } else {
+                1
+            }
         }
     }
+}
+
+/// A usage error found after parsing: flags that parse one by one but do not go together
+/// (`--search` without `--method multiscale`). Exit code 2, like clap's own.
+#[derive(Debug)]
+pub struct Usage(pub String);
+
+impl std::fmt::Display for Usage {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for Usage {}
+
+/// `Err(Usage(msg))` as an anyhow error.
+pub fn usage<T>(msg: impl Into<String>) -> anyhow::Result<T> {
+    Err(Usage(msg.into()).into())
 }
 
 fn run(cli: Cli) -> anyhow::Result<()> {

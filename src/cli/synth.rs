@@ -130,7 +130,24 @@ fn parse_patch_size(s: &str) -> Result<usize, String> {
 pub fn run(a: SynthArgs) -> anyhow::Result<()> {
     // The handler lives in the library (surfsynth::synthesizer::run_command).
     if a.search.is_some() && a.method != Method::Multiscale {
-        anyhow::bail!("--search applies to --method multiscale only (the coherent method has no search structure)");
+        return super::usage(format!(
+            "--search applies to --method multiscale only (--method {} has no search structure)",
+            a.method
+                .to_possible_value()
+                .map_or("?".into(), |v| v.get_name().to_string())
+        ));
+    }
+    if a.decimate.is_some() && a.displace.is_none() {
+        return super::usage("--decimate applies to the displaced mesh: pass --displace AMOUNT");
+    }
+    if a.displace.is_some() && a.height.is_none() {
+        return super::usage(format!(
+            "--displace needs a height channel, and {} has none: pass --height H.png",
+            a.example.display()
+        ));
+    }
+    if a.patch_size.is_some() && !matches!(a.method, Method::Patches | Method::Optimise) {
+        return super::usage("--patch-size applies to --method patches and optimise only");
     }
     surfsynth::memory::set_limit(a.max_memory);
     use surfsynth::synthesizer::Search as S;

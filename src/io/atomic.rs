@@ -19,6 +19,8 @@ pub struct AtomicFile {
     target: PathBuf,
     temp: PathBuf,
     writer: Option<BufWriter<File>>,
+    /// Removes the temporary if the process is interrupted (SIGINT, SIGTERM) meanwhile.
+    _interrupt: Option<crate::io::interrupt::Registered>,
 }
 
 impl AtomicFile {
@@ -32,11 +34,13 @@ impl AtomicFile {
         temp_name.push(name);
         temp_name.push(format!(".tmp-{}", std::process::id()));
         let temp = target.with_file_name(temp_name);
+        let reg = crate::io::interrupt::register_file(&temp);
         let file = File::create(&temp).map_err(|e| Error::io(&target, "cannot create", e))?;
         Ok(Self {
             target,
             temp,
             writer: Some(BufWriter::with_capacity(1 << 20, file)),
+            _interrupt: Some(reg),
         })
     }
 
@@ -71,6 +75,7 @@ impl AtomicFile {
             .map_err(|e| Error::io(&self.target, "cannot rename temporary file into place", e))?;
         // The rename is done: nothing to clean up any more.
         self.temp.clear();
+        self._interrupt = None;
         // Persist the directory entry too (best effort: not every file system allows
         // opening a directory for sync, and the data itself is already safe).
         if let Some(dir) = self.target.parent() {

@@ -1,6 +1,7 @@
-//! File input and output: face-map EXR files ([`exr`]) and atomic writes ([`atomic`]).
-//! Other writers (atlas, OBJ, the displaced OBJ of shape synthesis) live beside them and
-//! go through [`atomic`] too.
+//! File input and output: face-map EXR files ([`exr`]), atomic writes ([`atomic`]),
+//! transactional output directories ([`txn`]) and clean-up on SIGINT / SIGTERM
+//! ([`interrupt`]). Other writers (atlas, OBJ, the displaced OBJ of shape synthesis) live
+//! beside them and go through [`atomic`] and [`txn`] too.
 
 pub mod atlas;
 pub mod atomic;
@@ -8,5 +9,7 @@ pub mod decimate;
 pub mod displace;
 pub mod exr;
 pub mod gltf;
+pub mod interrupt;
 pub mod materials;
 pub mod ptex;
+pub mod txn;
