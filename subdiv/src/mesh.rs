@@ -24,6 +24,9 @@ pub struct ControlMesh {
     pub path: Option<PathBuf>,
     /// Tag lines that were read but not applied, one entry per tag name.
     pub ignored_tags: Vec<IgnoredTag>,
+    /// `v` lines with values after x y z (a weight w, vertex colours r g b) that were read
+    /// and ignored: the first such line and how many.
+    pub ignored_vertex_values: Option<IgnoredTag>,
 }
 
 /// A kind of tag line that was not applied (e.g. `interpolateboundary`: boundaries are
@@ -64,9 +67,15 @@ enum Tag {
 impl ControlMesh {
     /// Reads and validates an OBJ file. Errors name the file and the first bad element.
     pub fn load_obj(path: impl AsRef<Path>) -> Result<Self, MeshError> {
+        Self::load_obj_limited(path, u64::MAX)
+    }
+
+    /// [`Self::load_obj`], reading at most `max_bytes` (the memory guard's share for the
+    /// file: pipes and devices have no size to check beforehand, `/dev/zero` never ends).
+    /// A NUL byte stops reading at once: OBJ is text, so the file is binary data.
+    pub fn load_obj_limited(path: impl AsRef<Path>, max_bytes: u64) -> Result<Self, MeshError> {
         let path = path.as_ref();
-        let bytes = std::fs::read(path)
-            .map_err(|e| MeshError::new(MeshProblem::Unreadable(e.to_string())).in_file(path))?;
+        let bytes = read_text(path, max_bytes).map_err(|p| MeshError::new(p).in_file(path))?;
         let text = String::from_utf8_lossy(&bytes);
         let mut m = Self::parse_obj(&text).map_err(|e| e.in_file(path))?;
         m.path = Some(path.to_path_buf());
@@ -83,21 +92,39 @@ impl ControlMesh {
             .as_ref()
             .map(|p| p.display().to_string())
             .unwrap_or_else(|| "<mesh>".into());
-        self.ignored_tags
+        let more = |t: &IgnoredTag| match t.lines {
+            1 => String::new(),
+            n => format!(", and {} more line{}", n - 1, if n == 2 { "" } else { "s" }),
+        };
+        let mut notes: Vec<String> = self
+            .ignored_tags
             .iter()
             .map(|t| {
-                let more = match t.lines {
-                    1 => String::new(),
-                    n => format!(", and {} more line{}", n - 1, if n == 2 { "" } else { "s" }),
-                };
                 format!(
-                    "{file}: line {}: tag '{}' ignored ({}{more})",
+                    "{file}: line {}: tag '{}' ignored ({}{})",
                     t.first_line,
                     t.name,
-                    t.reason()
+                    t.reason(),
+                    more(t)
                 )
             })
-            .collect()
+            .collect();
+        if let Some(t) = &self.ignored_vertex_values {
+            notes.push(format!(
+                "{file}: line {}: vertex values after x y z ({}) ignored{}",
+                t.first_line,
+                t.name,
+                match t.lines {
+                    1 => String::new(),
+                    n => format!(
+                        " (and on {} more line{})",
+                        n - 1,
+                        if n == 2 { "" } else { "s" }
+                    ),
+                }
+            ));
+        }
+        notes
     }
 
     /// Parses OBJ text (see [`Self::load_obj`]).
@@ -110,8 +137,9 @@ impl ControlMesh {
         let mut face_verts: Vec<u32> = Vec::new();
         let mut tags: Vec<(Option<usize>, Tag)> = Vec::new();
         let mut ignored: Vec<IgnoredTag> = Vec::new();
-        for (lineno, raw) in text.lines().enumerate() {
-            let line = raw.split('#').next().unwrap_or("").trim();
+        let mut extras: Option<IgnoredTag> = None;
+        for (lineno, logical) in logical_lines(text) {
+            let line = logical.split('#').next().unwrap_or("").trim();
             let mut it = line.split_ascii_whitespace();
             match it.next() {
                 Some("v") => {
@@ -123,6 +151,39 @@ impl ControlMesh {
                         *slot = tok
                             .parse::<f64>()
                             .map_err(|_| parse_err(lineno, format!("bad coordinate '{tok}'")))?;
+                    }
+                    // Optional values after x y z, as exporters write them: a weight w
+                    // (rational curves; meaningless for polygons), colours r g b (MeshLab,
+                    // ZBrush), or both. Anything else is not a vertex line we understand.
+                    let rest: Vec<&str> = it.collect();
+                    if !rest.is_empty() {
+                        let what = match rest.len() {
+                            1 => "a weight w",
+                            3 => "colours r g b",
+                            4 => "a weight and colours",
+                            n => {
+                                return Err(parse_err(
+                                    lineno,
+                                    format!(
+                                        "vertex has {} values; expected x y z, optionally followed by w, r g b or w r g b",
+                                        n + 3
+                                    ),
+                                ))
+                            }
+                        };
+                        if let Some(tok) = rest.iter().find(|t| t.parse::<f64>().is_err()) {
+                            return Err(parse_err(lineno, format!("bad vertex value '{tok}'")));
+                        }
+                        match &mut extras {
+                            Some(t) => t.lines += 1,
+                            None => {
+                                extras = Some(IgnoredTag {
+                                    name: what.into(),
+                                    first_line: lineno + 1,
+                                    lines: 1,
+                                })
+                            }
+                        }
                     }
                     positions.push(DVec3::from_array(c));
                 }
@@ -179,6 +240,7 @@ impl ControlMesh {
         let mut m = Self::from_polygons(positions, face_start, face_verts)?;
         apply_tags(&mut m.mesh, &tags)?;
         m.ignored_tags = ignored;
+        m.ignored_vertex_values = extras;
         Ok(m)
     }
 
@@ -221,6 +283,7 @@ impl ControlMesh {
             mesh,
             path: None,
             ignored_tags: Vec::new(),
+            ignored_vertex_values: None,
         })
     }
 
@@ -290,6 +353,7 @@ impl ControlMesh {
             mesh: crate::refine::refine(&self.mesh),
             path: self.path.clone(),
             ignored_tags: self.ignored_tags.clone(),
+            ignored_vertex_values: self.ignored_vertex_values.clone(),
         }
     }
 
@@ -317,6 +381,87 @@ pub fn ptex_count(n: usize) -> usize {
     } else {
         n
     }
+}
+
+/// Reads a text file of at most `max_bytes`, refusing binary data (a NUL byte) as soon as
+/// it is seen.
+fn read_text(path: &Path, max_bytes: u64) -> Result<Vec<u8>, MeshProblem> {
+    use std::io::Read;
+    let unreadable = |e: std::io::Error| MeshProblem::Unreadable(e.to_string());
+    let mut f = std::fs::File::open(path).map_err(unreadable)?;
+    let meta = f.metadata().map_err(unreadable)?;
+    if meta.is_dir() {
+        return Err(MeshProblem::Unreadable(
+            std::io::Error::from_raw_os_error(21).to_string(), // EISDIR, as read(2) says
+        ));
+    }
+    let mut bytes = Vec::with_capacity(if meta.is_file() {
+        meta.len().min(max_bytes).min(1 << 30) as usize
+    } else {
+        0
+    });
+    let mut chunk = vec![0u8; 1 << 16];
+    loop {
+        let k = match f.read(&mut chunk) {
+            Ok(0) => break,
+            Ok(k) => k,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+            Err(e) => return Err(unreadable(e)),
+        };
+        if let Some(i) = chunk[..k].iter().position(|&b| b == 0) {
+            return Err(MeshProblem::Parse(format!(
+                "byte {} is NUL: this is binary data, not OBJ text",
+                bytes.len() + i + 1
+            )));
+        }
+        if (bytes.len() + k) as u64 > max_bytes {
+            return Err(MeshProblem::Unreadable(format!(
+                "the file is larger than the {} bytes the memory limit leaves for reading a mesh (see --max-memory)",
+                max_bytes
+            )));
+        }
+        bytes.extend_from_slice(&chunk[..k]);
+    }
+    Ok(bytes)
+}
+
+/// The logical lines of OBJ text with their 0-based physical line numbers (of the first
+/// physical line): lines end at `\n`, `\r\n` or a lone `\r` (classic Mac OS files), and a
+/// line ending in a backslash continues on the next one (the OBJ specification's line
+/// continuation), except in comments.
+fn logical_lines(text: &str) -> impl Iterator<Item = (usize, std::borrow::Cow<'_, str>)> {
+    let mut physical = text
+        .split('\n')
+        .flat_map(|l| l.strip_suffix('\r').unwrap_or(l).split('\r'))
+        .enumerate()
+        .peekable();
+    std::iter::from_fn(move || {
+        let (n, first) = physical.next()?;
+        // A comment ends at its line, backslash or not (Windows paths in comments).
+        if !first.trim_end().ends_with('\\') || first.trim_start().starts_with('#') {
+            return Some((n, std::borrow::Cow::Borrowed(first)));
+        }
+        let mut joined = String::new();
+        let mut cur = first;
+        loop {
+            let t = cur.trim_end();
+            match t.strip_suffix('\\') {
+                Some(head) => {
+                    joined.push_str(head);
+                    joined.push(' ');
+                    match physical.next() {
+                        Some((_, next)) => cur = next,
+                        None => break,
+                    }
+                }
+                None => {
+                    joined.push_str(cur);
+                    break;
+                }
+            }
+        }
+        Some((n, std::borrow::Cow::Owned(joined)))
+    })
 }
 
 fn parse_err(lineno: usize, msg: String) -> MeshError {
@@ -513,6 +658,69 @@ mod tests {
         for v in 0..8 {
             assert!(!m.mesh.is_boundary_vertex(crate::VertexId::from_idx(v)));
         }
+    }
+
+    #[test]
+    fn line_endings_continuations_and_vertex_extras() {
+        let cube = ControlMesh::cuboid(DVec3::ZERO, DVec3::ONE);
+        let mut obj = String::new();
+        for p in &cube.mesh.positions {
+            obj.push_str(&format!("v {} {} {}\n", p.x, p.y, p.z));
+        }
+        for f in 0..6 {
+            let vs = cube.mesh.face_vertices(crate::FaceId::from_idx(f));
+            obj.push_str(&format!(
+                "f {} {} {} {}\n",
+                vs[0] + 1,
+                vs[1] + 1,
+                vs[2] + 1,
+                vs[3] + 1
+            ));
+        }
+        let faces = |t: &str| ControlMesh::parse_obj(t).unwrap().mesh.num_faces();
+        assert_eq!(faces(&obj), 6);
+        assert_eq!(
+            faces(&obj.replace('\n', "\r")),
+            6,
+            "classic Mac OS line ends"
+        );
+        assert_eq!(faces(&obj.replace('\n', "\r\n")), 6);
+        // A backslash continues a face on the next line; comments do not continue.
+        let cont = obj.replacen("f 1 ", "# C:\\models\\\nf 1 \\\n", 1);
+        assert_eq!(faces(&cont), 6, "{cont}");
+        // Errors after a continuation count physical lines.
+        let bad = cont.replacen("v 0 0 0", "v 0 0 x", 1);
+        assert!(err(&bad).to_string().contains("line 1: bad coordinate 'x'"));
+        // w, r g b and w r g b after x y z are read and reported once; other counts fail.
+        let m = ControlMesh::parse_obj(&obj.replace("v 1 1 1", "v 1 1 1 0.5 0.2 0.1")).unwrap();
+        let t = m.ignored_vertex_values.unwrap();
+        assert_eq!((t.name.as_str(), t.lines), ("colours r g b", 1));
+        assert!(ControlMesh::parse_obj(&obj.replace("v 1 1 1", "v 1 1 1 1")).is_ok());
+        let e = err(&obj.replace("v 1 1 1", "v 1 1 1 1 2")).to_string();
+        assert!(e.contains("line 8: vertex has 5 values"), "{e}");
+        let e = err(&obj.replace("v 1 1 1", "v 1 1 1 red")).to_string();
+        assert!(e.contains("bad vertex value 'red'"), "{e}");
+    }
+
+    #[test]
+    fn binary_and_oversized_files_are_refused_while_reading() {
+        let d = std::env::temp_dir().join(format!("subdiv-read-{}", std::process::id()));
+        std::fs::create_dir_all(&d).unwrap();
+        let p = d.join("m.obj");
+        std::fs::write(&p, b"v 0 0 0\n\0\0\0").unwrap();
+        let e = ControlMesh::load_obj(&p).unwrap_err().to_string();
+        assert!(e.contains("byte 9 is NUL"), "{e}");
+        std::fs::write(&p, format!("{QUAD}f 1 2 3 4\n")).unwrap();
+        let e = ControlMesh::load_obj_limited(&p, 10)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("larger than the 10 bytes"), "{e}");
+        assert!(ControlMesh::load_obj_limited(&p, 1000).is_ok());
+        if std::path::Path::new("/dev/zero").exists() {
+            let e = ControlMesh::load_obj("/dev/zero").unwrap_err().to_string();
+            assert!(e.contains("byte 1 is NUL"), "{e}");
+        }
+        let _ = std::fs::remove_dir_all(&d);
     }
 
     #[test]
