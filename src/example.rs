@@ -55,35 +55,72 @@ pub fn linear_to_srgb(v: f32) -> f32 {
     }
 }
 
-/// Reads and decodes an image file, with one-line errors naming the file.
-fn decode(path: &Path) -> Result<DynamicImage> {
+/// What an image file's header says, read before a single pixel is decoded (a 389 KB PNG
+/// can claim 20000x20000 pixels and a 3 KB JPEG 12000x12000: decoding them first would
+/// allocate gigabytes before any check could refuse them).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ImageInfo {
+    pub width: u32,
+    pub height: u32,
+    /// Bytes per pixel of the decoded image (channels x bytes per channel).
+    pub bytes_per_pixel: u32,
+    /// Channels of the decoded image (1 gray, 2 gray+alpha, 3 RGB, 4 RGBA).
+    pub channels: u32,
+}
+
+impl ImageInfo {
+    /// Pixels in the image.
+    pub fn pixels(&self) -> u64 {
+        self.width as u64 * self.height as u64
+    }
+
+    /// Peak bytes of decoding it into an [`Example`]: the decoder's buffer, the converted
+    /// 8- or 16-bit copy and the linear f32 channels (3 for colour, 1 more for alpha or a
+    /// height map).
+    pub fn decode_bytes(&self) -> u64 {
+        let px = self.pixels();
+        let linear = 4 * if self.channels == 2 || self.channels == 4 {
+            4
+        } else {
+            3
+        };
+        px.saturating_mul(2 * self.bytes_per_pixel as u64 + linear)
+    }
+}
+
+/// Where the bytes come from: a regular file is read by the decoder itself (seekable); a
+/// pipe or device is read into memory first (at most the memory limit allows).
+enum Source {
+    File,
+    Bytes(Vec<u8>),
+}
+
+/// Opens `path`, checks that it is a PNG or JPEG and returns its header and its source.
+fn open_image(path: &Path) -> Result<(ImageInfo, image::ImageFormat, Source)> {
+    use image::ImageDecoder;
+    use std::io::Read;
     let meta = std::fs::metadata(path).map_err(|e| Error::io(path, "cannot read image", e))?;
     if meta.is_dir() {
         return Err(Error::file(path, "is a directory, not an image file"));
     }
-    if meta.len() == 0 {
+    let regular = meta.is_file();
+    if regular && meta.len() == 0 {
         return Err(Error::file(path, "image file is empty (0 bytes)"));
     }
+    let mut f = std::fs::File::open(path).map_err(|e| Error::io(path, "cannot read image", e))?;
     // Decide the format from the content, not the name: a text file called .png should be
     // reported as "not an image", not as a PNG with a bad signature.
-    let mut head = [0u8; 8];
-    let got = {
-        use std::io::Read;
-        let mut f =
-            std::fs::File::open(path).map_err(|e| Error::io(path, "cannot read image", e))?;
-        let mut n = 0;
-        while n < head.len() {
-            match f.read(&mut head[n..]) {
-                Ok(0) => break,
-                Ok(k) => n += k,
-                Err(e) => return Err(Error::io(path, "cannot read image", e)),
-            }
-        }
-        n
-    };
-    let format = if got == 8 && head == *b"\x89PNG\r\n\x1a\n" {
+    let mut head = Vec::with_capacity(8);
+    (&mut f)
+        .take(8)
+        .read_to_end(&mut head)
+        .map_err(|e| Error::io(path, "cannot read image", e))?;
+    if head.is_empty() {
+        return Err(Error::file(path, "image file is empty (0 bytes)"));
+    }
+    let format = if head == *b"\x89PNG\r\n\x1a\n" {
         image::ImageFormat::Png
-    } else if got >= 3 && head[..3] == [0xFF, 0xD8, 0xFF] {
+    } else if head.len() >= 3 && head[..3] == [0xFF, 0xD8, 0xFF] {
         image::ImageFormat::Jpeg
     } else {
         return Err(Error::file(
@@ -91,22 +128,181 @@ fn decode(path: &Path) -> Result<DynamicImage> {
             "not a PNG or JPEG image (unrecognised file signature)",
         ));
     };
-    let mut reader =
-        image::ImageReader::open(path).map_err(|e| Error::io(path, "cannot read image", e))?;
-    reader.set_format(format);
-    reader
-        .decode()
-        .map_err(|e| Error::file(path, format!("cannot decode image: {e}")))
+    let source = if regular {
+        Source::File
+    } else {
+        // A pipe or a device: the rest of the stream, bounded by the memory limit.
+        let cap = crate::memory::limit().bytes / 2;
+        let mut bytes = head;
+        (&mut f)
+            .take(cap.saturating_add(1))
+            .read_to_end(&mut bytes)
+            .map_err(|e| Error::io(path, "cannot read image", e))?;
+        if bytes.len() as u64 > cap {
+            return Err(Error::file(
+                path,
+                format!(
+                    "image stream is larger than {} (half the memory limit; see --max-memory)",
+                    crate::memory::format_bytes(cap)
+                ),
+            ));
+        }
+        Source::Bytes(bytes)
+    };
+    let reader = reader_for(path, format, &source)?;
+    let decoder = match reader {
+        Reader::File(r) => r.into_decoder().map(|d| {
+            let c = d.color_type();
+            (d.dimensions(), c)
+        }),
+        Reader::Bytes(r) => r.into_decoder().map(|d| {
+            let c = d.color_type();
+            (d.dimensions(), c)
+        }),
+    };
+    let ((width, height), colour) =
+        decoder.map_err(|e| Error::file(path, format!("cannot decode image: {e}")))?;
+    let info = ImageInfo {
+        width,
+        height,
+        bytes_per_pixel: colour.bytes_per_pixel() as u32,
+        channels: colour.channel_count() as u32,
+    };
+    Ok((info, format, source))
 }
 
-fn check_size(path: &Path, img: &DynamicImage) -> Result<(usize, usize)> {
-    let (w, h) = (img.width() as usize, img.height() as usize);
+enum Reader<'a> {
+    File(image::ImageReader<std::io::BufReader<std::fs::File>>),
+    Bytes(image::ImageReader<std::io::Cursor<&'a [u8]>>),
+}
+
+fn reader_for<'a>(
+    path: &Path,
+    format: image::ImageFormat,
+    source: &'a Source,
+) -> Result<Reader<'a>> {
+    // The decoder may use all the memory the guard allows (its own default, 512 MiB,
+    // would refuse large examples that fit); the guard has already checked the size.
+    let mut limits = image::Limits::default();
+    limits.max_alloc = Some(crate::memory::limit().bytes);
+    Ok(match source {
+        Source::File => {
+            let mut r = image::ImageReader::open(path)
+                .map_err(|e| Error::io(path, "cannot read image", e))?;
+            r.set_format(format);
+            r.limits(limits);
+            Reader::File(r)
+        }
+        Source::Bytes(b) => {
+            let mut r = image::ImageReader::new(std::io::Cursor::new(b.as_slice()));
+            r.set_format(format);
+            r.limits(limits);
+            Reader::Bytes(r)
+        }
+    })
+}
+
+/// An image whose header has been read but whose pixels have not been decoded yet (see
+/// [`ImageInfo`]); a pipe's bytes are kept, so it is read once.
+pub struct PendingImage {
+    path: PathBuf,
+    info: ImageInfo,
+    format: image::ImageFormat,
+    source: Source,
+}
+
+impl PendingImage {
+    /// Reads the header of the PNG or JPEG at `path`, with one-line errors naming the file
+    /// (missing, a directory, empty, not an image, a corrupt header).
+    pub fn open(path: impl AsRef<Path>) -> Result<Self> {
+        let path = path.as_ref();
+        let (info, format, source) = open_image(path)?;
+        Ok(Self {
+            path: path.to_path_buf(),
+            info,
+            format,
+            source,
+        })
+    }
+
+    pub fn info(&self) -> &ImageInfo {
+        &self.info
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Decodes it (after the minimum size and the decoding memory are checked).
+    fn decode(self) -> Result<DynamicImage> {
+        let path = &self.path;
+        check_min_size(path, self.info.width as usize, self.info.height as usize)?;
+        check_decode(path, &self.info)?;
+        let decoded = match reader_for(path, self.format, &self.source)? {
+            Reader::File(r) => r.decode(),
+            Reader::Bytes(r) => r.decode(),
+        };
+        decoded.map_err(|e| Error::file(path, format!("cannot decode image: {e}")))
+    }
+}
+
+/// Refuses a height map whose size differs from the example's, from their headers (the
+/// example's own minimum size is checked first).
+pub fn check_same_size(example: &PendingImage, height: &PendingImage) -> Result<()> {
+    let (ew, eh) = (example.info.width as usize, example.info.height as usize);
+    let (hw, hh) = (height.info.width as usize, height.info.height as usize);
+    if (hw, hh) != (ew, eh) {
+        check_min_size(&example.path, ew, eh)?;
+        return Err(Error::file(
+            &height.path,
+            format!(
+                "height map is {hw}x{hh} pixels but the example {} is {ew}x{eh}; they must be the same size",
+                example.path.display()
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// Reads the header of the PNG or JPEG at `path` without decoding it.
+pub fn probe(path: impl AsRef<Path>) -> Result<ImageInfo> {
+    PendingImage::open(path).map(|p| p.info)
+}
+
+/// Refuses an image whose decoding alone would exceed the memory limit (every caller of
+/// [`Example::load`] gets this; `synth` checks its whole job before, naming the image).
+fn check_decode(path: &Path, info: &ImageInfo) -> Result<()> {
+    let lim = crate::memory::limit();
+    let need = info.decode_bytes();
+    if need > lim.bytes {
+        return Err(Error::file(
+            path,
+            format!(
+                "image is {}x{} pixels: decoding it would need about {} of memory, more than the limit of {} from {}; use a smaller image or raise --max-memory",
+                info.width,
+                info.height,
+                crate::memory::format_bytes(need),
+                crate::memory::format_bytes(lim.bytes),
+                lim.source
+            ),
+        ));
+    }
+    Ok(())
+}
+
+fn check_min_size(path: &Path, w: usize, h: usize) -> Result<()> {
     if w < MIN_SIZE || h < MIN_SIZE {
         return Err(Error::file(
             path,
             format!("image is {w}x{h} pixels; at least {MIN_SIZE}x{MIN_SIZE} are required"),
         ));
     }
+    Ok(())
+}
+
+fn check_size(path: &Path, img: &DynamicImage) -> Result<(usize, usize)> {
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    check_min_size(path, w, h)?;
     Ok((w, h))
 }
 
@@ -121,32 +317,40 @@ impl Example {
         path: impl AsRef<Path>,
         height_path: Option<impl AsRef<Path>>,
     ) -> Result<Self> {
-        let path = path.as_ref();
-        let img = decode(path)?;
-        let (width, height) = check_size(path, &img)?;
-        let (rgb, alpha) = to_linear(img);
-        let height_map = match height_path {
+        let example = PendingImage::open(path)?;
+        let height = match height_path {
+            Some(h) => Some(PendingImage::open(h)?),
             None => None,
-            Some(hp) => {
-                let hp = hp.as_ref();
-                let himg = decode(hp)?;
-                let (hw, hh) = (himg.width() as usize, himg.height() as usize);
-                if (hw, hh) != (width, height) {
-                    return Err(Error::file(
-                        hp,
-                        format!(
-                            "height map is {hw}x{hh} pixels but the example {} is {width}x{height}; they must be the same size",
-                            path.display()
-                        ),
-                    ));
-                }
-                Some(to_height(himg))
-            }
+        };
+        Self::from_pending(example, height)
+    }
+
+    /// Decodes an example (and a height map) whose headers were read with
+    /// [`PendingImage::open`]: a height map of another size is refused before either is
+    /// decoded.
+    pub fn from_pending(example: PendingImage, height: Option<PendingImage>) -> Result<Self> {
+        let path = example.path.clone();
+        if let Some(h) = &height {
+            check_same_size(&example, h)?;
+            // Both decoded at once must fit too.
+            let both = ImageInfo {
+                bytes_per_pixel: example.info.bytes_per_pixel.max(h.info.bytes_per_pixel),
+                channels: 4,
+                ..example.info
+            };
+            check_decode(&path, &both)?;
+        }
+        let img = example.decode()?;
+        let (width, height_px) = check_size(&path, &img)?;
+        let (rgb, alpha) = to_linear(img);
+        let height_map = match height {
+            None => None,
+            Some(h) => Some(to_height(h.decode()?)),
         };
         Ok(Self {
-            path: path.to_path_buf(),
+            path,
             width,
-            height,
+            height: height_px,
             rgb,
             alpha,
             height_map,

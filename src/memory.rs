@@ -496,16 +496,157 @@ pub fn check_against(lim: &Limit, what: &str, n: usize, job: &Job, e: &Estimate)
 /// against the limit, and only then builds the surface (with the patch depth `n` needs,
 /// as [`crate::bake::load_surface_for`]).
 pub fn load_surface_checked(path: impl AsRef<Path>, n: usize, job: &Job) -> Result<Surface> {
+    Ok(build_surface(load_control_checked(path, n, job)?, n))
+}
+
+/// The first half of [`load_surface_checked`]: the control mesh, read (at most a quarter
+/// of the limit in bytes: a pipe or device has no size to check first) and checked.
+pub fn load_control_checked(path: impl AsRef<Path>, n: usize, job: &Job) -> Result<ControlMesh> {
     let path = path.as_ref();
-    let control = ControlMesh::load_obj(path)?;
+    let control = ControlMesh::load_obj_limited(path, limit().bytes / 4)?;
+    check_coordinate_range(&path.display().to_string(), &control)?;
     let e = estimate(&MeshSize::of(&control), n, job);
     check(&path.display().to_string(), n, job, &e)?;
-    Ok(Surface::with_options(
+    Ok(control)
+}
+
+/// The largest coordinate magnitude the outputs can hold: they store positions as 32-bit
+/// floats (EXR channels, glTF, OBJ written from f32), whose largest value is 3.4e38; the
+/// limit surface stays inside the control hull, and this leaves room for displacement.
+pub const MAX_COORDINATE: f64 = 1e37;
+/// The smallest extent (largest side of the bounding box) of a non-degenerate mesh whose
+/// positions 32-bit outputs still resolve: 2^24 times the smallest normal f32.
+pub const MIN_EXTENT: f64 = f32::MIN_POSITIVE as f64 * 16_777_216.0;
+
+/// Refuses control meshes whose coordinates the outputs cannot store (|x| > 1e37, e.g. a
+/// cube scaled by 1e300: its outputs would be infinite) or resolve (a mesh smaller than
+/// ~2e-31 that is not a single point). Everything in between works at any scale: `synth`
+/// normalises the mesh internally ([`normalising_unit`]).
+pub fn check_coordinate_range(what: &str, control: &ControlMesh) -> Result<()> {
+    let ps = &control.mesh.positions;
+    if let Some((i, p)) = ps
+        .iter()
+        .enumerate()
+        .find(|(_, p)| p.abs().max_element() > MAX_COORDINATE)
+    {
+        return Err(Error::invalid(format!(
+            "{what}: vertex {} has a coordinate of magnitude {:e}, beyond what the outputs can store (32-bit floats; at most {MAX_COORDINATE:e} is supported): scale the mesh down",
+            i + 1,
+            p.abs().max_element()
+        )));
+    }
+    let ext = extent(control);
+    if ext > 0.0 && ext < MIN_EXTENT {
+        return Err(Error::invalid(format!(
+            "{what}: the mesh is {ext:e} across, too small for 32-bit outputs to resolve (at least {MIN_EXTENT:.1e} is supported): scale the mesh up"
+        )));
+    }
+    Ok(())
+}
+
+/// The largest side of the control mesh's bounding box.
+pub fn extent(control: &ControlMesh) -> f64 {
+    let ps = &control.mesh.positions;
+    let Some(first) = ps.first() else {
+        return 0.0;
+    };
+    let (lo, hi) = ps
+        .iter()
+        .fold((*first, *first), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
+    (hi - lo).max_element()
+}
+
+/// The power of two by which `synth` divides the control mesh internally so that its
+/// extent is near 1 (the texel geometry is 32-bit: at 1e30 its squared distances overflow,
+/// at 1e-30 they underflow); 1 for meshes between 2^-16 and 2^16 across, which are
+/// processed as given. A power of two makes the scaling exact.
+pub fn normalising_unit(control: &ControlMesh) -> f64 {
+    let ext = extent(control);
+    if ext == 0.0 || !ext.is_finite() || (2f64.powi(-16)..=2f64.powi(16)).contains(&ext) {
+        return 1.0;
+    }
+    2f64.powi(ext.log2().round() as i32)
+}
+
+/// Displacements beyond this many times the mesh's extent are refused: they turn the
+/// surface into a spiky ball a thousand times its size (no picture or mesh of the
+/// textured object is left), and at 1e30 overflow the 32-bit outputs and the ray tracer's
+/// hierarchy.
+pub const MAX_DISPLACE_PER_EXTENT: f64 = 1000.0;
+
+/// Refuses `--displace amount` on a mesh of `extent` (see [`MAX_DISPLACE_PER_EXTENT`]).
+pub fn check_displace(what: &str, amount: f64, extent: f64) -> Result<()> {
+    let max = MAX_DISPLACE_PER_EXTENT * extent;
+    if !amount.is_finite() || amount.abs() > max {
+        return Err(Error::invalid(format!(
+            "--displace {amount:e} is more than {MAX_DISPLACE_PER_EXTENT} times the size of the surface ({what} is {extent:e} across); use an amount of at most {max:e}"
+        )));
+    }
+    Ok(())
+}
+
+/// The second half of [`load_surface_checked`]: the surface with the patch depth `n`
+/// needs.
+pub fn build_surface(control: ControlMesh, n: usize) -> Surface {
+    Surface::with_options(
         control,
         subdiv::surface::SurfaceOptions {
             max_depth: crate::bake::patch_depth_for(n),
         },
-    ))
+    )
+}
+
+/// The part of a `synth` estimate that the example alone is responsible for (decoding it, its appearance space and, for multiscale, its pyramid features),
+/// from its header: an image bomb (a few KB claiming 20000x20000 pixels) is refused by
+/// this, naming the image, before a pixel is decoded.
+pub fn example_estimate(pixels: u64, decode_bytes: u64, job: &Job) -> Estimate {
+    let sat = |a: u64, b: u64| a.saturating_mul(b);
+    let mut parts = vec![
+        ("decoding", decode_bytes),
+        ("example", sat(pixels, EXAMPLE_PIXEL)),
+    ];
+    let mut channels = 0;
+    if let Job::Synth {
+        channels: c,
+        method,
+        ..
+    } = *job
+    {
+        channels = c;
+        if method == Method::Multiscale {
+            let c = c.saturating_sub(2).max(1) as u64;
+            parts.push((
+                "multiscale example features",
+                sat(pixels, MULTISCALE_PIXEL_PER_CHANNEL * c),
+            ));
+        }
+    }
+    parts.sort_by_key(|p| std::cmp::Reverse(p.1));
+    let bytes = parts.iter().fold(0u64, |s, p| s.saturating_add(p.1));
+    Estimate {
+        bytes,
+        parts,
+        shape: format!("{pixels} pixels x {} channels", channels.saturating_sub(2)),
+    }
+}
+
+/// Refuses an example whose [`example_estimate`] alone is above the limit: one line
+/// naming the image (`what`, e.g. "ex.png: image is 20000x20000 pixels").
+pub fn check_example(what: &str, job: &Job, e: &Estimate) -> Result<()> {
+    let lim = limit();
+    if e.bytes <= lim.bytes {
+        return Ok(());
+    }
+    let (part, part_bytes) = e.parts.first().copied().unwrap_or(("total", e.bytes));
+    Err(Error::invalid(format!(
+        "{what}: {} with this example would need about {} of memory for the example alone (estimate; {}; largest part: {part} {}), more than the limit of {} from {}; use a smaller example or raise --max-memory",
+        job.name(),
+        format_bytes(e.bytes),
+        e.shape,
+        format_bytes(part_bytes),
+        format_bytes(lim.bytes),
+        lim.source,
+    )))
 }
 
 /// [`check`] for a surface that is already built (in-memory inputs).

@@ -48,7 +48,7 @@
 //! what it wrote if a later file fails, so a failed run leaves no partial output.
 
 use crate::error::{Error, Result};
-use crate::example::Example;
+use crate::example::{Example, PendingImage};
 use crate::field::{Orientation, OrientationField};
 use crate::io::exr::{write_face_maps, FaceMaps, MAX_RESOLUTION};
 use crate::io::txn::OutputTxn;
@@ -560,36 +560,117 @@ impl Synthesizer {
         // Load: example first (cheap, most likely to be wrong), then the mesh.
         progress(Stage::Load, 0, 1);
         let t0 = Instant::now();
-        let example = match self.example {
-            ExampleSource::Path(ref p) => Example::load_with_height(p, self.height.as_ref())?,
-            ExampleSource::Example(ref e) => {
+        // Image headers first: sizes and memory are checked before a pixel is decoded (an
+        // image bomb is refused here, naming the image).
+        let pending = match self.example {
+            ExampleSource::Path(ref p) => {
+                let ex = PendingImage::open(p)?;
+                let h = match &self.height {
+                    Some(h) => Some(PendingImage::open(h)?),
+                    None => None,
+                };
+                Some((ex, h))
+            }
+            ExampleSource::Example(_) => {
                 if let Some(h) = &self.height {
                     return Err(Error::file(
                         h,
                         "a height file cannot be combined with an in-memory example; set Example::height_map instead",
                     ));
                 }
-                (**e).clone()
+                None
             }
         };
-        if self.displace.is_some() && !example.channel_names().contains(&"height") {
+        let (ex_channels, ex_pixels, has_height) = match (&pending, &self.example) {
+            (Some((ex, h)), _) => {
+                let i = ex.info();
+                let alpha = (i.channels == 2 || i.channels == 4) as usize;
+                (3 + alpha + h.is_some() as usize, i.pixels(), h.is_some())
+            }
+            (None, ExampleSource::Example(e)) => (
+                e.num_channels(),
+                (e.width * e.height) as u64,
+                e.channel_names().contains(&"height"),
+            ),
+            (None, ExampleSource::Path(_)) => unreachable!("a path example has a header"),
+        };
+        if self.displace.is_some() && !has_height {
             return Err(Error::invalid(format!(
                 "--displace needs a height channel, and {example_label} has none: pass --height H.png"
             )));
         }
         // Memory guard (crate::memory): refuse before the surface and the maps are built.
         let job = crate::memory::Job::Synth {
-            channels: example.num_channels() + 2,
-            example_pixels: example.width * example.height,
+            channels: ex_channels + 2,
+            example_pixels: ex_pixels.min(usize::MAX as u64) as usize,
             method: self.settings.method,
             displace: self.displace.is_some(),
         };
-        let surface = match self.mesh {
-            MeshSource::Path(ref p) => crate::memory::load_surface_checked(p, n, &job)?,
+        if let Some((ex, h)) = &pending {
+            if let Some(h) = h {
+                crate::example::check_same_size(ex, h)?;
+            }
+            let i = ex.info();
+            let decode = i
+                .decode_bytes()
+                .saturating_add(h.as_ref().map_or(0, |h| h.info().decode_bytes()));
+            crate::memory::check_example(
+                &format!(
+                    "{}: image is {}x{} pixels",
+                    ex.path().display(),
+                    i.width,
+                    i.height
+                ),
+                &job,
+                &crate::memory::example_estimate(i.pixels(), decode, &job),
+            )?;
+        }
+        let control = match self.mesh {
+            MeshSource::Path(ref p) => Some(crate::memory::load_control_checked(p, n, &job)?),
             MeshSource::Surface(ref s) => {
                 crate::memory::check_surface(s, n, &job)?;
-                (**s).clone()
+                None
             }
+        };
+        // Both fit: decode the example, then build the surface.
+        let example = match (pending, &self.example) {
+            (Some((ex, h)), _) => Example::from_pending(ex, h)?,
+            (None, ExampleSource::Example(e)) => (**e).clone(),
+            (None, ExampleSource::Path(_)) => unreachable!("a path example has a header"),
+        };
+        // Any scale works: a mesh far from unit size is divided by a power of two
+        // (`unit`, exact) and processed near unit size; results are reported and written
+        // in the user's units (the surface and geometry are rebuilt for writing below).
+        let user_control = match (control, &self.mesh) {
+            (Some(c), _) => Some(c),
+            (None, MeshSource::Surface(s)) => {
+                crate::memory::check_coordinate_range(&mesh_label, &s.control)?;
+                (crate::memory::normalising_unit(&s.control) != 1.0).then(|| s.control.clone())
+            }
+            (None, MeshSource::Path(_)) => unreachable!("a path mesh is read above"),
+        };
+        let unit = user_control
+            .as_ref()
+            .map_or(1.0, crate::memory::normalising_unit);
+        if let Some(a) = self.displace {
+            let control = match (&user_control, &self.mesh) {
+                (Some(c), _) => c,
+                (None, MeshSource::Surface(s)) => &s.control,
+                (None, MeshSource::Path(_)) => unreachable!("a path mesh is read above"),
+            };
+            crate::memory::check_displace(&mesh_label, a, crate::memory::extent(control))?;
+        }
+        let (surface, user_control) = match (user_control, &self.mesh) {
+            (Some(c), _) if unit != 1.0 => {
+                let mut inner = c.clone();
+                for p in &mut inner.mesh.positions {
+                    *p /= unit;
+                }
+                (crate::memory::build_surface(inner, n), Some(c))
+            }
+            (Some(c), _) => (crate::memory::build_surface(c, n), None),
+            (None, MeshSource::Surface(s)) => ((**s).clone(), None),
+            (None, MeshSource::Path(_)) => unreachable!("a path mesh is read above"),
         };
         let faces = surface.num_domains();
         check_size(faces, n)?;
@@ -620,7 +701,7 @@ impl Synthesizer {
         let graph = TexelGraph::build(&surface, &geometry);
         let spacing = geometry.median_spacing(&surface);
         let (scale, scale_source) = match self.scale {
-            Some(s) => (s, "given"),
+            Some(s) => (s / unit, "given"),
             None => (spacing, "median texel spacing"),
         };
         if !(scale.is_finite() && scale > 0.0) {
@@ -677,7 +758,18 @@ impl Synthesizer {
             }
         }
         let synthesis_s = t0.elapsed().as_secs_f64();
-        let geometry = texels.geometry;
+        let mut geometry = texels.geometry;
+        let mut surface = surface;
+        if unit != 1.0 {
+            // Back to the user's units for writing (positions, normals, displacement).
+            surface = match (user_control, &self.mesh) {
+                (_, MeshSource::Surface(s)) => (**s).clone(),
+                (Some(c), _) => crate::memory::build_surface(c, n),
+                (None, MeshSource::Path(_)) => unreachable!("kept when unit != 1"),
+            };
+            geometry = TexelGeometry::compute(&surface, n);
+        }
+        let (scale, spacing) = (scale * unit, spacing * unit);
 
         progress(Stage::Maps, 0, 1);
         let t0 = Instant::now();

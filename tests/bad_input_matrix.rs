@@ -318,7 +318,7 @@ fn m10_zero_faces() {
 
 #[test]
 fn m11_binary_garbage_obj() {
-    bad_mesh(&noise(4096, 0x9E37_79B9_7F4A_7C15), &["zero faces"]);
+    bad_mesh(&noise(4096, 0x9E37_79B9_7F4A_7C15), &["NUL", "binary data"]);
 }
 
 #[test]
@@ -445,7 +445,11 @@ fn e08_png_claiming_huge_dimensions() {
         &[0x78, 0x9c, 0x03, 0x00, 0x00, 0x00, 0x00, 0x01],
     ));
     bytes.extend(png_chunk(b"IEND", &[]));
-    bad_example("bomb.png", &bytes, &["cannot decode", "limit"]);
+    bad_example(
+        "bomb.png",
+        &bytes,
+        &["100000x100000", "limit", "smaller example"],
+    );
 }
 
 #[test]
@@ -903,5 +907,291 @@ fn g02_synth_normal_run_passes_the_default_guard_and_the_estimate_is_close() {
     assert!(
         (0.8..1.6).contains(&ratio),
         "estimate {est} vs measured peak {peak}: ratio {ratio:.2}"
+    );
+}
+
+// ------------------------------------------------------------- issue 18: hostile inputs
+
+/// A PNG whose header claims `w` x `h` RGB pixels, with one tiny (wrong) IDAT.
+fn png_claiming(w: u32, h: u32) -> Vec<u8> {
+    let mut ihdr = Vec::new();
+    ihdr.extend(w.to_be_bytes());
+    ihdr.extend(h.to_be_bytes());
+    ihdr.extend([8, 2, 0, 0, 0]);
+    let mut bytes = b"\x89PNG\r\n\x1a\n".to_vec();
+    bytes.extend(png_chunk(b"IHDR", &ihdr));
+    bytes.extend(png_chunk(b"IDAT", &noise(300_000, 11)));
+    bytes.extend(png_chunk(b"IEND", &[]));
+    bytes
+}
+
+/// A real 16x16 baseline JPEG whose SOF0 marker is patched to claim `w` x `h`.
+fn jpeg_claiming(w: u16, h: u16) -> Vec<u8> {
+    let img = image::DynamicImage::ImageRgb8(image::RgbImage::from_fn(16, 16, |x, y| {
+        image::Rgb([(x * 9) as u8, (y * 5) as u8, 77])
+    }));
+    let mut v = Vec::new();
+    img.write_to(&mut std::io::Cursor::new(&mut v), image::ImageFormat::Jpeg)
+        .unwrap();
+    let sof = v
+        .windows(2)
+        .position(|w| w == [0xFF, 0xC0])
+        .expect("baseline SOF0");
+    // FFC0, length (2), precision (1), height (2), width (2).
+    v[sof + 5..sof + 7].copy_from_slice(&h.to_be_bytes());
+    v[sof + 7..sof + 9].copy_from_slice(&w.to_be_bytes());
+    v
+}
+
+#[test]
+fn h01_png_bomb_refused_from_the_header_naming_the_image() {
+    // ~300 KB claiming 20000 x 20000 (issue 18: decoded to 4.85 GiB before the guard,
+    // which then named the mesh). Refused before decoding, naming the image, under the
+    // default limit and under --max-memory alike.
+    let tmp = tempfile::tempdir().unwrap();
+    let ex = tmp.path().join("bomb.png");
+    std::fs::write(&ex, png_claiming(20_000, 20_000)).unwrap();
+    let name = ex.display().to_string();
+    let t = std::time::Instant::now();
+    synth_fails(&spot(), &ex, &[], &name, &["20000x20000", "limit"]);
+    synth_fails(
+        &spot(),
+        &ex,
+        &["--max-memory", "400M"],
+        &name,
+        &["20000x20000", "limit", "--max-memory 400"],
+    );
+    // Nothing was decoded: a decode of 400 M pixels takes seconds.
+    assert!(t.elapsed().as_secs_f64() < 5.0, "{:?}", t.elapsed());
+}
+
+#[test]
+fn h02_jpeg_bomb_refused_from_the_header_naming_the_image() {
+    let tmp = tempfile::tempdir().unwrap();
+    let ex = tmp.path().join("bomb.jpg");
+    std::fs::write(&ex, jpeg_claiming(12_000, 12_000)).unwrap();
+    let name = ex.display().to_string();
+    synth_fails(&spot(), &ex, &[], &name, &["12000x12000", "limit"]);
+    // A modest claim under a small limit: the same refusal, from the same header.
+    std::fs::write(&ex, jpeg_claiming(4000, 4000)).unwrap();
+    synth_fails(
+        &spot(),
+        &ex,
+        &["--max-memory", "1G"],
+        &name,
+        &["4000x4000", "limit"],
+    );
+}
+
+#[test]
+fn h03_height_map_bomb_is_a_size_mismatch_found_from_headers() {
+    let tmp = tempfile::tempdir().unwrap();
+    let h = tmp.path().join("height.png");
+    std::fs::write(&h, png_claiming(20_000, 20_000)).unwrap();
+    let hs = h.to_str().unwrap();
+    synth_fails(
+        &spot(),
+        &gravel(),
+        &["--height", hs],
+        hs,
+        &["20000x20000", "same size"],
+    );
+}
+
+/// A unit cube's OBJ text with `sep` between lines.
+fn cube_obj(scale: f64, sep: &str) -> String {
+    let mut s = String::new();
+    for i in 0..8 {
+        let c = |b: usize| if i & b != 0 { scale } else { -scale };
+        s.push_str(&format!("v {:e} {:e} {:e}{sep}", c(1), c(2), c(4)));
+    }
+    for f in [
+        [1, 3, 4, 2],
+        [5, 6, 8, 7],
+        [1, 2, 6, 5],
+        [3, 7, 8, 4],
+        [1, 5, 7, 3],
+        [2, 4, 8, 6],
+    ] {
+        s.push_str(&format!("f {} {} {} {}{sep}", f[0], f[1], f[2], f[3]));
+    }
+    s
+}
+
+/// `bake` of `obj` at N = 4 succeeds (exit 0), with nothing on stderr but notes.
+#[track_caller]
+fn bake_ok(obj: &str) -> String {
+    let tmp = tempfile::tempdir().unwrap();
+    let mesh = tmp.path().join("m.obj");
+    std::fs::write(&mesh, obj).unwrap();
+    let out = tmp.path().join("out");
+    let o = surfsynth(&os(&[
+        &"bake",
+        &"--mesh",
+        &mesh,
+        &"--resolution",
+        &"4",
+        &"--out",
+        &out,
+    ]));
+    let stderr = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert_eq!(o.status.code(), Some(0), "{stderr}");
+    assert!(out.join("geometry.exr").is_file());
+    stderr
+}
+
+#[test]
+fn h04_obj_line_ends_continuations_and_vertex_extras() {
+    // Classic Mac OS line ends (issue 18: "mesh has zero faces").
+    bake_ok(&cube_obj(1.0, "\r"));
+    // A backslash continuation inside a face (valid OBJ; was "bad vertex reference '\'").
+    let cont = cube_obj(1.0, "\n").replacen("f 1 3 ", "f 1 \\\n3 ", 1);
+    assert!(cont.contains("\\\n"), "{cont}");
+    bake_ok(&cont);
+    // Vertex colours after x y z are read and reported (were ignored silently).
+    let coloured = cube_obj(1.0, "\n").replacen("\nv ", " 0.5 0.2 0.1\nv ", 1);
+    let notes = bake_ok(&coloured);
+    assert!(notes.contains("colours r g b"), "{notes}");
+    assert!(notes.contains("line 1"), "{notes}");
+    // Other counts of extra values are an error naming the line.
+    let extra = cube_obj(1.0, "\n").replacen("\nv ", " 1 2\nv ", 1);
+    bad_mesh(extra.as_bytes(), &["line 1", "vertex has 5 values"]);
+}
+
+/// `synth` of `mesh` with gravel at N = 8 into `out`: succeeds.
+#[track_caller]
+fn synth_ok(mesh: &Path, out: &Path, extra: &[&str]) {
+    let mut args = os(&[
+        &"synth",
+        &"--mesh",
+        &mesh,
+        &"--example",
+        &gravel(),
+        &"--resolution",
+        &"8",
+        &"--out",
+        &out,
+    ]);
+    args.extend(extra.iter().map(OsString::from));
+    let o = surfsynth(&args);
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
+#[test]
+fn h05_any_scale_synthesizes_reported_in_user_units() {
+    // Issue 18: 1e30 and 1e-30 were refused ("median texel spacing inf"), and rendering
+    // the 1e30 result overflowed the stack. Power-of-two scales give bit-identical maps.
+    let tmp = tempfile::tempdir().unwrap();
+    let run = |name: &str, scale: f64| -> PathBuf {
+        let mesh = tmp.path().join(format!("{name}.obj"));
+        std::fs::write(&mesh, cube_obj(scale, "\n")).unwrap();
+        let out = tmp.path().join(name);
+        synth_ok(&mesh, &out, &[]);
+        out
+    };
+    let unit = run("unit", 1.0);
+    let read = |d: &Path| std::fs::read(d.join("facemaps.exr")).unwrap();
+    for (name, s) in [("p100", 2f64.powi(100)), ("m100", 2f64.powi(-100))] {
+        let d = run(name, s);
+        assert!(
+            read(&d) == read(&unit),
+            "{name}: maps differ from the unit cube's"
+        );
+    }
+    let spacing = |d: &Path| surfsynth::report::read(d).unwrap()["texel_spacing"].as_f64();
+    for (name, s) in [("big", 1e30), ("small", 1e-30)] {
+        let d = run(name, s);
+        let obj = std::fs::read_to_string(d.join("surface.obj")).unwrap();
+        assert!(!obj.to_lowercase().contains("inf") && !obj.contains("NaN"));
+        let ratio = spacing(&d).unwrap() / spacing(&unit).unwrap() / s;
+        assert!((ratio - 1.0).abs() < 1e-6, "{name}: spacing ratio {ratio}");
+        let png = tmp.path().join(format!("{name}.png"));
+        let o = surfsynth(&os(&[
+            &"render",
+            &d,
+            &"--width",
+            &"64",
+            &"--height",
+            &"48",
+            &"--out",
+            &png,
+        ]));
+        assert_eq!(
+            o.status.code(),
+            Some(0),
+            "{}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+    }
+}
+
+#[test]
+fn h06_coordinates_beyond_32_bit_outputs_are_refused() {
+    // 1e300: bake and synth wrote P = inf and `v -inf -inf -inf` and exited 0.
+    let tmp = tempfile::tempdir().unwrap();
+    let mesh = tmp.path().join("huge.obj");
+    std::fs::write(&mesh, cube_obj(1e300, "\n")).unwrap();
+    let name = mesh.display().to_string();
+    let words = ["vertex 1", "1e300", "32-bit"];
+    synth_fails(&mesh, &gravel(), &[], &name, &words);
+    synth_fails(&mesh, &gravel(), &["--scale", "1e290"], &name, &words);
+    bake_fails(&mesh, &[], &name, &words);
+}
+
+#[test]
+fn h07_huge_displacement_is_refused_not_a_panic() {
+    // render --displace 1e30 exited 101 (obvhs index out of bounds); synth --displace
+    // 1e300 wrote `v inf inf inf`.
+    let tmp = tempfile::tempdir().unwrap();
+    let mesh = tmp.path().join("cube.obj");
+    std::fs::write(&mesh, cube_obj(1.0, "\n")).unwrap();
+    let g = gravel();
+    let gs = g.to_str().unwrap();
+    let name = mesh.display().to_string();
+    for a in ["1e300", "-1e30"] {
+        synth_fails(
+            &mesh,
+            &g,
+            &["--height", gs, "--displace", a],
+            &name,
+            &["--displace", "times the size"],
+        );
+    }
+    let out = tmp.path().join("r");
+    synth_ok(&mesh, &out, &["--height", gs]);
+    for a in ["1e30", "-1e30", "1e38"] {
+        let png = tmp.path().join("p").join("x.png");
+        let o = surfsynth(&os(&[&"render", &out, &"--displace", &a, &"--out", &png]));
+        assert_clean_failure(
+            &o,
+            &tmp.path().join("p"),
+            &name,
+            &["--displace", "times the size"],
+        );
+    }
+    // An ordinary amount still renders.
+    let png = tmp.path().join("ok.png");
+    let o = surfsynth(&os(&[
+        &"render",
+        &out,
+        &"--displace",
+        &"0.2",
+        &"--width",
+        &"64",
+        &"--height",
+        &"48",
+        &"--out",
+        &png,
+    ]));
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
     );
 }
