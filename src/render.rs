@@ -245,7 +245,25 @@ impl Scene {
                 tri_uv.push([uvc(t[0]), uvc(t[1]), uvc(t[2])]);
             }
         }
-        let pos32: Vec<Vec3A> = positions.iter().map(|p| p.as_vec3().into()).collect();
+        // The tracer is 32-bit: a mesh far from unit size is divided by a power of two
+        // (exact; the picture does not depend on the scale), so that squared lengths
+        // neither overflow (1e30) nor underflow (1e-30).
+        let unit = {
+            let (lo, hi) = positions.iter().fold(
+                (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+                |(lo, hi), p| (lo.min(*p), hi.max(*p)),
+            );
+            let ext = (hi - lo).max_element();
+            if ext.is_finite() && ext > 0.0 && !(2f64.powi(-16)..=2f64.powi(16)).contains(&ext) {
+                2f64.powi(ext.log2().round() as i32)
+            } else {
+                1.0
+            }
+        };
+        let pos32: Vec<Vec3A> = positions
+            .iter()
+            .map(|p| (*p / unit).as_vec3().into())
+            .collect();
         let nrm32: Vec<Vec3A> = normals.iter().map(|n| n.as_vec3().into()).collect();
         let tris: Vec<Triangle> = tri_verts
             .iter()
@@ -622,6 +640,11 @@ pub fn render_dir(dir: &Path, opts: &RenderOptions) -> Result<(Picture, RenderSt
             &maps_path,
             "has no 'height' channel, which --displace needs (synthesize with --height)",
         ));
+    }
+    crate::memory::check_coordinate_range(&mesh_path.display().to_string(), &surface.control)?;
+    if let Some(a) = opts.displace {
+        let ext = crate::memory::extent(&surface.control);
+        crate::memory::check_displace(&mesh_path.display().to_string(), a, ext)?;
     }
     drop(maps);
     let load = t0.elapsed().as_secs_f64();
