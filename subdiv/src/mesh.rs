@@ -287,6 +287,27 @@ impl ControlMesh {
         })
     }
 
+    /// [`Self::from_faces`] for meshes built by the library itself (chart nets), valid by
+    /// construction: without the input checks, in particular without the cap on vertex
+    /// valence ([`crate::topology::MAX_VALENCE`]), which input meshes obey but whose
+    /// n-gon face points (valence n after one refinement) do not.
+    pub(crate) fn from_faces_trusted(positions: Vec<DVec3>, faces: &[&[u32]]) -> Self {
+        let mut fs = vec![0u32];
+        let mut fv = Vec::new();
+        for f in faces {
+            fv.extend_from_slice(f);
+            fs.push(fv.len() as u32);
+        }
+        let mesh = PolyMesh::new(positions, fs, fv, Check::Trusted)
+            .expect("trusted construction does not fail");
+        Self {
+            mesh,
+            path: None,
+            ignored_tags: Vec::new(),
+            ignored_vertex_values: None,
+        }
+    }
+
     /// Convenience for tests and generators: polygons as slices of vertex indices.
     pub fn from_faces(positions: Vec<DVec3>, faces: &[&[u32]]) -> Result<Self, MeshError> {
         let mut fs = vec![0u32];
