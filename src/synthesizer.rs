@@ -1153,14 +1153,73 @@ pub fn summary_line(r: &Report, out: &Path) -> String {
     )
 }
 
-/// indicatif bars, one per stage, driven by [`Progress`] callbacks.
-#[derive(Default)]
+/// indicatif bars, one per stage, driven by [`Progress`] callbacks; when stderr is not a
+/// terminal (a log file, CI), plain lines instead: one when a stage starts and, in a stage,
+/// one every [`LOG_EVERY`] seconds with its count, so the log of a long run shows where it
+/// is. Runs shorter than [`LOG_AFTER`] print none (stderr then holds at most the one-line
+/// error).
 struct StageBars {
     current: std::sync::Mutex<Option<(Stage, indicatif::ProgressBar)>>,
+    lines: Option<std::sync::Mutex<LineLog>>,
+}
+
+/// Seconds into a run before progress lines are written off a terminal (the environment
+/// variable `SURFSYNTH_PROGRESS_AFTER` overrides it: 0 logs every run).
+pub const LOG_AFTER: f64 = 1.0;
+/// Seconds between progress lines within a stage.
+pub const LOG_EVERY: f64 = 10.0;
+
+struct LineLog {
+    started: Instant,
+    after: f64,
+    /// The stage whose start line was written, and when the last line was.
+    stage: Option<Stage>,
+    last: f64,
+}
+
+impl Default for StageBars {
+    fn default() -> Self {
+        Self {
+            current: Default::default(),
+            lines: (!crate::progress::enabled()).then(|| {
+                std::sync::Mutex::new(LineLog {
+                    started: Instant::now(),
+                    after: std::env::var("SURFSYNTH_PROGRESS_AFTER")
+                        .ok()
+                        .and_then(|v| v.parse::<f64>().ok())
+                        .filter(|v| *v >= 0.0)
+                        .unwrap_or(LOG_AFTER),
+                    stage: None,
+                    last: 0.0,
+                })
+            }),
+        }
+    }
 }
 
 impl StageBars {
     fn update(&self, stage: Stage, done: usize, total: usize) {
+        if let Some(log) = &self.lines {
+            let mut log = log.lock().unwrap_or_else(|e| e.into_inner());
+            let now = log.started.elapsed().as_secs_f64();
+            if now < log.after {
+                return;
+            }
+            let count = if total > 1 {
+                format!(" {done}/{total}")
+            } else {
+                String::new()
+            };
+            if log.stage != Some(stage) {
+                log.stage = Some(stage);
+                log.last = now;
+                eprintln!("synth: {}{count} at {now:.1} s", stage.label());
+            } else if now - log.last >= LOG_EVERY && done < total {
+                log.last = now;
+                eprintln!("synth: {}{count} at {now:.1} s", stage.label());
+            }
+            return;
+        }
         let mut cur = self.current.lock().unwrap_or_else(|e| e.into_inner());
         if cur.as_ref().map(|(s, _)| *s) != Some(stage) {
             if let Some((_, b)) = cur.take() {
