@@ -204,6 +204,11 @@ pub struct Constraints {
     pub points: Vec<(DVec3, Option<f64>, f64)>,
     /// Global axis hints (direction, weight factor).
     pub axes: Vec<(DVec3, f64)>,
+    /// The file's 1-based line of each entry of `vertices` (empty when not from a file),
+    /// for messages about indices the mesh does not have.
+    pub vertex_lines: Vec<usize>,
+    /// The file read, for the same messages.
+    pub path: Option<PathBuf>,
 }
 
 impl Constraints {
@@ -211,7 +216,9 @@ impl Constraints {
     pub fn load(path: &Path) -> anyhow::Result<Self> {
         let text = std::fs::read_to_string(path)
             .with_context(|| format!("{}: cannot read constraints file", path.display()))?;
-        Self::parse(&text).with_context(|| format!("{}", path.display()))
+        let mut c = Self::parse(&text).with_context(|| format!("{}", path.display()))?;
+        c.path = Some(path.to_path_buf());
+        Ok(c)
     }
 
     /// Parses the text of a constraints file (format in docs/field.md).
@@ -264,6 +271,7 @@ impl Constraints {
                         )
                     })?;
                     c.vertices.push((idx, dir3(1)?));
+                    c.vertex_lines.push(ln + 1);
                 }
                 "sink" | "source" => {
                     if nums.len() != 3 && nums.len() != 4 {
@@ -871,9 +879,14 @@ impl OrientationField {
             Orientation::Constraints(p) => Constraints::load(p)?,
         };
         let nctl = surface.control.mesh.num_vertices();
-        for &(i, _) in &constraints.vertices {
+        for (k, &(i, _)) in constraints.vertices.iter().enumerate() {
             if i >= nctl {
-                bail!("constraint on vertex {i}, but the mesh has {nctl} vertices (0-based)");
+                let at = match (&constraints.path, constraints.vertex_lines.get(k)) {
+                    (Some(p), Some(l)) => format!("{}: line {l}: ", p.display()),
+                    (Some(p), None) => format!("{}: ", p.display()),
+                    _ => String::new(),
+                };
+                bail!("{at}constraint on vertex {i}, but the mesh has {nctl} vertices (0-based)");
             }
         }
         let level = match opts.level {

@@ -198,6 +198,11 @@ fn meminfo_total(s: &str) -> Option<u64> {
 /// (`u64::MAX`). Zero and negative sizes are refused.
 pub fn parse_size(s: &str) -> std::result::Result<u64, String> {
     let t = s.trim();
+    if t.starts_with('-') {
+        return Err(format!(
+            "'{s}' is negative: the memory limit must be a positive size (e.g. 512M, 4G) or 'unlimited'"
+        ));
+    }
     let lower = t.to_ascii_lowercase();
     if lower == "unlimited" || lower == "none" {
         return Ok(u64::MAX);

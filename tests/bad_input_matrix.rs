@@ -1195,3 +1195,193 @@ fn h07_huge_displacement_is_refused_not_a_panic() {
         String::from_utf8_lossy(&o.stderr)
     );
 }
+
+#[test]
+fn h08_any_valence_in_every_command() {
+    // A 500-sided prism: its caps' face points have valence 500. probe (both samplers)
+    // exited 101 (ValenceTooHigh from the chart net).
+    let tmp = tempfile::tempdir().unwrap();
+    let mesh = tmp.path().join("prism.obj");
+    let n = 500;
+    let mut obj = String::new();
+    for z in [0.0, 1.0] {
+        for i in 0..n {
+            let a = std::f64::consts::TAU * i as f64 / n as f64;
+            obj.push_str(&format!("v {} {} {z}\n", a.cos(), a.sin()));
+        }
+    }
+    obj.push_str(&format!(
+        "f {}\n",
+        (0..n)
+            .map(|i| (n - i).to_string())
+            .collect::<Vec<_>>()
+            .join(" ")
+    ));
+    obj.push_str(&format!(
+        "f {}\n",
+        (0..n)
+            .map(|i| (n + 1 + i).to_string())
+            .collect::<Vec<_>>()
+            .join(" ")
+    ));
+    for i in 0..n {
+        let j = (i + 1) % n;
+        obj.push_str(&format!(
+            "f {} {} {} {}\n",
+            i + 1,
+            j + 1,
+            n + j + 1,
+            n + i + 1
+        ));
+    }
+    std::fs::write(&mesh, obj).unwrap();
+    for sampler in ["chart", "march"] {
+        let o = surfsynth(&os(&[
+            &"probe",
+            &"--mesh",
+            &mesh,
+            &"--face",
+            &"0",
+            &"--uv",
+            &"0.1",
+            &"0.1",
+            &"--step",
+            &"0.05",
+            &"--sampler",
+            &sampler,
+        ]));
+        assert_eq!(
+            o.status.code(),
+            Some(0),
+            "{sampler}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+    }
+}
+
+#[test]
+fn h09_progress_lines_off_a_terminal() {
+    // Off a terminal (here: captured), a run longer than SURFSYNTH_PROGRESS_AFTER seconds
+    // writes one plain line per stage to stderr; the default (1 s) keeps short runs quiet.
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    let o = Command::new(env!("CARGO_BIN_EXE_surfsynth"))
+        .args(os(&[
+            &"synth",
+            &"--mesh",
+            &spot(),
+            &"--example",
+            &gravel(),
+            &"--resolution",
+            &"4",
+            &"--out",
+            &out,
+        ]))
+        .env("SURFSYNTH_PROGRESS_AFTER", "0")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(0), "{err}");
+    for stage in [
+        "load",
+        "geometry",
+        "field",
+        "graph",
+        "synthesis",
+        "maps",
+        "write",
+    ] {
+        assert!(
+            err.lines()
+                .any(|l| l.starts_with(&format!("synth: {stage}"))),
+            "{stage}: {err}"
+        );
+    }
+    assert!(!err.contains('\x1b'), "no escape codes: {err:?}");
+}
+
+#[test]
+fn h10_messages() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mesh = tmp.path().join("cube.obj");
+    std::fs::write(&mesh, cube_obj(1.0, "\n")).unwrap();
+    // A constraint on a vertex the mesh lacks names the constraints file and its line,
+    // in synth and in probe.
+    let c = tmp.path().join("c.txt");
+    std::fs::write(&c, "# constraints\nvertex 99 1 0 0\n").unwrap();
+    let cs = c.to_str().unwrap();
+    synth_fails_in(
+        &mesh,
+        &gravel(),
+        &["--resolution", "4", "--orient", cs],
+        &format!("{cs}: line 2"),
+        &["vertex 99"],
+    );
+    let probe = |extra: &[&str]| {
+        let mut args = os(&[
+            &"probe", &"--mesh", &mesh, &"--face", &"0", &"--step", &"0.1",
+        ]);
+        args.extend(extra.iter().map(OsString::from));
+        surfsynth(&args)
+    };
+    let none = tmp.path().join("none");
+    let o = probe(&["--uv", "0.5", "0.5", "--orient", cs]);
+    assert_clean_failure(&o, &none, &format!("{cs}: line 2"), &["vertex 99"]);
+    // Negative values are values, refused with a reason (was "unexpected argument '-0'").
+    let o = probe(&["--uv", "0.5", "-0.5"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert_clean_failure(&o, &none, "--uv", &["-0.5", "outside the domain range"]);
+    bad_flag(
+        &["--max-memory", "-1G"],
+        "--max-memory",
+        &["-1G", "negative"],
+    );
+    // --search with a method that has none is a usage error (exit 2).
+    let tmp2 = tempfile::tempdir().unwrap();
+    let out = tmp2.path().join("out");
+    let o = surfsynth(&os(&[
+        &"synth",
+        &"--mesh",
+        &mesh,
+        &"--example",
+        &gravel(),
+        &"--method",
+        &"coherent",
+        &"--search",
+        &"ann",
+        &"--out",
+        &out,
+    ]));
+    assert_eq!(o.status.code(), Some(2));
+    assert_clean_failure(&o, &out, "--search", &["multiscale only"]);
+    // /dev/zero as the example: not an image (was "image file is empty (0 bytes)").
+    if Path::new("/dev/zero").exists() {
+        synth_fails(
+            &mesh,
+            Path::new("/dev/zero"),
+            &[],
+            "/dev/zero",
+            &["not a PNG or JPEG"],
+        );
+        // ... and as the mesh: binary data, refused at once (bake grew past 8 GiB).
+        bake_fails(Path::new("/dev/zero"), &[], "/dev/zero", &["binary data"]);
+    }
+    // A dangling symlink as --out (was "File exists (os error 17)").
+    #[cfg(unix)]
+    {
+        let link = tmp.path().join("dangling");
+        std::os::unix::fs::symlink(tmp.path().join("gone/dir"), &link).unwrap();
+        let o = surfsynth(&os(&[
+            &"synth",
+            &"--mesh",
+            &mesh,
+            &"--example",
+            &gravel(),
+            &"--resolution",
+            &"4",
+            &"--out",
+            &link,
+        ]));
+        assert_clean_failure(&o, &none, "dangling", &["symbolic link", "does not exist"]);
+    }
+}

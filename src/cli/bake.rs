@@ -24,7 +24,7 @@ pub struct BakeArgs {
     pub compression: ExrCompression,
     /// Refuse to start when the estimated peak memory is above this (e.g. 512M, 4G,
     /// unlimited; default: 75% of physical memory).
-    #[arg(long, value_name = "SIZE", value_parser = surfsynth::memory::parse_size)]
+    #[arg(long, value_name = "SIZE", value_parser = surfsynth::memory::parse_size, allow_hyphen_values = true)]
     pub max_memory: Option<u64>,
 }
 

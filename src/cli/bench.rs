@@ -71,7 +71,7 @@ pub struct BenchSamplingArgs {
     #[arg(long, value_name = "T", value_delimiter = ',', default_values_t = [1.0f64])]
     pub step: Vec<f64>,
     /// Texels per side of every face map (sets the texel spacing δ is measured in).
-    #[arg(long, value_name = "N", default_value_t = 32, value_parser = parse_resolution)]
+    #[arg(long, value_name = "N", default_value_t = 32, value_parser = parse_resolution, allow_negative_numbers = true)]
     pub resolution: usize,
     /// Patterns per measurement.
     #[arg(long, value_name = "P", default_value_t = 4000)]
@@ -87,7 +87,7 @@ pub struct BenchMultiscaleArgs {
     #[arg(long, value_name = "D", default_value_t = 32)]
     pub domains: usize,
     /// Texels per side of every face map.
-    #[arg(long, value_name = "N", default_value_t = 60, value_parser = parse_resolution)]
+    #[arg(long, value_name = "N", default_value_t = 60, value_parser = parse_resolution, allow_negative_numbers = true)]
     pub resolution: usize,
     /// Example (default: the bundled 128x128 gravel).
     #[arg(long, value_name = "E.png")]
@@ -117,7 +117,7 @@ pub struct BenchExrArgs {
     #[arg(long, value_name = "D", default_value_t = 20_000)]
     pub domains: usize,
     /// Texels per side of every face map.
-    #[arg(long, value_name = "N", default_value_t = 16, value_parser = parse_resolution)]
+    #[arg(long, value_name = "N", default_value_t = 16, value_parser = parse_resolution, allow_negative_numbers = true)]
     pub resolution: usize,
     /// Compressions to measure (default: all lossless ones).
     #[arg(long, value_enum, value_delimiter = ',')]
@@ -134,7 +134,7 @@ pub struct BenchBakeArgs {
     #[arg(long, value_name = "D", default_value_t = 20_000)]
     pub domains: usize,
     /// Texels per side of every face map.
-    #[arg(long, value_name = "N", default_value_t = 16, value_parser = parse_resolution)]
+    #[arg(long, value_name = "N", default_value_t = 16, value_parser = parse_resolution, allow_negative_numbers = true)]
     pub resolution: usize,
     /// EXR compression (lossless).
     #[arg(long, value_enum, default_value_t = ExrCompression::None)]

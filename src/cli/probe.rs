@@ -45,13 +45,13 @@ pub struct ProbeArgs {
     #[arg(long, value_name = "F")]
     pub face: usize,
     /// Domain coordinates of the centre.
-    #[arg(long, num_args = 2, value_names = ["U", "V"], value_parser = parse_unit, required = true)]
+    #[arg(long, num_args = 2, value_names = ["U", "V"], value_parser = parse_unit, required = true, allow_negative_numbers = true)]
     pub uv: Vec<f64>,
     /// Sampling step (surface length between adjacent samples).
-    #[arg(long, value_name = "D", value_parser = parse_positive)]
+    #[arg(long, value_name = "D", value_parser = parse_positive, allow_negative_numbers = true)]
     pub step: f64,
     /// Pattern size K (odd): K x K samples.
-    #[arg(long, value_name = "K", default_value_t = 9, value_parser = parse_odd_size)]
+    #[arg(long, value_name = "K", default_value_t = 9, value_parser = parse_odd_size, allow_negative_numbers = true)]
     pub size: usize,
     /// Sampler.
     #[arg(long, value_enum, default_value_t = Sampler::Chart)]

@@ -14,10 +14,10 @@ pub struct RenderArgs {
     #[arg(long, value_name = "FILE.png")]
     pub out: Option<PathBuf>,
     /// Picture width in pixels.
-    #[arg(long, value_name = "W", default_value_t = 1024, value_parser = parse_pixels)]
+    #[arg(long, value_name = "W", default_value_t = 1024, value_parser = parse_pixels, allow_negative_numbers = true)]
     pub width: u32,
     /// Picture height in pixels.
-    #[arg(long, value_name = "H", default_value_t = 768, value_parser = parse_pixels)]
+    #[arg(long, value_name = "H", default_value_t = 768, value_parser = parse_pixels, allow_negative_numbers = true)]
     pub height: u32,
     /// Camera yaw in degrees (default: automatic 3/4 view).
     #[arg(long, value_name = "DEG", value_parser = parse_finite, allow_negative_numbers = true)]

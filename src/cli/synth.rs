@@ -65,7 +65,7 @@ pub struct SynthArgs {
     pub appearance: Appearance,
     /// Patch side in example pixels for --method patches and the start of optimise (default:
     /// 64, at most half the example's shorter side). Larger patches keep larger structure.
-    #[arg(long, value_name = "PIXELS", value_parser = parse_patch_size)]
+    #[arg(long, value_name = "PIXELS", value_parser = parse_patch_size, allow_negative_numbers = true)]
     pub patch_size: Option<usize>,
     /// Neighbourhood search of the multiscale method (default: kcoherence, the faster at
     /// equal quality).
@@ -111,7 +111,7 @@ pub struct SynthArgs {
     pub no_cache: bool,
     /// Refuse to start when the estimated peak memory is above this (e.g. 512M, 4G,
     /// unlimited; default: 75% of physical memory).
-    #[arg(long, value_name = "SIZE", value_parser = surfsynth::memory::parse_size)]
+    #[arg(long, value_name = "SIZE", value_parser = surfsynth::memory::parse_size, allow_hyphen_values = true)]
     pub max_memory: Option<u64>,
 }
 
