@@ -1386,3 +1386,25 @@ fn h10_messages() {
         assert_clean_failure(&o, &none, "dangling", &["symbolic link", "does not exist"]);
     }
 }
+
+#[test]
+fn h11_bench_with_absurd_sizes_is_refused_before_it_starts() {
+    // bench exr|bake --domains 50000000 --resolution 64 grew past 8 GiB with no guard.
+    let none = Path::new("/nonexistent-out");
+    for cmd in ["exr", "bake"] {
+        let o = surfsynth(&["bench", cmd, "--domains", "50000000", "--resolution", "64"]);
+        assert_eq!(o.status.code(), Some(1), "{cmd}");
+        assert_clean_failure(&o, none, &format!("bench {cmd}"), &["at least", "limit"]);
+    }
+    let o = surfsynth(&[
+        "bench",
+        "exr",
+        "--domains",
+        "100",
+        "--resolution",
+        "8",
+        "--max-memory",
+        "1M",
+    ]);
+    assert_clean_failure(&o, none, "bench exr", &["--max-memory 1.0 MiB"]);
+}

@@ -113,6 +113,10 @@ pub struct BenchSynthArgs {
 
 #[derive(Args, Debug)]
 pub struct BenchExrArgs {
+    /// Memory limit (e.g. 512M, 4G, unlimited; default: 75% of physical memory): runs
+    /// whose memory is sure to exceed it are refused before they start.
+    #[arg(long, value_name = "SIZE", value_parser = surfsynth::memory::parse_size, allow_hyphen_values = true)]
+    pub max_memory: Option<u64>,
     /// Number of face domains (generated torus).
     #[arg(long, value_name = "D", default_value_t = 20_000)]
     pub domains: usize,
@@ -126,6 +130,10 @@ pub struct BenchExrArgs {
 
 #[derive(Args, Debug)]
 pub struct BenchBakeArgs {
+    /// Memory limit (e.g. 512M, 4G, unlimited; default: 75% of physical memory): runs
+    /// whose memory is sure to exceed it are refused before they start.
+    #[arg(long, value_name = "SIZE", value_parser = surfsynth::memory::parse_size, allow_hyphen_values = true)]
+    pub max_memory: Option<u64>,
     /// Mesh to bake, refined uniformly until it has --domains domains
     /// (default: a generated quad torus with --domains faces).
     #[arg(long, value_name = "M.obj")]
@@ -287,10 +295,47 @@ fn synth(a: BenchSynthArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Refuses a generated-torus benchmark whose lower bound of memory is above the limit: the
+/// control mesh and surface (quad domains, four regular base quads each) and `channels`
+/// f32 values per texel held at once. A bound, not a calibrated estimate: it only keeps
+/// `--domains 50000000` from growing past the machine's memory before failing.
+fn bench_guard(what: &str, domains: usize, n: usize, channels: u64) -> anyhow::Result<()> {
+    let size = surfsynth::memory::MeshSize {
+        domains,
+        base_quads: domains.saturating_mul(4),
+        irregular_base_quads: 0,
+        semi_sharp_base_quads: 0,
+        semi_sharp_levels: 0,
+    };
+    let threads = rayon::current_num_threads();
+    let bake = surfsynth::memory::estimate(&size, n, &surfsynth::memory::Job::Bake { threads });
+    let texels = (domains as u64).saturating_mul((n as u64).saturating_mul(n as u64));
+    let need = bake
+        .bytes
+        .saturating_add(texels.saturating_mul(4 * channels));
+    let lim = surfsynth::memory::limit();
+    if need > lim.bytes {
+        let held = match channels {
+            0 => "the surface and the streamed tiles".to_string(),
+            c => format!("{domains} domains x {n}² texels x {c} channels held, plus the surface"),
+        };
+        anyhow::bail!(
+            "{what} --domains {domains} --resolution {n} would need at least {} of memory ({held}), more than the limit of {} from {}; lower --domains or --resolution",
+            surfsynth::memory::format_bytes(need),
+            surfsynth::memory::format_bytes(lim.bytes),
+            lim.source
+        );
+    }
+    Ok(())
+}
+
 fn exr(a: BenchExrArgs) -> anyhow::Result<()> {
     if a.domains == 0 || a.domains > 50_000_000 {
         anyhow::bail!("--domains {} must be between 1 and 50000000", a.domains);
     }
+    // Geometry (6 channels) and colour maps (5) held, plus one read back (6).
+    surfsynth::memory::set_limit(a.max_memory);
+    bench_guard("bench exr", a.domains, a.resolution, 17)?;
     let list = if a.compression.is_empty() {
         vec![
             ExrCompression::None,
@@ -315,6 +360,9 @@ fn bake(a: BenchBakeArgs) -> anyhow::Result<()> {
     if a.domains == 0 || a.domains > 50_000_000 {
         anyhow::bail!("--domains {} must be between 1 and 50000000", a.domains);
     }
+    // The streamed bake itself (its tiles and scratch); the maps are not held.
+    surfsynth::memory::set_limit(a.max_memory);
+    bench_guard("bench bake", a.domains, a.resolution, 0)?;
     let mesh = match a.mesh.clone() {
         Some(p) => BenchMesh::File(p, a.domains),
         None => BenchMesh::Torus(a.domains),
