@@ -40,8 +40,11 @@ pub const DEFAULT_FRACTION: f64 = 0.75;
 /// one-quad bake).
 const BASELINE: u64 = 8 << 20;
 /// Surface cost of a base quad whose four corners are regular (one bicubic patch, its
-/// node, the control mesh's share).
-const REGULAR_QUAD: u64 = 700;
+/// node, the control mesh's share), at the peak of reading and building it (the OBJ text,
+/// the parsed mesh, the refined level and vectors growing by doubling): `bake` at N = 4 of
+/// quad tori of 20k / 50k / 200k faces peaked at 80 / 156 / 738-766 MiB, 0.74-0.93 KB
+/// per base quad (700 B, measured on smaller meshes, gave 0.71x at 200k faces).
+const REGULAR_QUAD: u64 = 900;
 /// Surface cost of a base quad at an extraordinary vertex: a constant plus a share per
 /// stored patch-tree level (peak while building, measured on four triangle meshes:
 /// 2.0–2.5 KB at depth 1, 8–12.7 KB at 3, 13.5–15.2 KB at 5, 19.2–20.5 KB at 7,
