@@ -485,13 +485,24 @@ pub fn check(what: &str, n: usize, job: &Job, e: &Estimate) -> Result<()> {
 
 /// [`check`] against an explicit limit.
 pub fn check_against(lim: &Limit, what: &str, n: usize, job: &Job, e: &Estimate) -> Result<()> {
+    refuse(
+        lim,
+        &format!("{what}: {} at --resolution {n}", job.name()),
+        "",
+        e,
+        "lower --resolution or raise --max-memory",
+    )
+}
+
+/// `Ok` when `e` fits `lim`, else the one-line refusal: "{subject} would need about X of
+/// memory{scope} (estimate; shape; largest part: ...), more than the limit ...; {advice}".
+fn refuse(lim: &Limit, subject: &str, scope: &str, e: &Estimate, advice: &str) -> Result<()> {
     if e.bytes <= lim.bytes {
         return Ok(());
     }
     let (part, part_bytes) = e.parts.first().copied().unwrap_or(("total", e.bytes));
     Err(Error::invalid(format!(
-        "{what}: {} at --resolution {n} would need about {} of memory (estimate; {}; largest part: {part} {}), more than the limit of {} from {}; lower --resolution or raise --max-memory",
-        job.name(),
+        "{subject} would need about {} of memory{scope} (estimate; {}; largest part: {part} {}), more than the limit of {} from {}; {advice}",
         format_bytes(e.bytes),
         e.shape,
         format_bytes(part_bytes),
@@ -554,13 +565,10 @@ pub fn check_coordinate_range(what: &str, control: &ControlMesh) -> Result<()> {
 
 /// The largest side of the control mesh's bounding box.
 pub fn extent(control: &ControlMesh) -> f64 {
-    let ps = &control.mesh.positions;
-    let Some(first) = ps.first() else {
+    if control.mesh.positions.is_empty() {
         return 0.0;
-    };
-    let (lo, hi) = ps
-        .iter()
-        .fold((*first, *first), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
+    }
+    let (lo, hi) = control.bounds();
     (hi - lo).max_element()
 }
 
@@ -641,20 +649,13 @@ pub fn example_estimate(pixels: u64, decode_bytes: u64, job: &Job) -> Estimate {
 /// Refuses an example whose [`example_estimate`] alone is above the limit: one line
 /// naming the image (`what`, e.g. "ex.png: image is 20000x20000 pixels").
 pub fn check_example(what: &str, job: &Job, e: &Estimate) -> Result<()> {
-    let lim = limit();
-    if e.bytes <= lim.bytes {
-        return Ok(());
-    }
-    let (part, part_bytes) = e.parts.first().copied().unwrap_or(("total", e.bytes));
-    Err(Error::invalid(format!(
-        "{what}: {} with this example would need about {} of memory for the example alone (estimate; {}; largest part: {part} {}), more than the limit of {} from {}; use a smaller example or raise --max-memory",
-        job.name(),
-        format_bytes(e.bytes),
-        e.shape,
-        format_bytes(part_bytes),
-        format_bytes(lim.bytes),
-        lim.source,
-    )))
+    refuse(
+        &limit(),
+        &format!("{what}: {} with this example", job.name()),
+        " for the example alone",
+        e,
+        "use a smaller example or raise --max-memory",
+    )
 }
 
 /// [`check`] for a surface that is already built (in-memory inputs).

@@ -181,26 +181,6 @@ fn patterns_cross_sharp_creases_unfolded_without_folds() {
     assert_eq!(crossing, [cs.len(); 2], "every pattern crosses the crease");
 }
 
-/// A shared texture halved until its width is below `2 * size`, cropped to a square of at
-/// most `size` pixels (as tests/multiscale.rs does: small examples keep the test short).
-fn texture(name: &str, size: usize) -> surfsynth::example::Example {
-    use surfsynth::example::Example;
-    use surfsynth::pyramid::Image;
-    let ex = Example::load(common::data(&format!("textures/{name}"))).unwrap();
-    let mut img = Image::from_example(&ex);
-    while img.width >= 2 * size {
-        img = img.downsample();
-    }
-    let size = size.min(img.width).min(img.height);
-    let rgb = (0..size * size)
-        .map(|i| {
-            let p = img.pixel(i % size, i / size);
-            [p[0], p[1], p[2]]
-        })
-        .collect();
-    Example::from_linear(size, size, rgb)
-}
-
 /// The methods the synthesis test runs, with the scale-fidelity spread each is held to
 /// (`None`: the median only). Coherent synthesis projects 3D offsets onto the texel's own
 /// plane, which foreshortens neighbours across a sharp crease (p90 ~1.06 here), so it is
@@ -220,7 +200,7 @@ const METHODS: &[(Method, Option<(f64, f64)>)] = &[
 /// 0.97–1.06.
 #[test]
 fn synthesis_on_creased_meshes_meets_the_quality_bar() {
-    let ex = texture("etr_gravel.png", 64);
+    let ex = common::texture("etr_gravel.png", 64);
     for (name, s) in [
         ("sharp frustum", creased_frustum(10.0, 2)),
         ("semi-sharp frustum", creased_frustum(2.0, 2)),

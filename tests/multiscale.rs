@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::data;
+use common::{data, texture};
 use std::path::Path;
 use subdiv::Surface;
 use surfsynth::example::Example;
@@ -17,24 +17,6 @@ use surfsynth::synth::matching::search::kcoherence::KParams;
 use surfsynth::synth::matching::search::model::Method;
 use surfsynth::synth::multiscale::{self, Inputs, MultiscaleParams, Output};
 use surfsynth::texels::TexelGeometry;
-
-/// A shared texture halved until its width is below `2 * size`, cropped to a square of at
-/// most `size` pixels.
-fn texture(name: &str, size: usize) -> Example {
-    let ex = Example::load(data(&format!("textures/{name}"))).unwrap();
-    let mut img = Image::from_example(&ex);
-    while img.width >= 2 * size {
-        img = img.downsample();
-    }
-    let size = size.min(img.width).min(img.height);
-    let rgb = (0..size * size)
-        .map(|i| {
-            let p = img.pixel(i % size, i / size);
-            [p[0], p[1], p[2]]
-        })
-        .collect();
-    Example::from_linear(size, size, rgb)
-}
 
 /// A flat k x k grid of unit quads in the z = 0 plane.
 fn flat_grid(k: usize) -> Surface {

@@ -47,7 +47,7 @@
 //! foreign neighbours is scanned first, lines parallel to it move away from it, and each
 //! line starts at the end whose perpendicular side has more synthesized texture.
 
-use super::matching::features::Features;
+use super::matching::features::{dist2, Features};
 use super::schedule::Schedule;
 use crate::texels::{TexelGeometry, TexelGraph};
 use glam::Vec3;
@@ -440,16 +440,6 @@ fn front_order<const K: usize>(c: &Ctx<'_, K>, done_g: &[bool], d: usize) -> Opt
         start[k as usize] += 1;
     }
     Some(order)
-}
-
-#[inline(always)]
-fn dist2<const K: usize>(a: &[f32; K], b: &[f32; K]) -> f32 {
-    let mut s = 0.0;
-    for k in 0..K {
-        let d = a[k] - b[k];
-        s += d * d;
-    }
-    s
 }
 
 fn synth_domain<const K: usize>(

@@ -266,7 +266,6 @@ struct Flood {
     parent: Vec<u32>,
     done: Vec<bool>,
     heap: BinaryHeap<Entry>,
-    nb: Vec<u32>,
     reached: Vec<u32>,
 }
 
@@ -281,7 +280,6 @@ impl Flood {
             parent: vec![0; n],
             done: vec![false; n],
             heap: BinaryHeap::new(),
-            nb: Vec::with_capacity(32),
             reached: Vec::new(),
         }
     }
@@ -402,11 +400,10 @@ fn flood(level: &LevelTexels, fl: &mut Flood, c: usize, half: f32) -> (Vec<u32>,
         } else {
             let p = fl.parent[s] as usize;
             fl.e1[s] = transport(fl.e1[p], normal[p], normal[s]);
-            fl.nb.clear();
-            fl.nb.extend_from_slice(edges.of(s));
+            let nb = edges.of(s);
             let (mut sx, mut sy, mut sw) = (0.0f32, 0.0f32, 0.0f32);
-            for k in 0..fl.nb.len() {
-                let q = fl.nb[k] as usize;
+            for &q in nb {
+                let q = q as usize;
                 if fl.stamp[q] != gen || !fl.done[q] || !fl.coord[q][0].is_finite() {
                     continue;
                 }
@@ -435,8 +432,8 @@ fn flood(level: &LevelTexels, fl: &mut Flood, c: usize, half: f32) -> (Vec<u32>,
             // there. Such texels end the patch (smaller patches cover them later).
             let l = fl.coord[s];
             let mut bad = false;
-            for k in 0..fl.nb.len() {
-                let q = fl.nb[k] as usize;
+            for &q in nb {
+                let q = q as usize;
                 if fl.stamp[q] != gen || !fl.done[q] || !fl.coord[q][0].is_finite() {
                     continue;
                 }

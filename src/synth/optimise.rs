@@ -40,6 +40,7 @@
 
 use super::footprint::{centres, Footprints, LevelTexels};
 use super::matching::exemplar::Exemplar;
+use super::matching::features::dist2;
 use super::matching::search::hash;
 use super::patches::{self, PatchParams};
 use super::Target;
@@ -234,16 +235,6 @@ struct SizeResult {
     energy: f64,
     patches: u64,
     candidates: u64,
-}
-
-#[inline(always)]
-fn dist2<const K: usize>(a: &[f32; K], b: &[f32; K]) -> f32 {
-    let mut s = 0.0;
-    for k in 0..K {
-        let d = a[k] - b[k];
-        s += d * d;
-    }
-    s
 }
 
 /// EM iterations with patches of side `size` over `level`, starting from sources `src`.

@@ -41,6 +41,7 @@
 
 use super::footprint::{centres, Footprints, LevelTexels};
 use super::matching::exemplar::Exemplar;
+use super::matching::features::dist2;
 use super::matching::search::hash;
 use super::mincut::CutGraph;
 use rayon::prelude::*;
@@ -421,16 +422,6 @@ fn plan_waves(fp: &Footprints, texels: usize) -> Vec<Vec<u32>> {
     waves
 }
 
-#[inline(always)]
-fn dist2<const K: usize>(a: &[f32; K], b: &[f32; K]) -> f32 {
-    let mut s = 0.0;
-    for k in 0..K {
-        let d = a[k] - b[k];
-        s += d * d;
-    }
-    s
-}
-
 /// Chooses and joins patch `p` (read-only on the state): its position is searched, or
 /// given ([`Ctx::fixed`]).
 fn paste<const K: usize>(
@@ -586,11 +577,10 @@ fn choose<const K: usize>(
         .max(1);
     let sub: Vec<usize> = known.iter().copied().step_by(estep).collect();
     s.errs.clear();
-    let mut best = f32::INFINITY;
-    for (ci, z) in s.cands.iter().enumerate() {
+    // Error of position z over the subset, abandoned once above `bound`: anything beyond
+    // (1 + tol) × best can never be eligible.
+    let error = |z: [f32; 2], bound: f32| {
         let mut e = 0.0f32;
-        // Bound: anything beyond (1 + tol) × best can never be eligible.
-        let bound = best * (1.0 + c.params.tolerance);
         for &i in &sub {
             let l = coords[i];
             e += dist2(
@@ -601,6 +591,12 @@ fn choose<const K: usize>(
                 break;
             }
         }
+        e
+    };
+    let mut best = f32::INFINITY;
+    for (ci, &z) in s.cands.iter().enumerate() {
+        let bound = best * (1.0 + c.params.tolerance);
+        let e = error(z, bound);
         if e <= bound {
             s.errs.push((e, ci as u32));
             best = best.min(e);
@@ -622,17 +618,7 @@ fn choose<const K: usize>(
                         continue;
                     }
                     let bound = best * (1.0 + c.params.tolerance);
-                    let mut e = 0.0f32;
-                    for &i in &sub {
-                        let l = coords[i];
-                        e += dist2(
-                            &app[texels[i] as usize],
-                            &f.sample(z[0] + l[0], z[1] + l[1]),
-                        );
-                        if e > bound {
-                            break;
-                        }
-                    }
+                    let e = error(z, bound);
                     if e <= bound {
                         s.cands.push(z);
                         s.errs.push((e, (s.cands.len() - 1) as u32));

@@ -32,6 +32,27 @@ pub fn load(rel: &str) -> Surface {
     Surface::load_obj(data(rel)).unwrap()
 }
 
+/// A shared texture halved until its width is below `2 * size`, cropped to a square of at
+/// most `size` pixels (small examples keep tests short).
+#[allow(dead_code)]
+pub fn texture(name: &str, size: usize) -> surfsynth::example::Example {
+    use surfsynth::example::Example;
+    use surfsynth::pyramid::Image;
+    let ex = Example::load(data(&format!("textures/{name}"))).unwrap();
+    let mut img = Image::from_example(&ex);
+    while img.width >= 2 * size {
+        img = img.downsample();
+    }
+    let size = size.min(img.width).min(img.height);
+    let rgb = (0..size * size)
+        .map(|i| {
+            let p = img.pixel(i % size, i / size);
+            [p[0], p[1], p[2]]
+        })
+        .collect();
+    Example::from_linear(size, size, rgb)
+}
+
 /// The environment variable `name` parsed as a `T`, or `default` when it is unset or does
 /// not parse (the settings of the ignored measurement tests).
 #[allow(dead_code)]

@@ -10,6 +10,18 @@
 
 use crate::example::Example;
 
+/// Squared l2 distance between two feature vectors: the weighted distance, since the
+/// features carry the square roots of the weights (see the module docs).
+#[inline(always)]
+pub fn dist2<const K: usize>(a: &[f32; K], b: &[f32; K]) -> f32 {
+    let mut s = 0.0;
+    for k in 0..K {
+        let d = a[k] - b[k];
+        s += d * d;
+    }
+    s
+}
+
 /// Weighted, interleaved example features (see the module docs).
 #[derive(Clone, Debug)]
 pub struct Features<const K: usize> {
