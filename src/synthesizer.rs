@@ -688,17 +688,6 @@ impl Synthesizer {
         let geometry_s = t0.elapsed().as_secs_f64();
         progress(Stage::Geometry, faces, faces);
 
-        progress(Stage::Field, 0, 1);
-        let t0 = Instant::now();
-        let field = OrientationField::compute(&surface, &self.orientation)
-            .map_err(|e| Error::invalid(format!("orientation field for {mesh_label}: {e:#}")))?;
-        let frames = crate::synth::frames_f32(&field.texel_frames(&surface, n));
-        let field_s = t0.elapsed().as_secs_f64();
-        progress(Stage::Field, 1, 1);
-
-        progress(Stage::Graph, 0, 1);
-        let t0 = Instant::now();
-        let graph = TexelGraph::build(&surface, &geometry);
         let spacing = geometry.median_spacing(&surface);
         let (scale, scale_source) = match self.scale {
             Some(s) => (s / unit, "given"),
@@ -709,6 +698,23 @@ impl Synthesizer {
                 "{mesh_label}: the surface is degenerate (median texel spacing {scale}); pass --scale"
             )));
         }
+
+        progress(Stage::Field, 0, 1);
+        let t0 = Instant::now();
+        // `auto` wants the field straight over half of pf8's window (BRIEF).
+        let field_options = crate::field::FieldOptions {
+            structure_length: Some(crate::field::STRUCTURE_PIXELS * scale),
+            ..Default::default()
+        };
+        let field = OrientationField::compute_with(&surface, &self.orientation, &field_options)
+            .map_err(|e| Error::invalid(format!("orientation field for {mesh_label}: {e:#}")))?;
+        let frames = crate::synth::frames_f32(&field.texel_frames(&surface, n));
+        let field_s = t0.elapsed().as_secs_f64();
+        progress(Stage::Field, 1, 1);
+
+        progress(Stage::Graph, 0, 1);
+        let t0 = Instant::now();
+        let graph = TexelGraph::build(&surface, &geometry);
         let texels = LevelTexels::from_parts(&surface, geometry, graph, frames, scale);
         // Mesh-side orders are set-up, not synthesis (a session computes them once).
         let derived = crate::synth::Derived::default();
@@ -793,6 +799,11 @@ impl Synthesizer {
             texel_spacing: spacing,
             resolution: n,
             orientation: orientation_label(&self.orientation),
+            orientation_choice: field.choice().map(|c| crate::report::OrientationChoice {
+                chosen: c.chosen.clone(),
+                structure_length: c.length * unit,
+                bent_fraction: c.scores.clone(),
+            }),
             faces,
             control_faces: surface.control.mesh.num_faces(),
             texels,
@@ -846,6 +857,7 @@ impl Synthesizer {
 fn orientation_label(o: &Orientation) -> String {
     match o {
         Orientation::Auto => "auto".into(),
+        Orientation::Smooth => "smooth".into(),
         Orientation::Axis(a) => format!("axis ({}, {}, {})", a.x, a.y, a.z),
         Orientation::Constraints(p) => p.display().to_string(),
     }
