@@ -53,7 +53,8 @@ const STRETCH_MAX: f32 = 1.25;
 /// The texels of one synthesis level: where they are, who their neighbours are, and the
 /// field's frame at each.
 pub struct LevelTexels {
-    pub geometry: TexelGeometry,
+    /// Shared: a prepared session hands it to every result for writing.
+    pub geometry: std::sync::Arc<TexelGeometry>,
     pub graph: TexelGraph,
     /// (v1, v2) per texel.
     pub frames: Vec<[Vec3; 2]>,
@@ -82,7 +83,7 @@ impl LevelTexels {
     ) -> Self {
         let edges = EdgeGraph::build(surface, &geometry);
         Self {
-            geometry,
+            geometry: std::sync::Arc::new(geometry),
             graph,
             frames,
             step,
