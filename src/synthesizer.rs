@@ -683,7 +683,7 @@ impl Synthesizer {
             example: example_label,
             height: self.height.as_ref().map(|h| h.display().to_string()),
         };
-        let result = session.run(example, &params, labels, started, seconds)?;
+        let result = session.run_once(example, &params, labels, started, seconds)?;
         Ok((result, txn))
     }
 }

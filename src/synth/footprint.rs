@@ -69,7 +69,7 @@ impl LevelTexels {
     pub fn new(surface: &Surface, field: &OrientationField, n: usize, step: f64) -> Self {
         let geometry = TexelGeometry::compute(surface, n);
         let graph = TexelGraph::build(surface, &geometry);
-        let frames = super::frames_f32(&field.texel_frames(surface, n));
+        let frames = super::texel_frames_f32(field, surface, n);
         Self::from_parts(surface, geometry, graph, frames, step)
     }
 

@@ -319,7 +319,7 @@ impl Session {
         let t0 = Instant::now();
         let field = OrientationField::compute(&surface, &settings.orientation)
             .map_err(|e| Error::invalid(format!("orientation field for {mesh_label}: {e:#}")))?;
-        let frames = crate::synth::frames_f32(&field.texel_frames(&surface, n));
+        let frames = crate::synth::texel_frames_f32(&field, &surface, n);
         let field_s = t0.elapsed().as_secs_f64();
         report(Stage::Field, 1, 1);
 
@@ -443,6 +443,36 @@ impl Session {
         started: Instant,
         seconds: PrepareSeconds,
     ) -> Result<SynthResult> {
+        let s = self.synthesis(&example, params, &labels)?;
+        Ok(self.finish(example, params, labels, s, started, seconds))
+    }
+
+    /// [`Session::run`] for the one-shot builder: the session is used once, so what only
+    /// synthesis needs (texel graphs, frames, derived orders) is freed before the maps are
+    /// built — the maps stage then holds the texel geometry, the sources and the maps.
+    pub(super) fn run_once(
+        mut self,
+        example: Example,
+        params: &SynthParams,
+        labels: Labels,
+        started: Instant,
+        seconds: PrepareSeconds,
+    ) -> Result<SynthResult> {
+        let s = self.synthesis(&example, params, &labels)?;
+        drop(std::mem::take(&mut self.texels.graph));
+        drop(std::mem::take(&mut self.texels.edges));
+        drop(std::mem::take(&mut self.texels.frames));
+        drop(std::mem::take(&mut self.derived));
+        Ok(self.finish(example, params, labels, s, started, seconds))
+    }
+
+    /// The synthesis stage: source positions and what the method reports.
+    fn synthesis(
+        &self,
+        example: &Example,
+        params: &SynthParams,
+        labels: &Labels,
+    ) -> Result<Synthesized> {
         let progress = |s: Stage, d: usize, t: usize| {
             if let Some(p) = &self.progress {
                 p(s, d, t)
@@ -482,7 +512,7 @@ impl Session {
         // get the example upside down, and the sources are turned back below.
         let flipped;
         let synth_example = match params.handedness {
-            Handedness::Outside => &example,
+            Handedness::Outside => example,
             Handedness::Tiles => {
                 flipped = example.flipped_rows();
                 &flipped
@@ -509,6 +539,33 @@ impl Session {
             }
         }
         let synthesis_s = t0.elapsed().as_secs_f64();
+        Ok(Synthesized {
+            source,
+            appearance: out.appearance,
+            details: out.details,
+            cache,
+            seconds: synthesis_s,
+        })
+    }
+
+    /// The maps stage and the report.
+    fn finish(
+        &self,
+        example: Example,
+        params: &SynthParams,
+        labels: Labels,
+        s: Synthesized,
+        started: Instant,
+        seconds: PrepareSeconds,
+    ) -> SynthResult {
+        let progress = |st: Stage, d: usize, t: usize| {
+            if let Some(p) = &self.progress {
+                p(st, d, t)
+            }
+        };
+        let settings = &params.settings;
+        let n = self.resolution;
+        let faces = self.faces();
         // Written in the user's units (positions, normals, displacement).
         let (surface, geometry) = if self.unit != 1.0 {
             let (s, g) = self.user.get_or_init(|| {
@@ -527,8 +584,8 @@ impl Session {
 
         progress(Stage::Maps, 0, 1);
         let t0 = Instant::now();
-        let maps = crate::synth::face_maps(&example, &source, faces, n);
-        drop(source);
+        let maps = crate::synth::face_maps(&example, &s.source, faces, n);
+        drop(s.source);
         let maps_s = t0.elapsed().as_secs_f64();
         progress(Stage::Maps, 1, 1);
 
@@ -561,8 +618,8 @@ impl Session {
             },
             channels: maps.names().iter().map(|s| s.to_string()).collect(),
             weights: settings.weights,
-            appearance: out.appearance,
-            details: out.details,
+            appearance: s.appearance,
+            details: s.details,
             threads: rayon::current_num_threads(),
             displace: params.displace,
             handedness: params.handedness,
@@ -571,7 +628,7 @@ impl Session {
                 geometry: seconds.geometry,
                 field: seconds.field,
                 graph: seconds.graph,
-                synthesis: synthesis_s,
+                synthesis: s.seconds,
                 maps: maps_s,
                 write: 0.0,
                 total: started.elapsed().as_secs_f64(),
@@ -580,10 +637,10 @@ impl Session {
             synthesis_texels_per_second: 0.0,
             peak_memory_bytes: None,
             patch_fidelity: None,
-            cache,
+            cache: s.cache,
         };
         report.update_rates();
-        Ok(SynthResult {
+        SynthResult {
             maps,
             geometry,
             surface,
@@ -592,8 +649,17 @@ impl Session {
             displace: params.displace,
             write_options: params.write_options,
             started,
-        })
+        }
     }
+}
+
+/// What the synthesis stage hands to the maps stage.
+struct Synthesized {
+    source: Vec<[f32; 2]>,
+    appearance: crate::synth::matching::appearance::AppearanceInfo,
+    details: crate::synth::Details,
+    cache: crate::synth::analysis::CacheReport,
+    seconds: f64,
 }
 
 /// How the report names the example and the height map.
