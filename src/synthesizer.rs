@@ -42,6 +42,11 @@
 //! # }
 //! ```
 //!
+//! For many syntheses on one mesh (an interactive tool, a seed sweep), [`Session`] keeps
+//! the mesh-side stages (surface, texel geometry, field, graphs) and the per-example
+//! analysis between them; the builder above is a session used once (module
+//! [`session`]).
+//!
 //! Errors are [`crate::Error`]s with one-line messages that name the file and the problem
 //! (a missing or corrupt example, a height map of another size, resolution 0, ...). Nothing
 //! is written until [`SynthResult::write`], which writes every file atomically and removes
@@ -59,7 +64,7 @@ use std::sync::Arc;
 use std::time::Instant;
 use subdiv::Surface;
 
-mod session;
+pub mod session;
 pub use session::{MeshSettings, PrepareSeconds, Session, SynthParams};
 
 pub use crate::cache::CacheDir;
@@ -979,15 +984,48 @@ pub fn run_command(c: &SynthCommand) -> Result<Report> {
         .on_progress(move |s, d, t| bars.update(s, d, t))
         .run_to_with(&c.out, |r| {
             // Measured before writing, so report.json is written once, with the rest.
+            // pf reads the geometry as maps: the texel geometry is parked as those maps
+            // meanwhile (the same f32 values, rebuilt exactly), so both are not held at
+            // the run's peak (the pf point cloud; 24 B per texel less).
+            let geometry_maps = r.geometry_maps();
+            let (faces, resolution) = (r.geometry.faces, r.geometry.resolution);
+            r.geometry = Arc::new(TexelGeometry {
+                faces,
+                resolution,
+                pos: Vec::new(),
+                normal: Vec::new(),
+            });
             r.report.patch_fidelity = Some(crate::eval::summary_fidelity(
                 &r.maps,
-                &r.geometry_maps(),
+                &geometry_maps,
                 &r.example,
                 r.report.scale,
             ));
+            r.geometry = Arc::new(geometry_from_maps(&geometry_maps));
         })?;
     println!("{}", summary_line(&report, &c.out));
     Ok(report)
+}
+
+/// The texel geometry back from its maps ([`SynthResult::geometry_maps`]; exact: the
+/// same f32 values).
+fn geometry_from_maps(m: &FaceMaps) -> TexelGeometry {
+    let ch = |k: usize| {
+        m.channel(crate::bake::GEOMETRY_CHANNELS[k])
+            .expect("geometry maps have every geometry channel")
+    };
+    let xyz = |o: usize| -> Vec<glam::Vec3> {
+        let (x, y, z) = (ch(o), ch(o + 1), ch(o + 2));
+        (0..x.len())
+            .map(|i| glam::Vec3::new(x[i], y[i], z[i]))
+            .collect()
+    };
+    TexelGeometry {
+        faces: m.faces,
+        resolution: m.resolution,
+        pos: xyz(0),
+        normal: xyz(3),
+    }
 }
 
 /// One line: domains, texels, seconds, texels/s (whole run and synthesis alone), and
