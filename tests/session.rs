@@ -195,3 +195,44 @@ fn session_errors_are_one_line() {
     let e = s.synthesize(&example, &params).unwrap_err();
     assert!(e.to_string().contains("needs a height channel"), "{e}");
 }
+
+#[test]
+fn a_mesh_far_from_unit_size_gives_the_one_shot_result_in_its_own_units() {
+    // Scaled by 2^20: processed at unit size, written in the user's units (the session
+    // rebuilds the surface and geometry for writing once, on first use).
+    let dir = tempfile::tempdir().unwrap();
+    let big = dir.path().join("big.obj");
+    let text: String = CUBE_FAN
+        .lines()
+        .map(|l| match l.strip_prefix("v ") {
+            Some(v) => {
+                let c: Vec<String> = v
+                    .split_whitespace()
+                    .map(|x| (x.parse::<f64>().unwrap() * 1048576.0).to_string())
+                    .collect();
+                format!("v {}\n", c.join(" "))
+            }
+            None => format!("{l}\n"),
+        })
+        .collect();
+    std::fs::write(&big, text).unwrap();
+    let settings = MeshSettings {
+        resolution: N,
+        ..MeshSettings::default()
+    };
+    let s = Session::prepare(big.as_path(), &settings)
+        .unwrap()
+        .with_analyses(Arc::new(Analyses::new(&CacheDir::Off)));
+    let params = SynthParams::new(Method::Jump);
+    let a = s.synthesize(&example(), &params).unwrap();
+    let b = Synthesizer::new(big.as_path(), example())
+        .method(Method::Jump)
+        .resolution(N)
+        .cache(CacheDir::Off)
+        .run()
+        .unwrap();
+    assert!(bits(&a) == bits(&b));
+    assert_eq!(a.geometry.pos, b.geometry.pos);
+    assert_eq!(a.report.scale, b.report.scale);
+    assert!(a.geometry.pos.iter().any(|p| p.x.abs() > 1e5), "user units");
+}
