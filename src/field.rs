@@ -20,12 +20,19 @@
 //! next): on level 1 a linear relaxation gives the start — the smallest eigenvector of the
 //! connection Laplacian by inverse iteration for `auto` (Knöppel et al. 2013: this puts
 //! singularities only where topology forces them), or the quadratic relaxation of E with
-//! the targets — then on every level *nonlinear block Gauss–Seidel*: each vertex is set to
-//! the exact minimiser of E with its neighbours fixed, z_i = normalize(Σ_j c_ij z_j + λ a_i).
-//! Refined meshes are bipartite (every edge joins an edge point to a vertex or face point),
-//! so one sweep updates one colour class in parallel, then the other: no two updated
-//! vertices interact, so every half-sweep lowers E (recorded in [`OrientationField::history`])
-//! and the result does not depend on the thread count.
+//! the targets — then on every level *nonlinear multigrid*: the exact local minimiser
+//! z_i = normalize(Σ_j c_ij z_j + λ a_i) as smoother (red-black: refined meshes are
+//! bipartite, so one colour class is updated in parallel with the same result as in
+//! sequence), and coarse corrections on a greedy-aggregation hierarchy of the level's own
+//! graph. Why: plain Gauss–Seidel removes smooth errors only by O(h²) per sweep, so it
+//! needed 60 sweeps per level and never converged, and the CG relaxation over a big level 1
+//! grew faster than the mesh (a 200k-quad torus did not finish in 120 s). The coarse
+//! unknown is a turn r_A of every vertex of aggregate A; E(z·r) has the same form on the
+//! aggregate graph (see `coarse_problem`), so coarse levels are solved the same way and
+//! every coarse decrease is the fine one: E never rises (recorded per cycle in
+//! [`OrientationField::history`]) and the result does not depend on the thread count. A
+//! level 1 above `EXACT_MAX` vertices gets its relaxation on its own aggregates (`fmg`).
+//! docs/field.md has the measurements.
 //!
 //! # Across infinitely sharp creases
 //! A vertex on such a crease (or corner) has one tangent plane per *sector* (the faces
@@ -151,6 +158,10 @@ pub struct FieldOptions {
     pub max_cycles: usize,
     /// Relaxation and cycles stop when one lowers E by less than this fraction.
     pub tolerance: f64,
+    /// The surface is the user's mesh divided by this (the power of two the synthesizer
+    /// normalises far-from-unit meshes by): points and radii of a constraints file, in the
+    /// user's units, are divided by it too, so the field does not depend on the mesh's scale.
+    pub unit: f64,
 }
 
 impl Default for FieldOptions {
@@ -163,6 +174,7 @@ impl Default for FieldOptions {
             max_sweeps: 60,
             max_cycles: 10,
             tolerance: 1e-7,
+            unit: 1.0,
         }
     }
 }
@@ -778,8 +790,10 @@ struct Coarsening {
 }
 
 impl Coarsening {
-    /// None when the graph barely shrinks (nothing left to gain).
-    fn new(g: &Graph) -> Option<Self> {
+    /// None when the graph barely shrinks (nothing left to gain). `fixed` nodes (pins)
+    /// stay alone, one aggregate each, so a pin holds only itself on every level, never
+    /// the aggregates around it.
+    fn new(g: &Graph, fixed: &[bool]) -> Option<Self> {
         const FREE: u32 = u32::MAX;
         let n = g.nv();
         let mut agg = vec![FREE; n];
@@ -787,12 +801,21 @@ impl Coarsening {
         let mut pass = vec![0u8; n];
         let mut na = 0u32;
         for i in 0..n {
-            if agg[i] != FREE || g.row(i).any(|k| agg[g.nbr[k] as usize] != FREE) {
+            if fixed[i]
+                || agg[i] != FREE
+                || g.row(i).any(|k| {
+                    let j = g.nbr[k] as usize;
+                    !fixed[j] && agg[j] != FREE
+                })
+            {
                 continue;
             }
             agg[i] = na;
             for k in g.row(i) {
                 let j = g.nbr[k] as usize;
+                if fixed[j] {
+                    continue;
+                }
                 agg[j] = na;
                 pass[j] = 1;
                 via[j] = g
@@ -804,6 +827,11 @@ impl Coarsening {
         }
         // Every node still free has a neighbour aggregated above (else it would be a root).
         for i in 0..n {
+            if fixed[i] {
+                agg[i] = na;
+                na += 1;
+                continue;
+            }
             if agg[i] != FREE {
                 continue;
             }
@@ -811,7 +839,7 @@ impl Coarsening {
                 .row(i)
                 .find(|&k| {
                     let j = g.nbr[k] as usize;
-                    agg[j] != FREE && pass[j] <= 1
+                    !fixed[j] && agg[j] != FREE && pass[j] <= 1
                 })
                 .expect("a free node neighbours an aggregate");
             agg[i] = agg[g.nbr[k] as usize];
@@ -1051,16 +1079,27 @@ fn vcycle(p: &Problem, z: &mut [DVec2], hier: &[Coarsening], opts: &FieldOptions
     }
 }
 
-/// The multigrid levels below `g`, down to [`COARSEST`] nodes.
-fn hierarchy(g: &Graph) -> Vec<Coarsening> {
+/// The multigrid levels below `g`, down to [`COARSEST`] nodes; `fixed` marks its pinned
+/// nodes (each stays a node of its own on every level).
+fn hierarchy(g: &Graph, fixed: &[bool]) -> Vec<Coarsening> {
     let mut out: Vec<Coarsening> = Vec::new();
+    let mut fixed = fixed.to_vec();
     loop {
         let cur = out.last().map_or(g, |c| &c.coarse);
         if cur.nv() <= COARSEST {
             break;
         }
-        match Coarsening::new(cur) {
-            Some(c) => out.push(c),
+        match Coarsening::new(cur, &fixed) {
+            Some(c) => {
+                let mut next = vec![false; c.coarse.nv()];
+                for (i, &f) in fixed.iter().enumerate() {
+                    if f {
+                        next[c.agg[i] as usize] = true;
+                    }
+                }
+                fixed = next;
+                out.push(c);
+            }
             None => break,
         }
     }
@@ -1334,7 +1373,16 @@ impl OrientationField {
                     ..Default::default()
                 }
             }
-            Orientation::Constraints(p) => Constraints::load(p)?,
+            Orientation::Constraints(p) => {
+                let mut c = Constraints::load(p)?;
+                if opts.unit.is_finite() && opts.unit > 0.0 && opts.unit != 1.0 {
+                    for (point, radius, _) in &mut c.points {
+                        *point /= opts.unit;
+                        *radius = radius.map(|r| r / opts.unit);
+                    }
+                }
+                c
+            }
         };
         let nctl = surface.control.mesh.num_vertices();
         for (k, &(i, _)) in constraints.vertices.iter().enumerate() {
@@ -1367,7 +1415,8 @@ impl OrientationField {
             let mut lp = LevelProblem::new(&lm);
             set_targets(&mut lp, &lm, &constraints, opts.target_weight, diag)?;
             let prob = lp.problem();
-            let hier = hierarchy(&lp.graph);
+            let pins: Vec<bool> = lp.pinned.iter().map(|p| !p.x.is_nan()).collect();
+            let hier = hierarchy(&lp.graph, &pins);
             let (mut z, mut energy) = match &prev {
                 // Level 1, small: the linear relaxation solved as it is (its eigenvector
                 // places the singularities), big: the same on its multigrid levels.

@@ -690,7 +690,11 @@ impl Synthesizer {
 
         progress(Stage::Field, 0, 1);
         let t0 = Instant::now();
-        let field = OrientationField::compute(&surface, &self.orientation)
+        let field_opts = crate::field::FieldOptions {
+            unit,
+            ..Default::default()
+        };
+        let field = OrientationField::compute_with(&surface, &self.orientation, &field_opts)
             .map_err(|e| Error::invalid(format!("orientation field for {mesh_label}: {e:#}")))?;
         let frames = crate::synth::frames_f32(&field.texel_frames(&surface, n));
         let field_s = t0.elapsed().as_secs_f64();
