@@ -20,12 +20,19 @@
 //! next): on level 1 a linear relaxation gives the start — the smallest eigenvector of the
 //! connection Laplacian by inverse iteration for `auto` (Knöppel et al. 2013: this puts
 //! singularities only where topology forces them), or the quadratic relaxation of E with
-//! the targets — then on every level *nonlinear block Gauss–Seidel*: each vertex is set to
-//! the exact minimiser of E with its neighbours fixed, z_i = normalize(Σ_j c_ij z_j + λ a_i).
-//! Refined meshes are bipartite (every edge joins an edge point to a vertex or face point),
-//! so one sweep updates one colour class in parallel, then the other: no two updated
-//! vertices interact, so every half-sweep lowers E (recorded in [`OrientationField::history`])
-//! and the result does not depend on the thread count.
+//! the targets — then on every level *nonlinear multigrid*: the exact local minimiser
+//! z_i = normalize(Σ_j c_ij z_j + λ a_i) as smoother (red-black: refined meshes are
+//! bipartite, so one colour class is updated in parallel with the same result as in
+//! sequence), and coarse corrections on a greedy-aggregation hierarchy of the level's own
+//! graph. Why: plain Gauss–Seidel removes smooth errors only by O(h²) per sweep, so it
+//! needed 60 sweeps per level and never converged, and the CG relaxation over a big level 1
+//! grew faster than the mesh (a 200k-quad torus did not finish in 120 s). The coarse
+//! unknown is a turn r_A of every vertex of aggregate A; E(z·r) has the same form on the
+//! aggregate graph (see `coarse_problem`), so coarse levels are solved the same way and
+//! every coarse decrease is the fine one: E never rises (recorded per cycle in
+//! [`OrientationField::history`]) and the result does not depend on the thread count. A
+//! level 1 above `EXACT_MAX` vertices gets its relaxation on its own aggregates (`fmg`).
+//! docs/field.md has the measurements.
 //!
 //! # Across infinitely sharp creases
 //! A vertex on such a crease (or corner) has one tangent plane per *sector* (the faces
@@ -158,13 +165,20 @@ pub struct FieldOptions {
     /// λ, the weight of axis hints and sinks/sources against smoothness (per vertex; a
     /// vertex has about four edges, so 8 makes a target twice as strong as its neighbours).
     pub target_weight: f64,
-    /// Gauss–Seidel sweeps per level at most (the coarsest level gets 10x as many).
+    /// Gauss–Seidel sweeps at most on the coarsest multigrid level per visit (10x as many
+    /// on its first visit, and on a limit mesh small enough to need no coarser level).
     pub max_sweeps: usize,
-    /// A level stops when a sweep lowers E by less than this fraction.
+    /// V-cycles at most on the limit mesh (at least 2).
+    pub max_cycles: usize,
+    /// Relaxation and cycles stop when one lowers E by less than this fraction.
     pub tolerance: f64,
     /// The length over which `auto` wants the field straight (the builder: 28 example
     /// pixels, half of pf8's window). `None`: 1/16 of the bounding-box diagonal.
     pub structure_length: Option<f64>,
+    /// The surface is the user's mesh divided by this (the power of two the synthesizer
+    /// normalises far-from-unit meshes by): points and radii of a constraints file, in the
+    /// user's units, are divided by it too, so the field does not depend on the mesh's scale.
+    pub unit: f64,
 }
 
 impl Default for FieldOptions {
@@ -175,8 +189,10 @@ impl Default for FieldOptions {
             max_faces: 400_000,
             target_weight: 8.0,
             max_sweeps: 60,
+            max_cycles: 10,
             tolerance: 1e-7,
             structure_length: None,
+            unit: 1.0,
         }
     }
 }
@@ -348,12 +364,11 @@ fn conj(a: DVec2) -> DVec2 {
     DVec2::new(a.x, -a.y)
 }
 
-/// The optimisation problem on one level.
+/// The limit mesh of the field: its graph, connection and vertex frames.
 struct LevelProblem {
-    /// CSR adjacency: neighbours of i are nbr[start[i]..start[i+1]], with c_ij such that a
-    /// neighbour transported to i is c_ij z_j (c_ji = conj(c_ij)).
-    start: Vec<u32>,
-    nbr: Vec<u32>,
+    graph: Graph,
+    /// Per CSR entry, c_ij such that a neighbour transported to i is c_ij z_j
+    /// (c_ji = conj(c_ij)).
     coef: Vec<DVec2>,
     /// Tangent frame per vertex: e_i and f_i = n_i × e_i (at a vertex with one normal per
     /// side, the frame of its `vertex_corner`'s side).
@@ -366,8 +381,6 @@ struct LevelProblem {
     target: Vec<DVec2>,
     /// Pinned values (NaN = free).
     pinned: Vec<DVec2>,
-    /// Vertices of each colour class (bipartite split), or one class if not bipartite.
-    classes: Vec<Vec<u32>>,
 }
 
 impl LevelProblem {
@@ -445,17 +458,14 @@ impl LevelProblem {
             }
             start.push(nbr.len() as u32);
         }
-        let classes = two_colour(&start, &nbr);
         LevelProblem {
-            start,
-            nbr,
+            graph: Graph::new(start, nbr),
             coef,
             e,
             f,
             corner_frames,
             target: vec![DVec2::ZERO; nv],
             pinned: vec![DVec2::NAN; nv],
-            classes,
         }
     }
 
@@ -482,23 +492,134 @@ impl LevelProblem {
             .collect()
     }
 
-    /// E of the module doc (each edge counted once).
-    fn energy(&self, z: &[DVec2]) -> f64 {
+    /// The problem of the module doc on this mesh (every edge of weight 1).
+    fn problem(&self) -> Problem<'_> {
+        let n = self.nv();
+        Problem {
+            g: &self.graph,
+            coef: self.coef.clone(),
+            wgt: vec![1.0; self.coef.len()],
+            diag: (0..n).map(|i| self.graph.row(i).len() as f64).collect(),
+            mass: vec![1.0; n],
+            target: self.target.clone(),
+            pinned: self.pinned.clone(),
+        }
+    }
+}
+
+/// Nodes at most on the coarsest multigrid level, where the linear relaxation is solved
+/// directly (conjugate gradients, cheap at this size).
+const COARSEST: usize = 256;
+/// Level 1 of the limit meshes up to this many vertices gets the linear relaxation solved
+/// on itself (conjugate gradients, superlinear but fast at this size); above, on its
+/// multigrid levels ([`fmg`]).
+const EXACT_MAX: usize = 32_768;
+/// Gauss–Seidel sweeps before and after each coarse correction of a V-cycle.
+const SMOOTHING: usize = 2;
+/// Cycles on each coarse level per visit (2: a W-cycle).
+const CYCLE_INDEX: usize = 2;
+/// Stretch factors of the coarse correction tried besides 1 (see [`vcycle`]).
+const OVER_CORRECTION: [f64; 4] = [1.5, 2.0, 3.0, 4.0];
+/// Weight of a pinned vertex in a coarse problem built before any field exists (the first
+/// descent of [`fmg`]): a target this strong holds the aggregate to the pin.
+const PIN_WEIGHT: f64 = 1e4;
+
+/// A graph of the optimisation: CSR adjacency (symmetric) and the colour classes of the
+/// Gauss–Seidel sweeps.
+struct Graph {
+    start: Vec<u32>,
+    nbr: Vec<u32>,
+    /// Independent sets (no edge inside a class) covering every node: updating one class
+    /// in parallel is exactly a sequential sweep over it, for any thread count.
+    classes: Vec<Vec<u32>>,
+}
+
+impl Graph {
+    fn new(start: Vec<u32>, nbr: Vec<u32>) -> Self {
+        let classes = colour(&start, &nbr);
+        Graph {
+            start,
+            nbr,
+            classes,
+        }
+    }
+
+    fn nv(&self) -> usize {
+        self.start.len() - 1
+    }
+
+    #[inline]
+    fn row(&self, i: usize) -> std::ops::Range<usize> {
+        self.start[i] as usize..self.start[i + 1] as usize
+    }
+}
+
+/// The energy of the module doc on one graph — the limit mesh's vertices, or aggregates of
+/// a finer graph's nodes (a multigrid level) — for unit complex values z:
+///
+/// E(z) = Σ_edges |c_ij| − Re(z̄_i c_ij z_j) + Σ_i |a_i| − Re(z̄_i a_i).
+///
+/// On the limit mesh |c_ij| = 1 and a_i = λ × target; on a coarse level c_ij and a_i are
+/// sums over the fine edges and nodes an aggregate pair holds (see [`coarse_problem`]).
+struct Problem<'g> {
+    g: &'g Graph,
+    /// Per CSR entry: a neighbour transported to i is c_ij z_j (c_ji = conj(c_ij)).
+    coef: Vec<DVec2>,
+    /// |c_ij| (exactly 1 on a limit mesh).
+    wgt: Vec<f64>,
+    /// Diagonal of the quadratic relaxation z^H (D − C) z: the degree on a limit mesh,
+    /// the Galerkin diagonal on coarse levels.
+    diag: Vec<f64>,
+    /// Fine vertices per node (the mass matrix of the relaxation's eigenproblem).
+    mass: Vec<f64>,
+    /// a_i (already weighted), in the node's frame.
+    target: Vec<DVec2>,
+    /// Pinned values (NaN = free).
+    pinned: Vec<DVec2>,
+}
+
+impl Problem<'_> {
+    fn nv(&self) -> usize {
+        self.g.nv()
+    }
+
+    /// E of one node's edges to higher-numbered neighbours and its target, in the
+    /// well-conditioned form ½|c|·|z_i − ĉ z_j|² (= |c| − Re(z̄_i c z_j) for unit z), so
+    /// small energies are not lost to cancellation.
+    #[inline]
+    fn node_energy(&self, i: usize, z: &[DVec2]) -> f64 {
+        let zi = z[i];
         let mut s = 0.0;
-        for i in 0..self.nv() {
-            let zi = conj(z[i]);
-            for k in self.start[i] as usize..self.start[i + 1] as usize {
-                let j = self.nbr[k] as usize;
-                if j > i {
-                    s += 1.0 - cmul(zi, cmul(self.coef[k], z[j])).x;
-                }
-            }
-            let a = self.target[i];
-            if a != DVec2::ZERO {
-                s += a.length() - cmul(zi, a).x;
+        for k in self.g.row(i) {
+            let j = self.g.nbr[k] as usize;
+            let w = self.wgt[k];
+            if j > i && w > 0.0 {
+                let d = zi * w - cmul(self.coef[k], z[j]);
+                s += 0.5 * d.length_squared() / w;
             }
         }
+        let a = self.target[i];
+        let l = a.length();
+        if l > 0.0 {
+            s += 0.5 * l * (zi - a / l).length_squared();
+        }
         s
+    }
+
+    /// E (module doc). Partial sums over fixed blocks, added in order: the same value for
+    /// any thread count.
+    fn energy(&self, z: &[DVec2]) -> f64 {
+        const BLOCK: usize = 4096;
+        let n = self.nv();
+        let parts: Vec<f64> = (0..n.div_ceil(BLOCK))
+            .into_par_iter()
+            .map(|b| {
+                (b * BLOCK..((b + 1) * BLOCK).min(n))
+                    .map(|i| self.node_energy(i, z))
+                    .sum()
+            })
+            .collect();
+        parts.iter().sum()
     }
 
     /// The exact minimiser of E over z_i with the neighbours fixed.
@@ -508,8 +629,8 @@ impl LevelProblem {
             return self.pinned[i];
         }
         let mut s = self.target[i];
-        for k in self.start[i] as usize..self.start[i + 1] as usize {
-            s += cmul(self.coef[k], z[self.nbr[k] as usize]);
+        for k in self.g.row(i) {
+            s += cmul(self.coef[k], z[self.g.nbr[k] as usize]);
         }
         let l = s.length();
         if l > 1e-300 {
@@ -519,33 +640,39 @@ impl LevelProblem {
         }
     }
 
-    /// Nonlinear block Gauss–Seidel until E stalls; returns E after every half-sweep.
-    fn optimise(&self, z: &mut [DVec2], sweeps: usize, tol: f64) -> Vec<f64> {
+    /// One nonlinear Gauss–Seidel sweep, class after class; E never rises.
+    fn sweep(&self, z: &mut [DVec2], buf: &mut Vec<DVec2>) {
+        for class in &self.g.classes {
+            if class.len() < 2048 {
+                // No edge inside a class: in place is the same as all at once.
+                for &i in class {
+                    z[i as usize] = self.local_optimum(i as usize, z);
+                }
+            } else {
+                buf.clear();
+                buf.resize(class.len(), DVec2::ZERO);
+                let zr: &[DVec2] = z;
+                buf.par_iter_mut()
+                    .with_min_len(1024)
+                    .zip(class.par_iter())
+                    .for_each(|(out, &i)| *out = self.local_optimum(i as usize, zr));
+                for (k, &i) in class.iter().enumerate() {
+                    z[i as usize] = buf[k];
+                }
+            }
+        }
+    }
+
+    /// Sweeps until E stalls (a sweep lowers it by at most `tol` of itself); returns E
+    /// after the start and after every sweep.
+    fn relax(&self, z: &mut [DVec2], sweeps: usize, tol: f64) -> Vec<f64> {
         let mut hist = vec![self.energy(z)];
-        let mut buf: Vec<DVec2> = Vec::new();
+        let mut buf = Vec::new();
         for _ in 0..sweeps {
             let before = *hist.last().unwrap();
-            for class in &self.classes {
-                if self.classes.len() == 1 {
-                    // Not bipartite: sequential sweep (still monotone, still deterministic).
-                    for &i in class {
-                        z[i as usize] = self.local_optimum(i as usize, z);
-                    }
-                } else {
-                    buf.clear();
-                    buf.resize(class.len(), DVec2::ZERO);
-                    let zr: &[DVec2] = z;
-                    buf.par_iter_mut()
-                        .with_min_len(1024)
-                        .zip(class.par_iter())
-                        .for_each(|(out, &i)| *out = self.local_optimum(i as usize, zr));
-                    for (k, &i) in class.iter().enumerate() {
-                        z[i as usize] = buf[k];
-                    }
-                }
-                hist.push(self.energy(z));
-            }
-            let after = *hist.last().unwrap();
+            self.sweep(z, &mut buf);
+            let after = self.energy(z);
+            hist.push(after);
             if before - after <= tol * before.max(1e-300) {
                 break;
             }
@@ -553,19 +680,18 @@ impl LevelProblem {
         hist
     }
 
-    /// y = (L + W) x, W = diag(w) (the connection Laplacian plus a diagonal).
+    /// y = (D + W − C) x, W = diag(w): the relaxation's Hermitian form plus a diagonal.
     fn apply(&self, w: &[f64], x: &[DVec2], y: &mut [DVec2]) {
         for i in 0..self.nv() {
-            let (a, b) = (self.start[i] as usize, self.start[i + 1] as usize);
-            let mut s = x[i] * ((b - a) as f64 + w[i]);
-            for k in a..b {
-                s -= cmul(self.coef[k], x[self.nbr[k] as usize]);
+            let mut s = x[i] * (self.diag[i] + w[i]);
+            for k in self.g.row(i) {
+                s -= cmul(self.coef[k], x[self.g.nbr[k] as usize]);
             }
             y[i] = s;
         }
     }
 
-    /// Conjugate gradients for the Hermitian positive definite (L + W) x = b.
+    /// Conjugate gradients for the Hermitian positive definite (D + W − C) x = b.
     fn solve(&self, w: &[f64], b: &[DVec2], x: &mut [DVec2], iters: usize, tol: f64) {
         let n = self.nv();
         let dot = |a: &[DVec2], b: &[DVec2]| -> f64 {
@@ -604,7 +730,7 @@ impl LevelProblem {
         }
     }
 
-    /// Start of level 1: the linear relaxation (see the module doc).
+    /// The linear relaxation on the coarsest level (see the module doc).
     fn initial(&self) -> Vec<DVec2> {
         let n = self.nv();
         let has_targets = self.target.iter().any(|a| *a != DVec2::ZERO)
@@ -633,16 +759,20 @@ impl LevelProblem {
             }
             self.solve(&w, &b, &mut z, 4 * n + 100, 1e-10);
         } else {
-            // Inverse iteration: the smallest eigenvector of L.
-            let w = vec![1e-6; n];
+            // Inverse iteration: the smallest eigenvector of L x = μ M x.
+            let w: Vec<f64> = self.mass.iter().map(|m| 1e-6 * m).collect();
             let mut x = vec![DVec2::ZERO; n];
+            let mut b = vec![DVec2::ZERO; n];
             for _ in 0..30 {
                 let norm = z.iter().map(|c| c.length_squared()).sum::<f64>().sqrt();
                 for c in z.iter_mut() {
                     *c /= norm;
                 }
                 x.copy_from_slice(&z);
-                self.solve(&w, &z, &mut x, 2 * n + 100, 1e-8);
+                for i in 0..n {
+                    b[i] = z[i] * self.mass[i];
+                }
+                self.solve(&w, &b, &mut x, 2 * n + 100, 1e-8);
                 std::mem::swap(&mut z, &mut x);
             }
         }
@@ -658,6 +788,373 @@ impl LevelProblem {
         }
         z
     }
+}
+
+/// One multigrid coarsening: nodes grouped into aggregates (a node and its free
+/// neighbours, the rest joining a neighbouring aggregate; Vaněk et al.'s greedy
+/// aggregation), and the graph of aggregates. It depends on the graph only; the coarse
+/// problem's values are rebuilt from the current field every cycle ([`coarse_problem`]).
+struct Coarsening {
+    /// Aggregate of every fine node.
+    agg: Vec<u32>,
+    /// Fine nodes of aggregate a: members[mstart[a]..mstart[a + 1]], ascending.
+    mstart: Vec<u32>,
+    members: Vec<u32>,
+    /// For every fine CSR entry: its coarse CSR entry, or `u32::MAX` inside an aggregate.
+    map: Vec<u32>,
+    /// The fine CSR entry through which a node joined its aggregate (`u32::MAX` at roots),
+    /// and whether it joined the root (1) or a neighbour of it (2); 0 at roots.
+    via: Vec<u32>,
+    pass: Vec<u8>,
+    coarse: Graph,
+}
+
+impl Coarsening {
+    /// None when the graph barely shrinks (nothing left to gain). `fixed` nodes (pins)
+    /// stay alone, one aggregate each, so a pin holds only itself on every level, never
+    /// the aggregates around it.
+    fn new(g: &Graph, fixed: &[bool]) -> Option<Self> {
+        const FREE: u32 = u32::MAX;
+        let n = g.nv();
+        let mut agg = vec![FREE; n];
+        let mut via = vec![FREE; n];
+        let mut pass = vec![0u8; n];
+        let mut na = 0u32;
+        for i in 0..n {
+            if fixed[i]
+                || agg[i] != FREE
+                || g.row(i).any(|k| {
+                    let j = g.nbr[k] as usize;
+                    !fixed[j] && agg[j] != FREE
+                })
+            {
+                continue;
+            }
+            agg[i] = na;
+            for k in g.row(i) {
+                let j = g.nbr[k] as usize;
+                if fixed[j] {
+                    continue;
+                }
+                agg[j] = na;
+                pass[j] = 1;
+                via[j] = g
+                    .row(j)
+                    .find(|&kk| g.nbr[kk] as usize == i)
+                    .expect("adjacency is symmetric") as u32;
+            }
+            na += 1;
+        }
+        // Every node still free has a neighbour aggregated above (else it would be a root).
+        for i in 0..n {
+            if fixed[i] {
+                agg[i] = na;
+                na += 1;
+                continue;
+            }
+            if agg[i] != FREE {
+                continue;
+            }
+            let k = g
+                .row(i)
+                .find(|&k| {
+                    let j = g.nbr[k] as usize;
+                    !fixed[j] && agg[j] != FREE && pass[j] <= 1
+                })
+                .expect("a free node neighbours an aggregate");
+            agg[i] = agg[g.nbr[k] as usize];
+            via[i] = k as u32;
+            pass[i] = 2;
+        }
+        let na = na as usize;
+        if na as f64 > 0.75 * n as f64 {
+            return None;
+        }
+        let mut mstart = vec![0u32; na + 1];
+        for &a in &agg {
+            mstart[a as usize + 1] += 1;
+        }
+        for a in 0..na {
+            mstart[a + 1] += mstart[a];
+        }
+        let mut fill = mstart.clone();
+        let mut members = vec![0u32; n];
+        for (i, &a) in agg.iter().enumerate() {
+            members[fill[a as usize] as usize] = i as u32;
+            fill[a as usize] += 1;
+        }
+        let mut map = vec![u32::MAX; g.nbr.len()];
+        let mut start = Vec::with_capacity(na + 1);
+        let mut nbr = Vec::new();
+        let mut seen = vec![u32::MAX; na];
+        let mut pos = vec![0u32; na];
+        start.push(0u32);
+        for a in 0..na {
+            for &i in &members[mstart[a] as usize..mstart[a + 1] as usize] {
+                for k in g.row(i as usize) {
+                    let b = agg[g.nbr[k] as usize] as usize;
+                    if b == a {
+                        continue;
+                    }
+                    if seen[b] != a as u32 {
+                        seen[b] = a as u32;
+                        pos[b] = nbr.len() as u32;
+                        nbr.push(b as u32);
+                    }
+                    map[k] = pos[b];
+                }
+            }
+            start.push(nbr.len() as u32);
+        }
+        Some(Coarsening {
+            agg,
+            mstart,
+            members,
+            map,
+            via,
+            pass,
+            coarse: Graph::new(start, nbr),
+        })
+    }
+
+    fn members(&self, a: usize) -> &[u32] {
+        &self.members[self.mstart[a] as usize..self.mstart[a + 1] as usize]
+    }
+
+    /// A field that is parallel inside every aggregate (each node the root's value
+    /// transported along the edge it joined by), with every root at 1: the start of the
+    /// first descent, where no field exists yet.
+    fn transports(&self, p: &Problem) -> Vec<DVec2> {
+        let n = self.agg.len();
+        let mut t = vec![DVec2::X; n];
+        // Roots first (1), then their neighbours, then the nodes that joined those.
+        for step in 1..=2u8 {
+            for i in 0..n {
+                if self.pass[i] == step {
+                    let k = self.via[i] as usize;
+                    let j = p.g.nbr[k] as usize;
+                    t[i] = cmul(p.coef[k], t[j]).try_normalize().unwrap_or(DVec2::X);
+                }
+            }
+        }
+        t
+    }
+}
+
+/// The coarse problem of `p` at the field `z`: the energy of turning every aggregate by a
+/// unit complex r_A (each fine z_i → z_i r_A). Inside an aggregate nothing changes; across,
+/// E(z·r) = Σ_AB |C_AB| − Re(r̄_A C_AB r_B) + Σ_A |T_A| − Re(r̄_A T_A) + const, with
+/// C_AB = Σ z̄_i c_ij z_j over the fine edges between A and B and T_A = Σ z̄_i a_i: the
+/// same form as E, so the coarse level is solved the same way, and every decrease of the
+/// coarse energy is the same decrease of the fine one. Aggregates holding a pinned vertex
+/// stay at r = 1, or — with `pins_as_targets`, before any field exists — are pulled to
+/// the pin by a strong target.
+fn coarse_problem<'c>(
+    p: &Problem,
+    c: &'c Coarsening,
+    z: &[DVec2],
+    pins_as_targets: bool,
+) -> Problem<'c> {
+    let na = c.coarse.nv();
+    let mut coef = vec![DVec2::ZERO; c.coarse.nbr.len()];
+    // Every aggregate fills its own row (and scalars): in parallel, each in a fixed order.
+    let mut rows: Vec<&mut [DVec2]> = Vec::with_capacity(na);
+    let mut tail: &mut [DVec2] = &mut coef;
+    for a in 0..na {
+        let (row, rest) = tail.split_at_mut(c.coarse.row(a).len());
+        rows.push(row);
+        tail = rest;
+    }
+    let scalars: Vec<(f64, f64, DVec2, DVec2)> = rows
+        .into_par_iter()
+        .enumerate()
+        .with_min_len(256)
+        .map(|(a, row)| {
+            let base = c.coarse.start[a];
+            let (mut diag, mut mass, mut target, mut pinned) = (0.0, 0.0, DVec2::ZERO, DVec2::NAN);
+            for &i in c.members(a) {
+                let i = i as usize;
+                let zi = conj(z[i]);
+                mass += p.mass[i];
+                diag += p.diag[i];
+                target += cmul(zi, p.target[i]);
+                if !p.pinned[i].x.is_nan() {
+                    if pins_as_targets {
+                        target += cmul(zi, p.pinned[i]) * PIN_WEIGHT;
+                    } else {
+                        pinned = DVec2::X;
+                    }
+                }
+                for k in p.g.row(i) {
+                    let v = cmul(zi, cmul(p.coef[k], z[p.g.nbr[k] as usize]));
+                    match c.map[k] {
+                        u32::MAX => diag -= v.x,
+                        m => row[(m - base) as usize] += v,
+                    }
+                }
+            }
+            (diag, mass, target, pinned)
+        })
+        .collect();
+    let diag = scalars.iter().map(|s| s.0).collect();
+    let mass = scalars.iter().map(|s| s.1).collect();
+    let target = scalars.iter().map(|s| s.2).collect();
+    let pinned = scalars.iter().map(|s| s.3).collect();
+    let wgt = coef.iter().map(|c| c.length()).collect();
+    Problem {
+        g: &c.coarse,
+        coef,
+        wgt,
+        diag,
+        mass,
+        target,
+        pinned,
+    }
+}
+
+/// Turns every node by its aggregate's coarse value (pins stay).
+fn prolong(p: &Problem, c: &Coarsening, r: &[DVec2], z: &mut [DVec2]) {
+    for (i, zi) in z.iter_mut().enumerate() {
+        if p.pinned[i].x.is_nan() {
+            *zi = cmul(*zi, r[c.agg[i] as usize])
+                .try_normalize()
+                .unwrap_or(*zi);
+        }
+    }
+}
+
+/// A field from nothing, coarse to fine (full multigrid): the coarsest level gets the
+/// linear relaxation, every finer one the coarse result turned onto its aggregates, then
+/// one V-cycle.
+fn fmg(p: &Problem, hier: &[Coarsening], opts: &FieldOptions) -> Vec<DVec2> {
+    let Some((c, rest)) = hier.split_first() else {
+        let mut z = p.initial();
+        p.relax(&mut z, opts.max_sweeps * 10, opts.tolerance);
+        return z;
+    };
+    let mut z = c.transports(p);
+    let q = coarse_problem(p, c, &z, true);
+    let r = fmg(&q, rest, opts);
+    prolong(p, c, &r, &mut z);
+    for (i, zi) in z.iter_mut().enumerate() {
+        if !p.pinned[i].x.is_nan() {
+            *zi = p.pinned[i];
+        }
+    }
+    vcycle(p, &mut z, hier, opts);
+    z
+}
+
+/// One V-cycle: smooth, correct by the coarse problem's rotations (recursively), smooth.
+/// E never rises.
+fn vcycle(p: &Problem, z: &mut [DVec2], hier: &[Coarsening], opts: &FieldOptions) {
+    let mut buf = Vec::new();
+    let Some((c, rest)) = hier.split_first() else {
+        // The coarsest level (small): relaxed until E stalls.
+        p.relax(z, opts.max_sweeps, opts.tolerance);
+        return;
+    };
+    for _ in 0..SMOOTHING {
+        p.sweep(z, &mut buf);
+    }
+    let q = coarse_problem(p, c, z, false);
+    let mut r = vec![DVec2::X; q.nv()];
+    for _ in 0..CYCLE_INDEX {
+        vcycle(&q, &mut r, rest, opts);
+    }
+    // Over-correction: piecewise-constant rotations under-estimate the smooth corrections
+    // (aggregation multigrid), so the turn is stretched by the best factor on the coarse
+    // energy, which is the fine energy's change exactly; 1 is a candidate, so E cannot rise.
+    let mut best = (q.energy(&r), 1.0);
+    let mut scaled = r.clone();
+    for alpha in OVER_CORRECTION {
+        for (s, x) in scaled.iter_mut().zip(&r) {
+            let (sn, cs) = (x.y.atan2(x.x) * alpha).sin_cos();
+            *s = DVec2::new(cs, sn);
+        }
+        for (s, pin) in scaled.iter_mut().zip(&q.pinned) {
+            if !pin.x.is_nan() {
+                *s = *pin;
+            }
+        }
+        let e = q.energy(&scaled);
+        if e < best.0 {
+            best = (e, alpha);
+        }
+    }
+    if best.1 != 1.0 {
+        for x in r.iter_mut() {
+            let (sn, cs) = (x.y.atan2(x.x) * best.1).sin_cos();
+            *x = DVec2::new(cs, sn);
+        }
+        for (x, pin) in r.iter_mut().zip(&q.pinned) {
+            if !pin.x.is_nan() {
+                *x = *pin;
+            }
+        }
+    }
+    prolong(p, c, &r, z);
+    for _ in 0..SMOOTHING {
+        p.sweep(z, &mut buf);
+    }
+}
+
+/// The multigrid levels below `g`, down to [`COARSEST`] nodes; `fixed` marks its pinned
+/// nodes (each stays a node of its own on every level).
+fn hierarchy(g: &Graph, fixed: &[bool]) -> Vec<Coarsening> {
+    let mut out: Vec<Coarsening> = Vec::new();
+    let mut fixed = fixed.to_vec();
+    loop {
+        let cur = out.last().map_or(g, |c| &c.coarse);
+        if cur.nv() <= COARSEST {
+            break;
+        }
+        match Coarsening::new(cur, &fixed) {
+            Some(c) => {
+                let mut next = vec![false; c.coarse.nv()];
+                for (i, &f) in fixed.iter().enumerate() {
+                    if f {
+                        next[c.agg[i] as usize] = true;
+                    }
+                }
+                fixed = next;
+                out.push(c);
+            }
+            None => break,
+        }
+    }
+    out
+}
+
+/// Splits nodes into independent sets: two classes when the graph is bipartite (refined
+/// meshes are: every edge joins an edge point to a vertex or face point), else greedy
+/// colours in index order.
+fn colour(start: &[u32], nbr: &[u32]) -> Vec<Vec<u32>> {
+    if let Some(two) = two_colour(start, nbr) {
+        return two;
+    }
+    let n = start.len() - 1;
+    let mut col = vec![u32::MAX; n];
+    let mut stamp: Vec<u32> = Vec::new();
+    let mut classes: Vec<Vec<u32>> = Vec::new();
+    for i in 0..n {
+        for &j in &nbr[start[i] as usize..start[i + 1] as usize] {
+            let cj = col[j as usize];
+            if cj != u32::MAX {
+                stamp[cj as usize] = i as u32;
+            }
+        }
+        let c = (0..stamp.len())
+            .find(|&c| stamp[c] != i as u32)
+            .unwrap_or_else(|| {
+                stamp.push(u32::MAX);
+                classes.push(Vec::new());
+                stamp.len() - 1
+            });
+        col[i] = c as u32;
+        classes[c].push(i as u32);
+    }
+    classes
 }
 
 /// The tangent frame (e, n × e) of every face corner's side at the vertices of `lm` with one
@@ -786,9 +1283,9 @@ fn align_global_rotation(lm: &LimitMesh, v1: &mut [DVec3], corner_v1: &mut HashM
     }
 }
 
-/// Splits vertices into two classes with no edge inside a class (BFS), or one class if the
+/// Splits vertices into two classes with no edge inside a class (BFS), or None if the
 /// graph is not bipartite.
-fn two_colour(start: &[u32], nbr: &[u32]) -> Vec<Vec<u32>> {
+fn two_colour(start: &[u32], nbr: &[u32]) -> Option<Vec<Vec<u32>>> {
     let n = start.len() - 1;
     let mut col = vec![u8::MAX; n];
     let mut queue = Vec::new();
@@ -809,14 +1306,14 @@ fn two_colour(start: &[u32], nbr: &[u32]) -> Vec<Vec<u32>> {
                     col[j] = 1 - col[i];
                     queue.push(j as u32);
                 } else if col[j] == col[i] {
-                    return vec![(0..n as u32).collect()];
+                    return None;
                 }
             }
         }
     }
     let a = (0..n as u32).filter(|&i| col[i as usize] == 0).collect();
     let b = (0..n as u32).filter(|&i| col[i as usize] == 1).collect();
-    vec![a, b]
+    Some(vec![a, b])
 }
 
 /// The level the field lives on: [`FieldOptions::level`], or the finest automatic one.
@@ -940,7 +1437,16 @@ impl OrientationField {
                     ..Default::default()
                 }
             }
-            Orientation::Constraints(p) => Constraints::load(p)?,
+            Orientation::Constraints(p) => {
+                let mut c = Constraints::load(p)?;
+                if opts.unit.is_finite() && opts.unit > 0.0 && opts.unit != 1.0 {
+                    for (point, radius, _) in &mut c.points {
+                        *point /= opts.unit;
+                        *radius = radius.map(|r| r / opts.unit);
+                    }
+                }
+                c
+            }
         };
         let nctl = surface.control.mesh.num_vertices();
         for (k, &(i, _)) in constraints.vertices.iter().enumerate() {
@@ -961,37 +1467,68 @@ impl OrientationField {
         let mut prev: Option<(LimitMesh, Vec<DVec3>, HashMap<u32, DVec3>)> = None;
         for lev in 1..=level {
             let lm = surface.limit_mesh(lev);
-            let mut prob = LevelProblem::new(&lm);
-            set_targets(&mut prob, &lm, &constraints, opts.target_weight, diag)?;
-            let mut z = match &prev {
-                None => prob.initial(),
-                Some((plm, pv1, pcv1)) => (0..prob.nv())
-                    .map(|i| {
-                        if !prob.pinned[i].x.is_nan() {
-                            return prob.pinned[i];
-                        }
-                        let (acc, best) = blend(plm, pv1, pcv1, lm.vertex_location[i]);
-                        let mut c = prob.to_complex(i, acc);
-                        if c.length() < 1e-9 {
-                            c = prob.to_complex(i, best);
-                        }
-                        c.try_normalize().unwrap_or(DVec2::X)
-                    })
-                    .collect(),
+            let mut lp = LevelProblem::new(&lm);
+            set_targets(&mut lp, &lm, &constraints, opts.target_weight, diag)?;
+            let prob = lp.problem();
+            let pins: Vec<bool> = lp.pinned.iter().map(|p| !p.x.is_nan()).collect();
+            let hier = hierarchy(&lp.graph, &pins);
+            let (mut z, mut energy) = match &prev {
+                // Level 1, small: the linear relaxation solved as it is (its eigenvector
+                // places the singularities), big: the same on its multigrid levels.
+                None if hier.is_empty() || prob.nv() <= EXACT_MAX => {
+                    let mut z = prob.initial();
+                    let e = if hier.is_empty() {
+                        prob.relax(&mut z, opts.max_sweeps * 10, opts.tolerance)
+                    } else {
+                        vec![prob.energy(&z)]
+                    };
+                    (z, e)
+                }
+                None => {
+                    let z = fmg(&prob, &hier, opts);
+                    let e = vec![prob.energy(&z)];
+                    (z, e)
+                }
+                Some((plm, pv1, pcv1)) => {
+                    let z: Vec<DVec2> = (0..lp.nv())
+                        .map(|i| {
+                            if !lp.pinned[i].x.is_nan() {
+                                return lp.pinned[i];
+                            }
+                            let (acc, best) = blend(plm, pv1, pcv1, lm.vertex_location[i]);
+                            let mut c = lp.to_complex(i, acc);
+                            if c.length() < 1e-9 {
+                                c = lp.to_complex(i, best);
+                            }
+                            c.try_normalize().unwrap_or(DVec2::X)
+                        })
+                        .collect();
+                    let e = vec![prob.energy(&z)];
+                    (z, e)
+                }
             };
-            let sweeps = if lev == 1 {
-                opts.max_sweeps * 10
+            if hier.is_empty() {
+                if prev.is_some() {
+                    energy = prob.relax(&mut z, opts.max_sweeps, opts.tolerance);
+                }
             } else {
-                opts.max_sweeps
-            };
-            let energy = prob.optimise(&mut z, sweeps, opts.tolerance);
+                for cycle in 0..opts.max_cycles.max(2) {
+                    let before = *energy.last().unwrap();
+                    vcycle(&prob, &mut z, &hier, opts);
+                    let after = prob.energy(&z);
+                    energy.push(after);
+                    if cycle >= 1 && before - after <= opts.tolerance * before.max(1e-300) {
+                        break;
+                    }
+                }
+            }
             history.push(LevelHistory {
                 level: lev,
-                vertices: prob.nv(),
+                vertices: lp.nv(),
                 energy,
             });
-            let v1: Vec<DVec3> = (0..prob.nv()).map(|i| prob.to_3d(i, z[i])).collect();
-            let corner_v1 = prob.corner_v1(&lm, &z);
+            let v1: Vec<DVec3> = (0..lp.nv()).map(|i| lp.to_3d(i, z[i])).collect();
+            let corner_v1 = lp.corner_v1(&lm, &z);
             prev = Some((lm, v1, corner_v1));
         }
         let (mesh, mut v1, mut corner_v1) = prev.expect("at least one level");

@@ -233,3 +233,81 @@ fn auto_field_on_flat_grids_follows_world_x_then_y() {
         assert!(worst < 1e-6, "{rot:?}: v1 off {want} by {worst}°");
     }
 }
+
+/// Issue 18: the synthesizer divides a far-from-unit mesh by a power of two; constraint
+/// points and radii (in the user's units) must follow (`FieldOptions::unit`), so a
+/// constraints file and its mesh both scaled by 1e6 give the same field.
+#[test]
+fn constraints_scaled_with_the_mesh_give_the_same_field() {
+    use subdiv::ControlMesh;
+    let dir = tempfile::tempdir().unwrap();
+    let write = |name: &str, k: f64| {
+        let p = dir.path().join(name);
+        std::fs::write(
+            &p,
+            format!(
+                "sink {} {} {} {}\nsource {} {} {}\n",
+                0.0,
+                0.3 * k,
+                0.3 * k,
+                0.4 * k,
+                0.0,
+                -0.3 * k,
+                -0.3 * k
+            ),
+        )
+        .unwrap();
+        p
+    };
+    let opts = FieldOptions {
+        level: Some(3),
+        ..Default::default()
+    };
+    let control = ControlMesh::load_obj(common::data("meshes/spot_control_mesh.obj")).unwrap();
+    let a = OrientationField::compute_with(
+        &Surface::new(control.clone()),
+        &Orientation::Constraints(write("a.txt", 1.0)),
+        &opts,
+    )
+    .unwrap();
+    // The user's mesh, 1e6 times larger, normalised as the synthesizer does.
+    let mut big = control;
+    for p in &mut big.mesh.positions {
+        *p *= 1e6;
+    }
+    let unit = surfsynth::memory::normalising_unit(&big);
+    assert!(unit > 1e5, "{unit}");
+    for p in &mut big.mesh.positions {
+        *p /= unit;
+    }
+    let k = 1e6 / unit;
+    let run = |unit: f64| {
+        OrientationField::compute_with(
+            &Surface::new(big.clone()),
+            &Orientation::Constraints(write("b.txt", 1e6)),
+            &FieldOptions {
+                unit,
+                ..opts.clone()
+            },
+        )
+        .unwrap()
+    };
+    let b = run(unit);
+    let worst = a
+        .vertex_v1()
+        .iter()
+        .zip(b.vertex_v1())
+        .map(|(x, y)| x.angle_between(*y).to_degrees())
+        .fold(0.0f64, f64::max);
+    println!("scale {k}: worst {worst:.2e}°");
+    assert!(worst < 1e-3, "v1 differs by {worst}° at scale 1e6");
+    // Without the unit the points land 2^20 times too far: the field differs.
+    let c = run(1.0);
+    let off = a
+        .vertex_v1()
+        .iter()
+        .zip(c.vertex_v1())
+        .map(|(x, y)| x.angle_between(*y).to_degrees())
+        .fold(0.0f64, f64::max);
+    assert!(off > 1.0, "the test cannot fail: {off}°");
+}

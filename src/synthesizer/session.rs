@@ -331,6 +331,7 @@ impl Session {
         // `auto` wants the field straight over half of pf8's window (BRIEF).
         let field_options = crate::field::FieldOptions {
             structure_length: Some(crate::field::STRUCTURE_PIXELS * scale),
+            unit,
             ..Default::default()
         };
         let field = OrientationField::compute_with(&surface, &settings.orientation, &field_options)
@@ -610,11 +611,14 @@ impl Session {
             texel_spacing: spacing,
             resolution: n,
             orientation: orientation_label(&self.orientation),
-            orientation_choice: self.field.choice().map(|c| crate::report::OrientationChoice {
-                chosen: c.chosen.clone(),
-                structure_length: c.length * self.unit,
-                bent_fraction: c.scores.clone(),
-            }),
+            orientation_choice: self
+                .field
+                .choice()
+                .map(|c| crate::report::OrientationChoice {
+                    chosen: c.chosen.clone(),
+                    structure_length: c.length * self.unit,
+                    bent_fraction: c.scores.clone(),
+                }),
             faces,
             control_faces: surface.control.mesh.num_faces(),
             texels: (faces * n * n) as u64,
