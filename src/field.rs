@@ -60,7 +60,7 @@ use subdiv::{BaseLocation, DomainId, FaceId, LimitMesh, Surface, VertexId};
 mod choice;
 pub use choice::{bent_fraction, Choice};
 
-/// Example pixels over which `auto` wants the field straight: half the extent of BRIEF's
+/// Example pixels over which `straight` wants the field straight: half the extent of BRIEF's
 /// pf8 window (7 samples 8 px apart plus the discs), so a window centred anywhere sees rows
 /// bend by at most [`choice::TURN`] on either side.
 pub const STRUCTURE_PIXELS: f64 = 28.0;
@@ -68,12 +68,12 @@ pub const STRUCTURE_PIXELS: f64 = 28.0;
 /// How the field is chosen.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Orientation {
+    /// The smoothest field (singularities only where topology forces them).
+    Auto,
     /// The straightest of the smooth field and the three world-axis fields, scored on a
     /// coarse level by the area where the frame turns fast over the structure length
     /// ([`FieldOptions::structure_length`]; module `choice` says why and how).
-    Auto,
-    /// The smoothest field (singularities only where topology forces them).
-    Smooth,
+    Straight,
     /// Closest to a world axis projected on the tangent planes, then smoothed.
     Axis(DVec3),
     /// Constraints from a file (see docs/field.md).
@@ -86,7 +86,7 @@ impl Orientation {
         let axis = |v: DVec3| Orientation::Axis(v);
         match s.trim() {
             "auto" => Orientation::Auto,
-            "smooth" => Orientation::Smooth,
+            "straight" => Orientation::Straight,
             "+x" | "x" => axis(DVec3::X),
             "-x" => axis(DVec3::NEG_X),
             "+y" | "y" => axis(DVec3::Y),
@@ -101,7 +101,7 @@ impl Orientation {
     pub fn label(&self) -> String {
         match self {
             Orientation::Auto => "auto".into(),
-            Orientation::Smooth => "smooth".into(),
+            Orientation::Straight => "straight".into(),
             Orientation::Axis(a) => {
                 let names = [
                     (DVec3::X, "+x"),
@@ -172,7 +172,7 @@ pub struct FieldOptions {
     pub max_cycles: usize,
     /// Relaxation and cycles stop when one lowers E by less than this fraction.
     pub tolerance: f64,
-    /// The length over which `auto` wants the field straight (the builder: 28 example
+    /// The length over which `straight` wants the field straight (the builder: 28 example
     /// pixels, half of pf8's window). `None`: 1/16 of the bounding-box diagonal.
     pub structure_length: Option<f64>,
     /// The surface is the user's mesh divided by this (the power of two the synthesizer
@@ -227,7 +227,7 @@ pub struct OrientationField {
     corner_v1: HashMap<u32, DVec3>,
     history: Vec<LevelHistory>,
     label: String,
-    /// What `auto` chose (None for every other orientation).
+    /// What `straight` chose (None for every other orientation).
     choice: Option<Choice>,
 }
 
@@ -1385,14 +1385,14 @@ impl OrientationField {
         Self::compute_with(surface, orientation, &FieldOptions::default())
     }
 
-    /// Computes the field (see the module doc for the method); `auto` scores the
+    /// Computes the field (see the module doc for the method); `straight` scores the
     /// candidates first (module `choice`).
     pub fn compute_with(
         surface: &Surface,
         orientation: &Orientation,
         opts: &FieldOptions,
     ) -> anyhow::Result<Self> {
-        if *orientation != Orientation::Auto {
+        if *orientation != Orientation::Straight {
             return Self::compute_fixed(surface, orientation, opts);
         }
         let length = opts.structure_length.unwrap_or_else(|| {
@@ -1410,19 +1410,19 @@ impl OrientationField {
         Ok(field)
     }
 
-    /// What `auto` chose and the candidates' scores (None for other orientations).
+    /// What `straight` chose and the candidates' scores (None for other orientations).
     pub fn choice(&self) -> Option<&Choice> {
         self.choice.as_ref()
     }
 
-    /// The field of one orientation that needs no choosing (not `auto`).
+    /// The field of one orientation that needs no choosing (not `straight`).
     fn compute_fixed(
         surface: &Surface,
         orientation: &Orientation,
         opts: &FieldOptions,
     ) -> anyhow::Result<Self> {
         let constraints = match orientation {
-            Orientation::Auto | Orientation::Smooth => Constraints::default(),
+            Orientation::Auto | Orientation::Straight => Constraints::default(),
             Orientation::Axis(a) => {
                 if a.length() < 1e-12 || !a.is_finite() {
                     bail!(
@@ -1532,7 +1532,7 @@ impl OrientationField {
             prev = Some((lm, v1, corner_v1));
         }
         let (mesh, mut v1, mut corner_v1) = prev.expect("at least one level");
-        if *orientation == Orientation::Smooth {
+        if *orientation == Orientation::Auto {
             align_global_rotation(&mesh, &mut v1, &mut corner_v1);
         }
         Ok(OrientationField {

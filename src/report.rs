@@ -69,7 +69,7 @@ pub struct Report {
     pub texel_spacing: f64,
     pub resolution: usize,
     pub orientation: String,
-    /// What `--orient auto` chose and every candidate's score (absent otherwise).
+    /// What `--orient straight` chose and every candidate's score (absent otherwise).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub orientation_choice: Option<OrientationChoice>,
     /// Face domains F.
@@ -110,10 +110,10 @@ pub struct Report {
     pub cache: crate::synth::analysis::CacheReport,
 }
 
-/// `auto`'s choice among candidate fields ([`crate::field::Choice`]).
+/// `straight`'s choice among candidate fields ([`crate::field::Choice`]).
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct OrientationChoice {
-    /// `smooth`, `+x`, `+y` or `+z`.
+    /// `auto` (the smooth field), `+x`, `+y` or `+z`.
     pub chosen: String,
     /// Surface length (user units) over which straightness was scored.
     pub structure_length: f64,

@@ -709,7 +709,7 @@ fn mesh_source_label(mesh: &MeshSource) -> String {
 fn orientation_label(o: &Orientation) -> String {
     match o {
         Orientation::Auto => "auto".into(),
-        Orientation::Smooth => "smooth".into(),
+        Orientation::Straight => "straight".into(),
         Orientation::Axis(a) => format!("axis ({}, {}, {})", a.x, a.y, a.z),
         Orientation::Constraints(p) => p.display().to_string(),
     }

@@ -1,7 +1,7 @@
-//! `--orient auto`: the straightest of a few candidate fields.
+//! `--orient straight`: the straightest of a few candidate fields.
 //!
 //! # Why choose at all
-//! The smoothest field (Knöppel et al. 2013, [`Orientation::Smooth`]) minimises the *squared*
+//! The smoothest field (Knöppel et al. 2013, `--orient auto`, [`Orientation::Auto`]) minimises the *squared*
 //! turning Σ (θ_i − θ_j transported)², which spreads the turning the surface's curvature and
 //! topology force over the whole surface: on Spot, rows of bricks arc over every flank. A
 //! structured example does not mind a few regions of strong turning (near singularities,
@@ -18,7 +18,7 @@
 //! | blub | 0.140 | 0.135 | 0.125 | **0.118** |
 //! | bunny (N = 8) | **0.080** | 0.094 | 0.084 | 0.095 |
 //!
-//! No one candidate wins everywhere, so `auto` computes them all on a coarse level and keeps
+//! No one candidate wins everywhere, so `straight` computes them all on a coarse level and keeps
 //! the one whose frame turns fast over the least area.
 //!
 //! # The score
@@ -51,17 +51,17 @@ const SAME_SHEET_COS: f64 = 0.5;
 /// The candidates in tie-breaking order.
 pub fn candidates() -> [Orientation; 4] {
     [
-        Orientation::Smooth,
+        Orientation::Auto,
         Orientation::Axis(DVec3::X),
         Orientation::Axis(DVec3::Y),
         Orientation::Axis(DVec3::Z),
     ]
 }
 
-/// What `auto` chose and why (for report.json).
+/// What `straight` chose and why (for report.json).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Choice {
-    /// Label of the winner: `smooth`, `+x`, `+y` or `+z`.
+    /// Label of the winner: `auto` (the smooth field), `+x`, `+y` or `+z`.
     pub chosen: String,
     /// Every candidate's label and score (bent fraction, 0..1), in candidate order.
     pub scores: Vec<(String, f64)>,
@@ -192,7 +192,7 @@ mod tests {
     fn a_flat_grid_is_straight_for_every_candidate_and_keeps_the_smooth_field() {
         let s = grid(6, 0.0);
         let (o, c, _) = straightest(&s, &FieldOptions::default(), 3, 0.2).unwrap();
-        assert_eq!(o, Orientation::Smooth, "{c:?}");
+        assert_eq!(o, Orientation::Auto, "{c:?}");
         assert!(c.scores.iter().all(|(_, v)| *v < 1e-9), "{c:?}");
     }
 

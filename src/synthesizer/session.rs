@@ -328,7 +328,7 @@ impl Session {
 
         report(Stage::Field, 0, 1);
         let t0 = Instant::now();
-        // `auto` wants the field straight over half of pf8's window (BRIEF).
+        // `straight` wants the field straight over half of pf8's window (BRIEF).
         let field_options = crate::field::FieldOptions {
             structure_length: Some(crate::field::STRUCTURE_PIXELS * scale),
             unit,
