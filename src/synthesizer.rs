@@ -56,6 +56,7 @@ use crate::report::{ExampleInfo, Inputs, Report, Seconds};
 use crate::synth::footprint::LevelTexels;
 use crate::synth::Target;
 use crate::texels::{TexelGeometry, TexelGraph};
+use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 use subdiv::Surface;
@@ -90,6 +91,22 @@ pub enum Handedness {
     #[default]
     Tiles,
     Outside,
+}
+
+/// How a tangent-space normal map's green channel points (`--normal-convention`).
+///
+/// Both conventions put red along the image's columns (+X to the right) and blue out of the
+/// surface; they differ in green: OpenGL's (Blender, glTF, Substance's "OpenGL" export)
+/// points up the image, DirectX's (Unreal, 3ds Max) down. Read the wrong way round, every
+/// bump looks like a dent under light from above or below.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum NormalConvention {
+    /// +Y up the image (the default, glTF's).
+    #[default]
+    OpenGl,
+    /// +Y down the image.
+    DirectX,
 }
 
 /// Neighbourhood search of the multiscale method (`--search`).
@@ -229,7 +246,9 @@ pub type Progress = dyn Fn(Stage, usize, usize) + Send + Sync;
 pub struct Synthesizer {
     mesh: MeshSource,
     example: ExampleSource,
-    height: Option<PathBuf>,
+    /// `--map NAME=FILE` (and `--height`, the map `height`), in the order given.
+    maps: Vec<(String, PathBuf)>,
+    normal_convention: NormalConvention,
     settings: Settings,
     resolution: usize,
     scale: Option<f64>,
@@ -288,7 +307,8 @@ impl Synthesizer {
         Self {
             mesh: mesh.into(),
             example: example.into(),
-            height: None,
+            maps: Vec::new(),
+            normal_convention: NormalConvention::default(),
             settings: Settings::default(),
             resolution: 32,
             scale: None,
@@ -304,9 +324,20 @@ impl Synthesizer {
         }
     }
 
-    /// A height example of the same size, synthesized jointly (`--height`).
-    pub fn height(mut self, path: impl Into<PathBuf>) -> Self {
-        self.height = Some(path.into());
+    /// A height example of the same size, synthesized jointly (`--height`: the map
+    /// `height`).
+    pub fn height(self, path: impl Into<PathBuf>) -> Self {
+        self.map(crate::example::HEIGHT, path)
+    }
+    /// A further map of the material (`--map NAME=FILE`), the example's size, copied from
+    /// the same source positions; matched only with a weight ([`Weights::maps`]).
+    pub fn map(mut self, name: &str, path: impl Into<PathBuf>) -> Self {
+        self.maps.push((name.to_string(), path.into()));
+        self
+    }
+    /// How the green channel of the `normal` map is to be read (`--normal-convention`).
+    pub fn normal_convention(mut self, c: NormalConvention) -> Self {
+        self.normal_convention = c;
         self
     }
     /// Synthesis method (default [`Method::DEFAULT`], texture optimisation; see
@@ -565,33 +596,56 @@ impl Synthesizer {
         let pending = match self.example {
             ExampleSource::Path(ref p) => {
                 let ex = PendingImage::open(p)?;
-                let h = match &self.height {
-                    Some(h) => Some(PendingImage::open(h)?),
-                    None => None,
-                };
-                Some((ex, h))
+                let mut maps = Vec::with_capacity(self.maps.len());
+                for (name, file) in &self.maps {
+                    maps.push((name.clone(), PendingImage::open(file)?));
+                }
+                Some((ex, maps))
             }
             ExampleSource::Example(_) => {
-                if let Some(h) = &self.height {
+                if let Some((_, m)) = self.maps.first() {
                     return Err(Error::file(
-                        h,
-                        "a height file cannot be combined with an in-memory example; set Example::height_map instead",
+                        m,
+                        "a map file cannot be combined with an in-memory example; add it with Example::with_map instead",
                     ));
                 }
                 None
             }
         };
-        let (ex_channels, ex_pixels, has_height) = match (&pending, &self.example) {
-            (Some((ex, h)), _) => {
+        let (ex_channels, map_channels, ex_pixels, has_height) = match (&pending, &self.example) {
+            (Some((ex, maps)), _) => {
                 let i = ex.info();
                 let alpha = (i.channels == 2 || i.channels == 4) as usize;
-                (3 + alpha + h.is_some() as usize, i.pixels(), h.is_some())
+                // As Example::from_pending decodes them: height and grayscale data maps
+                // one channel, the rest three.
+                let mc: usize = maps
+                    .iter()
+                    .map(|(name, m)| {
+                        let gray = m.info().channels <= 2;
+                        if name == crate::example::HEIGHT
+                            || (gray
+                                && crate::example::MapKind::for_name(name)
+                                    == crate::example::MapKind::Data)
+                        {
+                            1
+                        } else {
+                            3
+                        }
+                    })
+                    .sum();
+                let height = maps.iter().any(|(n, _)| n == crate::example::HEIGHT);
+                (3 + alpha + mc + height as usize, mc, i.pixels(), height)
             }
-            (None, ExampleSource::Example(e)) => (
-                e.num_channels(),
-                (e.width * e.height) as u64,
-                e.channel_names().contains(&"height"),
-            ),
+            (None, ExampleSource::Example(e)) => {
+                let mc: usize = e.maps.iter().map(|m| m.channels).sum();
+                let height = e.height_map().is_some();
+                (
+                    e.num_channels() + height as usize,
+                    mc,
+                    (e.width * e.height) as u64,
+                    height,
+                )
+            }
             (None, ExampleSource::Path(_)) => unreachable!("a path example has a header"),
         };
         if self.displace.is_some() && !has_height {
@@ -606,14 +660,16 @@ impl Synthesizer {
             method: self.settings.method,
             displace: self.displace.is_some(),
         };
-        if let Some((ex, h)) = &pending {
-            if let Some(h) = h {
-                crate::example::check_same_size(ex, h)?;
+        if let Some((ex, maps)) = &pending {
+            for (name, m) in maps {
+                crate::example::check_same_size(ex, name, m)?;
             }
             let i = ex.info();
-            let decode = i
-                .decode_bytes()
-                .saturating_add(h.as_ref().map_or(0, |h| h.info().decode_bytes()));
+            let decode = maps.iter().fold(i.decode_bytes(), |s, (_, m)| {
+                s.saturating_add(m.info().decode_bytes())
+            });
+            // The maps' linear copies, beside the example's own (counted per pixel).
+            let decode = decode.saturating_add(i.pixels().saturating_mul(4 * map_channels as u64));
             crate::memory::check_example(
                 &format!(
                     "{}: image is {}x{} pixels",
@@ -634,10 +690,11 @@ impl Synthesizer {
         };
         // Both fit: decode the example, then build the surface.
         let example = match (pending, &self.example) {
-            (Some((ex, h)), _) => Example::from_pending(ex, h)?,
+            (Some((ex, maps)), _) => Example::from_pending(ex, maps)?,
             (None, ExampleSource::Example(e)) => (**e).clone(),
             (None, ExampleSource::Path(_)) => unreachable!("a path example has a header"),
         };
+        self.settings.weights.check(&example)?;
         // Any scale works: a mesh far from unit size is divided by a power of two
         // (`unit`, exact) and processed near unit size; results are reported and written
         // in the user's units (the surface and geometry are rebuilt for writing below).
@@ -773,7 +830,17 @@ impl Synthesizer {
 
         progress(Stage::Maps, 0, 1);
         let t0 = Instant::now();
-        let maps = crate::synth::face_maps(&example, &source, faces, n);
+        let mut maps = crate::synth::face_maps(&example, &source, faces, n);
+        // facemaps.exr keeps the normal map in the field's frame (T, N x T, N): the file's
+        // green axis is image up, which is +v2 when rows run along -v2 (outside) and -v2
+        // for tiles; DirectX files have green pointing down.
+        let flip_green = (self.handedness == Handedness::Tiles)
+            != (self.normal_convention == NormalConvention::DirectX);
+        if flip_green {
+            if let Some(g) = maps.channel_mut("normal.G") {
+                g.par_iter_mut().for_each(|v| *v = 1.0 - *v);
+            }
+        }
         let maps_s = t0.elapsed().as_secs_f64();
         progress(Stage::Maps, 1, 1);
 
@@ -784,7 +851,26 @@ impl Synthesizer {
             inputs: Inputs {
                 mesh: mesh_label,
                 example: example_label,
-                height: self.height.as_ref().map(|h| h.display().to_string()),
+                height: self
+                    .maps
+                    .iter()
+                    .rev()
+                    .find(|(n, _)| n == crate::example::HEIGHT)
+                    .map(|(_, h)| h.display().to_string()),
+                maps: example
+                    .maps
+                    .iter()
+                    .map(|m| crate::report::MapInfo {
+                        name: m.name.clone(),
+                        file: m.path.display().to_string(),
+                        kind: m.kind,
+                        channels: m.channels,
+                        weight: self.settings.weights.map(&m.name),
+                    })
+                    .collect(),
+                normal_convention: example
+                    .map(crate::example::NORMAL)
+                    .map(|_| self.normal_convention),
             },
             method: self.settings.method,
             seed: self.seed,
@@ -806,7 +892,7 @@ impl Synthesizer {
                     .collect(),
             },
             channels: maps.names().iter().map(|s| s.to_string()).collect(),
-            weights: self.settings.weights,
+            weights: self.settings.weights.clone(),
             appearance: out.appearance,
             details: out.details,
             threads: rayon::current_num_threads(),
@@ -1058,6 +1144,12 @@ pub struct SynthCommand {
     pub mesh: PathBuf,
     pub example: PathBuf,
     pub height: Option<PathBuf>,
+    /// `--map NAME=FILE`, in the order given.
+    pub maps: Vec<(String, PathBuf)>,
+    /// `--match NAME=WEIGHT`.
+    pub matches: Vec<(String, f32)>,
+    /// `--normal-convention`.
+    pub normal_convention: NormalConvention,
     pub method: Method,
     pub resolution: usize,
     pub scale: Option<f64>,
@@ -1097,6 +1189,15 @@ impl SynthCommand {
             .cache(self.cache.clone());
         if let Some(h) = &self.height {
             s = s.height(h);
+        }
+        for (name, file) in &self.maps {
+            s = s.map(name, file);
+        }
+        s = s.normal_convention(self.normal_convention);
+        if !self.matches.is_empty() {
+            let mut w = s.current_settings().weights.clone();
+            w.maps.extend(self.matches.iter().cloned());
+            s = s.weights(w);
         }
         if let Some(search) = self.search {
             s = s.search(search);
