@@ -109,6 +109,26 @@ pub enum NormalConvention {
     DirectX,
 }
 
+impl Handedness {
+    /// geometry.exr's `tangentHandedness`: +1 when the example's up (toward its top row)
+    /// runs along +(N x T) on the surface (`outside`: (T, up, N) is right-handed, as glTF's
+    /// w = +1), -1 when it runs along -(N x T) (`tiles`: the texture is mirrored). The
+    /// normal map in facemaps.exr is already in (T, N x T, N) either way; this tells
+    /// readers how the other maps' image axes lie.
+    pub fn bitangent_sign(self) -> i32 {
+        match self {
+            Handedness::Outside => 1,
+            Handedness::Tiles => -1,
+        }
+    }
+}
+
+/// geometry.exr channels of the field's unit direction v1, written by `synth` after P and
+/// N (`bake` has no field).
+pub const TANGENT_CHANNELS: [&str; 3] = ["T.X", "T.Y", "T.Z"];
+/// geometry.exr header attribute: [`Handedness::bitangent_sign`].
+pub const TANGENT_HANDEDNESS: &str = "tangentHandedness";
+
 /// Neighbourhood search of the multiscale method (`--search`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Search {
@@ -283,6 +303,11 @@ pub struct SynthResult {
     pub maps: FaceMaps,
     /// Limit position and normal per texel (geometry.exr content).
     pub geometry: TexelGeometry,
+    /// The orientation field's unit v1 per texel (geometry.exr `T.X T.Y T.Z`): with the
+    /// normal N, the frame (T, N x T, N) that facemaps.exr's `normal.*` is expressed in.
+    pub tangents: Vec<[f32; 3]>,
+    /// Which way the example's rows run (geometry.exr `tangentHandedness`).
+    pub handedness: Handedness,
     /// The surface (for exporters that need topology, e.g. the atlas).
     pub surface: Surface,
     /// The example as loaded (linear).
@@ -815,6 +840,9 @@ impl Synthesizer {
             }
         }
         let synthesis_s = t0.elapsed().as_secs_f64();
+        // The field's v1 per texel (geometry.exr T.X T.Y T.Z: unit directions, the same
+        // in the user's units).
+        let tangents: Vec<[f32; 3]> = texels.frames.par_iter().map(|f| f[0].to_array()).collect();
         let mut geometry = texels.geometry;
         let mut surface = surface;
         if unit != 1.0 {
@@ -918,6 +946,8 @@ impl Synthesizer {
         let result = SynthResult {
             maps,
             geometry,
+            tangents,
+            handedness: self.handedness,
             surface,
             example,
             report,
@@ -989,8 +1019,19 @@ impl SynthResult {
                 Ok(vec![p])
             },
             || -> Result<Vec<PathBuf>> {
-                let (_, images) =
-                    atlas::export_images(d, &self.surface, &self.maps, &Default::default())?;
+                let frames = (self.tangents.len() == self.geometry.normal.len()).then_some(
+                    crate::io::tangent::FieldFrames {
+                        tangent: &self.tangents,
+                        normal: &self.geometry.normal,
+                    },
+                );
+                let (_, images) = atlas::export_with_frames(
+                    d,
+                    &self.surface,
+                    &self.maps,
+                    &Default::default(),
+                    frames,
+                )?;
                 let mut written: Vec<PathBuf> = [
                     atlas::OBJ_NAME,
                     atlas::MTL_NAME,
@@ -999,6 +1040,7 @@ impl SynthResult {
                 ]
                 .iter()
                 .map(|n| d.join(n))
+                .chain(images.maps.iter().map(|m| d.join(m.file_name())))
                 .collect();
                 if let Some(amount) = self.displace {
                     let decimate = self.write_options.decimate;
@@ -1073,15 +1115,25 @@ impl SynthResult {
                     let p = dir.join(GEOMETRY_FILE);
                     let g = &self.geometry;
                     let nn = g.resolution * g.resolution;
-                    crate::io::exr::write_tiles(
+                    let mut names = crate::bake::GEOMETRY_CHANNELS.to_vec();
+                    names.extend(TANGENT_CHANNELS);
+                    crate::io::exr::write_tiles_with_attributes(
                         &p,
                         crate::io::exr::TileLayout::new(g.faces, g.resolution),
-                        &crate::bake::GEOMETRY_CHANNELS,
+                        &names,
                         crate::io::exr::DEFAULT_COMPRESSION,
+                        &[(TANGENT_HANDEDNESS, self.handedness.bitangent_sign())],
                         |f, tile| {
                             for (c, out) in tile.chunks_exact_mut(nn).enumerate() {
+                                let range = f * nn..(f + 1) * nn;
+                                if c >= 6 {
+                                    for (o, t) in out.iter_mut().zip(&self.tangents[range]) {
+                                        *o = t[c % 3];
+                                    }
+                                    continue;
+                                }
                                 let src = if c < 3 { &g.pos } else { &g.normal };
-                                for (o, v) in out.iter_mut().zip(&src[f * nn..(f + 1) * nn]) {
+                                for (o, v) in out.iter_mut().zip(&src[range]) {
                                     *o = v[c % 3];
                                 }
                             }
