@@ -31,39 +31,23 @@ pub struct FieldFrames<'a> {
     pub normal: &'a [Vec3],
 }
 
-/// The tangent frame a renderer derives from a tessellation's UVs, per triangle.
+/// The tangent frame a renderer derives from a tessellation's UVs: MikkTSpace's — per
+/// triangle ∂P/∂s and ∂P/∂t, summed at each vertex (per tile: vertices on a domain edge
+/// have one UV per tile), made orthogonal to the vertex normal, interpolated over the
+/// triangle, bitangent ±N × T. These are exactly the TANGENT vectors surface.glb carries
+/// ([`crate::io::gltf::tangents`]). Interpolated frames are continuous inside a tile,
+/// where frames of single triangles jump at every diagonal: a texel centre on a diagonal
+/// (half of them, on a grid of segments that are whole texels) would have two frames.
 pub struct UvFrames<'a> {
     mesh: &'a SurfaceMesh,
+    /// Per texture coordinate of `mesh`: unit tangent and handedness w (glTF's layout).
+    tangents: Vec<[f32; 4]>,
     layout: AtlasLayout,
     /// Per domain: first UV index and segments per side.
     grids: Vec<crate::io::decimate::DomainGrid>,
     /// Per domain, the quad covering each grid cell (row-major, `m²` cells), from `start`.
     cells: Vec<u32>,
     start: Vec<usize>,
-}
-
-/// ∂P/∂s and ∂P/∂t of a triangle from its positions and texture coordinates (the UV
-/// derivative formula of MikkTSpace and Lengyel); zero for a degenerate UV triangle.
-pub fn triangle_tangents(p: [DVec3; 3], uv: [[f64; 2]; 3]) -> (DVec3, DVec3) {
-    let (e1, e2) = (p[1] - p[0], p[2] - p[0]);
-    let (s1, t1) = (uv[1][0] - uv[0][0], uv[1][1] - uv[0][1]);
-    let (s2, t2) = (uv[2][0] - uv[0][0], uv[2][1] - uv[0][1]);
-    let det = s1 * t2 - s2 * t1;
-    if det.abs() < 1e-300 {
-        return (DVec3::ZERO, DVec3::ZERO);
-    }
-    let r = 1.0 / det;
-    ((e1 * t2 - e2 * t1) * r, (e2 * s1 - e1 * s2) * r)
-}
-
-/// The orthonormal frame (T', B', N) of tangents (t, b) at unit normal `n`: T' is t made
-/// orthogonal to N, B' = ±N × T' with the sign of b (mirrored UVs keep their handedness).
-pub fn orthonormal_frame(t: DVec3, b: DVec3, n: DVec3) -> [DVec3; 3] {
-    let t = (t - n * n.dot(t))
-        .try_normalize()
-        .unwrap_or_else(|| n.any_orthonormal_vector());
-    let sign = if n.cross(t).dot(b) < 0.0 { -1.0 } else { 1.0 };
-    [t, n.cross(t) * sign, n]
 }
 
 impl<'a> UvFrames<'a> {
@@ -89,8 +73,11 @@ impl<'a> UvFrames<'a> {
             }
             cells[start[d] + (j * g.m + i) as usize] = q as u32;
         }
+        let tri = crate::io::gltf::TriMesh::from(mesh);
+        let tangents = crate::io::gltf::tangents(&tri);
         Self {
             mesh,
+            tangents,
             layout,
             grids,
             cells,
@@ -99,8 +86,8 @@ impl<'a> UvFrames<'a> {
     }
 
     /// The renderer's orthonormal frame (T, B, N) at domain point (u, v) of domain `d`
-    /// (clamped to the domain): the frame of the triangle of surface.obj holding that UV,
-    /// at the normal interpolated from its vertex normals.
+    /// (clamped to the domain): in the triangle of surface.obj holding that UV, the vertex
+    /// tangents and normals interpolated.
     pub fn frame(&self, d: usize, u: f64, v: f64) -> [DVec3; 3] {
         let (u, v) = (u.clamp(0.0, 1.0), v.clamp(0.0, 1.0));
         let g = self.grids[d];
@@ -112,8 +99,9 @@ impl<'a> UvFrames<'a> {
         let (s, t) = self.layout.obj_uv(d, u, v);
         let corner = |k: usize| {
             let (pv, tv) = quad[k];
+            let t = self.tangents[tv as usize];
             (
-                DVec3::from_array(self.mesh.positions[pv as usize]),
+                DVec3::new(t[0] as f64, t[1] as f64, t[2] as f64),
                 DVec3::from_array(self.mesh.normals[pv as usize]),
                 self.mesh.uvs[tv as usize],
             )
@@ -139,8 +127,13 @@ impl<'a> UvFrames<'a> {
         let n = (tr[0].1 * b[0] + tr[1].1 * b[1] + tr[2].1 * b[2])
             .try_normalize()
             .unwrap_or(tr[0].1);
-        let (tu, tv) = triangle_tangents([tr[0].0, tr[1].0, tr[2].0], [tr[0].2, tr[1].2, tr[2].2]);
-        orthonormal_frame(tu, tv, n)
+        // The handedness w is one per tile (a tile's UVs are never mirrored within it).
+        let w = self.tangents[quad[0].1 as usize][3] as f64;
+        let t = tr[0].0 * b[0] + tr[1].0 * b[1] + tr[2].0 * b[2];
+        let t = (t - n * n.dot(t))
+            .try_normalize()
+            .unwrap_or_else(|| n.any_orthonormal_vector());
+        [t, n.cross(t) * w, n]
     }
 }
 
