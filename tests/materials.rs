@@ -518,3 +518,67 @@ fn bad_material_inputs_are_one_line_errors_and_leave_nothing() {
         assert!(!out.exists(), "case {k}: {} was created", out.display());
     }
 }
+
+/// A material run writes the same bytes for 1 and 2 threads (geometry.exr's extra header
+/// attribute included: the exr crate's attribute map iterates in a random order).
+#[test]
+fn material_outputs_are_bit_identical_for_any_thread_count() {
+    let dir = tempfile::tempdir().unwrap();
+    let maps = material(dir.path());
+    let mut files = Vec::new();
+    for t in [1, 2] {
+        let out = dir.path().join(format!("t{t}"));
+        synthesizer(dir.path(), &maps, Method::Patches)
+            .threads(t)
+            .run_to(&out)
+            .unwrap();
+        let mut names: Vec<String> = std::fs::read_dir(&out)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .filter(|n| n != "report.json")
+            .collect();
+        names.sort();
+        let bytes: Vec<(String, Vec<u8>)> = names
+            .into_iter()
+            .map(|n| {
+                let b = std::fs::read(out.join(&n)).unwrap();
+                (n, b)
+            })
+            .collect();
+        files.push(bytes);
+    }
+    let names: Vec<&str> = files[0].iter().map(|f| f.0.as_str()).collect();
+    for n in [
+        "atlas_normal.png",
+        "atlas_roughness.png",
+        "atlas_height.png",
+        "atlas_metallic.png",
+    ] {
+        assert!(names.contains(&n), "{n} in {names:?}");
+    }
+    assert_eq!(files[0].len(), files[1].len());
+    for (a, b) in files[0].iter().zip(&files[1]) {
+        assert_eq!(a.0, b.0);
+        assert!(a.1 == b.1, "{} differs between 1 and 2 threads", a.0);
+    }
+    let mtl = String::from_utf8(
+        files[0]
+            .iter()
+            .find(|f| f.0 == "surface.mtl")
+            .unwrap()
+            .1
+            .clone(),
+    )
+    .unwrap();
+    for line in [
+        "norm atlas_normal.png",
+        "map_Pr atlas_roughness.png",
+        "map_Pm atlas_metallic.png",
+        "disp atlas_height.png",
+    ] {
+        assert!(mtl.contains(line), "{line} in {mtl}");
+    }
+    // 16-bit data maps.
+    let img = image::open(dir.path().join("t1/atlas_roughness.png")).unwrap();
+    assert!(matches!(img, image::DynamicImage::ImageLuma16(_)));
+}
