@@ -133,6 +133,10 @@ pub fn check_map_name(name: &str) -> std::result::Result<(), String> {
             "map name '{name}' has '{c}'; use letters, digits, '_' and '-' only"
         ));
     }
+    if name == "source" {
+        // facemaps.exr's source.u / source.v are the sources, not a map.
+        return Err("map name 'source' is reserved (facemaps.exr's source.u/source.v)".into());
+    }
     Ok(())
 }
 

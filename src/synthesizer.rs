@@ -396,7 +396,8 @@ impl Synthesizer {
         self.threads = t.into();
         self
     }
-    /// Matching weights of colour, alpha and height.
+    /// Matching weights of colour, alpha, height and the other maps ([`Weights::maps`]:
+    /// maps not named there are copied, not matched).
     pub fn weights(mut self, w: Weights) -> Self {
         self.settings.weights = w;
         self
