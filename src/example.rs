@@ -7,6 +7,13 @@
 //! grayscale examples are expanded to equal R, G and B so that every later stage can assume
 //! three colour channels.
 //!
+//! A material set adds named maps of the example's size (`--map NAME=FILE`,
+//! [`MaterialMap`]): maps that hold light (named like colour: base colour, albedo,
+//! emission) are sRGB-decoded like the example; data maps (normal, roughness, metallic,
+//! height, occlusion and any other name) are values, not light, and stay as stored. Each
+//! keeps its channel count (1 or 3) explicitly so that writers name its channels
+//! `NAME.Y` or `NAME.R NAME.G NAME.B` without guessing.
+//!
 //! Coordinates are continuous pixel positions from the top-left corner of the image, pixel
 //! centres at +0.5 (pixel (i, j) covers [i, i+1) x [j, j+1)), the same convention as the
 //! `source.u`/`source.v` channels of `facemaps.exr`.
@@ -18,8 +25,8 @@ use std::path::{Path, PathBuf};
 /// Smallest accepted example side: a 5x5 neighbourhood plus a margin must fit.
 pub const MIN_SIZE: usize = 8;
 
-/// A loaded example: linear RGB, optional alpha and optional height, all row-major with
-/// the top row first, `width * height` entries each.
+/// A loaded example: linear RGB, optional alpha and the further maps of a material, all
+/// row-major with the top row first, `width * height` pixels each.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Example {
     /// The file it came from (for messages and reports).
@@ -30,8 +37,107 @@ pub struct Example {
     pub rgb: Vec<[f32; 3]>,
     /// Alpha in 0..1 when the file has an alpha channel (RGBA or gray+alpha).
     pub alpha: Option<Vec<f32>>,
-    /// Height in 0..1 from a separate grayscale file (`--height`), not sRGB-decoded.
-    pub height_map: Option<Vec<f32>>,
+    /// Further maps of the material (`--map NAME=FILE`; `--height` is the map `height`),
+    /// in the order given; names are unique.
+    pub maps: Vec<MaterialMap>,
+}
+
+/// Name of the height map (`--height H.png` is `--map height=H.png`).
+pub const HEIGHT: &str = "height";
+/// Name of the tangent-space normal map.
+pub const NORMAL: &str = "normal";
+
+/// Whether a map's file stores light or data.
+///
+/// Light (colour) is sRGB-encoded in 8- and 16-bit files and must be decoded before it is
+/// compared or blended; data (normals, roughness, heights) is stored linearly, and decoding
+/// it would bend every value.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum MapKind {
+    /// sRGB-decoded; written to the atlas sRGB-encoded (8 bit, like `atlas.png`).
+    Colour,
+    /// Stored values scaled to 0..1; written to the atlas linearly (16 bit).
+    Data,
+}
+
+impl MapKind {
+    /// The kind a map named `name` has: colour when the name says so (`basecolor`,
+    /// `base_colour`, `albedo`, `diffuse`, `emissive`, `emission`, `specular_color`, ...),
+    /// data otherwise (normal, roughness, metallic, height, ao, occlusion, any other name).
+    pub fn for_name(name: &str) -> Self {
+        let n = name.to_ascii_lowercase();
+        let colour = [
+            "color", "colour", "albedo", "diffuse", "emissive", "emission",
+        ];
+        if colour.iter().any(|c| n.contains(c)) {
+            MapKind::Colour
+        } else {
+            MapKind::Data
+        }
+    }
+}
+
+/// One further map of a material: `channels` (1 or 3) values per pixel, interleaved,
+/// linear (colour maps decoded from sRGB, data maps as stored, scaled to 0..1).
+#[derive(Clone, Debug, PartialEq)]
+pub struct MaterialMap {
+    /// `NAME` of `--map NAME=FILE`: letters, digits, `_` and `-`.
+    pub name: String,
+    pub kind: MapKind,
+    /// 1 (a grayscale file, and always for `height`) or 3.
+    pub channels: usize,
+    /// `width * height * channels` values.
+    pub data: Vec<f32>,
+    /// The file it came from (empty for maps built in memory).
+    pub path: PathBuf,
+}
+
+impl MaterialMap {
+    /// A map built in memory (tests, generated materials); `channels` is 1 or 3.
+    pub fn from_linear(name: &str, channels: usize, data: Vec<f32>) -> Self {
+        assert!(channels == 1 || channels == 3, "a map has 1 or 3 channels");
+        Self {
+            name: name.to_string(),
+            kind: MapKind::for_name(name),
+            channels,
+            data,
+            path: PathBuf::new(),
+        }
+    }
+
+    /// Its channel names in facemaps.exr: `NAME.Y`, or `NAME.R NAME.G NAME.B`.
+    pub fn channel_names(&self) -> Vec<String> {
+        if self.channels == 1 {
+            vec![format!("{}.Y", self.name)]
+        } else {
+            ["R", "G", "B"]
+                .iter()
+                .map(|c| format!("{}.{c}", self.name))
+                .collect()
+        }
+    }
+}
+
+/// Checks a map name of `--map NAME=FILE`: non-empty, letters, digits, `_` and `-` only
+/// (it becomes part of channel and file names: `NAME.R`, `atlas_NAME.png`).
+pub fn check_map_name(name: &str) -> std::result::Result<(), String> {
+    if name.is_empty() {
+        return Err("the map name is empty (expected NAME=FILE, e.g. normal=N.png)".into());
+    }
+    if let Some(c) = name
+        .chars()
+        .find(|c| !(c.is_ascii_alphanumeric() || *c == '_' || *c == '-'))
+    {
+        return Err(format!(
+            "map name '{name}' has '{c}'; use letters, digits, '_' and '-' only"
+        ));
+    }
+    if name == "source" {
+        // facemaps.exr's source.u / source.v are the sources, not a map.
+        return Err("map name 'source' is reserved (facemaps.exr's source.u/source.v)".into());
+    }
+    Ok(())
 }
 
 /// sRGB transfer function, decoded (IEC 61966-2-1), for values in 0..1.
@@ -246,17 +352,17 @@ impl PendingImage {
     }
 }
 
-/// Refuses a height map whose size differs from the example's, from their headers (the
-/// example's own minimum size is checked first).
-pub fn check_same_size(example: &PendingImage, height: &PendingImage) -> Result<()> {
+/// Refuses a map (`name`: `height`, `normal`, ...) whose size differs from the example's,
+/// from their headers (the example's own minimum size is checked first).
+pub fn check_same_size(example: &PendingImage, name: &str, map: &PendingImage) -> Result<()> {
     let (ew, eh) = (example.info.width as usize, example.info.height as usize);
-    let (hw, hh) = (height.info.width as usize, height.info.height as usize);
+    let (hw, hh) = (map.info.width as usize, map.info.height as usize);
     if (hw, hh) != (ew, eh) {
         check_min_size(&example.path, ew, eh)?;
         return Err(Error::file(
-            &height.path,
+            &map.path,
             format!(
-                "height map is {hw}x{hh} pixels but the example {} is {ew}x{eh}; they must be the same size",
+                "{name} map is {hw}x{hh} pixels but the example {} is {ew}x{eh}; they must be the same size",
                 example.path.display()
             ),
         ));
@@ -307,53 +413,103 @@ fn check_size(path: &Path, img: &DynamicImage) -> Result<(usize, usize)> {
 }
 
 impl Example {
-    /// Loads an example without a height map.
+    /// Loads an example without further maps.
     pub fn load(path: impl AsRef<Path>) -> Result<Self> {
-        Self::load_with_height(path, None::<&Path>)
+        Self::load_with_maps(path, &[])
     }
 
-    /// Loads an example and, optionally, a height map of the same size.
+    /// Loads an example and, optionally, a height map of the same size (the map `height`).
     pub fn load_with_height(
         path: impl AsRef<Path>,
         height_path: Option<impl AsRef<Path>>,
     ) -> Result<Self> {
-        let example = PendingImage::open(path)?;
-        let height = match height_path {
-            Some(h) => Some(PendingImage::open(h)?),
-            None => None,
-        };
-        Self::from_pending(example, height)
+        let maps: Vec<(String, PathBuf)> = height_path
+            .map(|h| (HEIGHT.to_string(), h.as_ref().to_path_buf()))
+            .into_iter()
+            .collect();
+        Self::load_with_maps(path, &maps)
     }
 
-    /// Decodes an example (and a height map) whose headers were read with
-    /// [`PendingImage::open`]: a height map of another size is refused before either is
-    /// decoded.
-    pub fn from_pending(example: PendingImage, height: Option<PendingImage>) -> Result<Self> {
+    /// Loads an example and the further maps of its material, `(NAME, FILE)` each.
+    pub fn load_with_maps(path: impl AsRef<Path>, maps: &[(String, PathBuf)]) -> Result<Self> {
+        let example = PendingImage::open(path)?;
+        let mut pending = Vec::with_capacity(maps.len());
+        for (name, file) in maps {
+            pending.push((name.clone(), PendingImage::open(file)?));
+        }
+        Self::from_pending(example, pending)
+    }
+
+    /// Decodes an example and its maps whose headers were read with
+    /// [`PendingImage::open`]: a map of another size, a bad or repeated name, or maps that
+    /// would not fit in memory together are refused before any of them is decoded.
+    pub fn from_pending(example: PendingImage, maps: Vec<(String, PendingImage)>) -> Result<Self> {
         let path = example.path.clone();
-        if let Some(h) = &height {
-            check_same_size(&example, h)?;
-            // Both decoded at once must fit too.
-            let both = ImageInfo {
-                bytes_per_pixel: example.info.bytes_per_pixel.max(h.info.bytes_per_pixel),
-                channels: 4,
-                ..example.info
-            };
-            check_decode(&path, &both)?;
+        let mut total = example.info.decode_bytes();
+        for (i, (name, m)) in maps.iter().enumerate() {
+            check_map_name(name).map_err(|e| Error::file(&m.path, e))?;
+            if maps[..i].iter().any(|(n, _)| n == name) {
+                return Err(Error::file(
+                    &m.path,
+                    format!("map '{name}' is given twice; each --map NAME must be unique"),
+                ));
+            }
+            check_same_size(&example, name, m)?;
+            if name == NORMAL && m.info.channels < 3 {
+                return Err(Error::file(
+                    &m.path,
+                    "normal map is grayscale; a tangent-space normal map needs RGB",
+                ));
+            }
+            total = total.saturating_add(m.info.decode_bytes());
+        }
+        if !maps.is_empty() {
+            // All decoded at once must fit too.
+            let lim = crate::memory::limit();
+            if total > lim.bytes {
+                return Err(Error::file(
+                    &path,
+                    format!(
+                        "the example and its {} maps would need about {} of memory to decode, more than the limit of {} from {}; use smaller images or raise --max-memory",
+                        maps.len(),
+                        crate::memory::format_bytes(total),
+                        crate::memory::format_bytes(lim.bytes),
+                        lim.source
+                    ),
+                ));
+            }
         }
         let img = example.decode()?;
         let (width, height_px) = check_size(&path, &img)?;
         let (rgb, alpha) = to_linear(img);
-        let height_map = match height {
-            None => None,
-            Some(h) => Some(to_height(h.decode()?)),
-        };
+        let mut out = Vec::with_capacity(maps.len());
+        for (name, m) in maps {
+            let mpath = m.path.clone();
+            let kind = MapKind::for_name(&name);
+            let img = m.decode()?;
+            let (channels, data) = if name == HEIGHT {
+                (1, to_height(img))
+            } else {
+                match kind {
+                    MapKind::Colour => (3, to_linear(img).0.into_iter().flatten().collect()),
+                    MapKind::Data => to_data(img),
+                }
+            };
+            out.push(MaterialMap {
+                name,
+                kind,
+                channels,
+                data,
+                path: mpath,
+            });
+        }
         Ok(Self {
             path,
             width,
             height: height_px,
             rgb,
             alpha,
-            height_map,
+            maps: out,
         })
     }
 
@@ -367,7 +523,60 @@ impl Example {
             height,
             rgb,
             alpha: None,
-            height_map: None,
+            maps: Vec::new(),
+        }
+    }
+
+    /// This example with `map` added (or replacing the map of its name); its size must be
+    /// the example's.
+    pub fn with_map(mut self, map: MaterialMap) -> Result<Self> {
+        check_map_name(&map.name).map_err(Error::invalid)?;
+        if map.channels != 1 && map.channels != 3 {
+            return Err(Error::invalid(format!(
+                "map '{}' has {} channels; a map has 1 or 3",
+                map.name, map.channels
+            )));
+        }
+        if map.data.len() != self.width * self.height * map.channels {
+            return Err(Error::invalid(format!(
+                "map '{}' has {} values; the example is {}x{} pixels, so {} channel(s) need {}",
+                map.name,
+                map.data.len(),
+                self.width,
+                self.height,
+                map.channels,
+                self.width * self.height * map.channels
+            )));
+        }
+        match self.maps.iter_mut().find(|m| m.name == map.name) {
+            Some(m) => *m = map,
+            None => self.maps.push(map),
+        }
+        Ok(self)
+    }
+
+    /// The map named `name`.
+    pub fn map(&self, name: &str) -> Option<&MaterialMap> {
+        self.maps.iter().find(|m| m.name == name)
+    }
+
+    /// The height map (`--height`, or `--map height=`), one value per pixel.
+    pub fn height_map(&self) -> Option<&[f32]> {
+        self.map(HEIGHT)
+            .filter(|m| m.channels == 1)
+            .map(|m| m.data.as_slice())
+    }
+
+    /// The example with only the maps `keep` accepts (what the matchers see: the example
+    /// and the maps given a weight; the rest are copied but never compared).
+    pub fn with_maps_where(&self, keep: impl Fn(&MaterialMap) -> bool) -> Self {
+        Self {
+            path: self.path.clone(),
+            width: self.width,
+            height: self.height,
+            rgb: self.rgb.clone(),
+            alpha: self.alpha.clone(),
+            maps: self.maps.iter().filter(|m| keep(m)).cloned().collect(),
         }
     }
 
@@ -388,26 +597,34 @@ impl Example {
             height: h,
             rgb: flip(&self.rgb, w, h),
             alpha: self.alpha.as_ref().map(|a| flip(a, w, h)),
-            height_map: self.height_map.as_ref().map(|a| flip(a, w, h)),
+            maps: self
+                .maps
+                .iter()
+                .map(|m| MaterialMap {
+                    data: flip(&m.data, w * m.channels, h),
+                    ..m.clone()
+                })
+                .collect(),
         }
     }
 
     /// Names of the channels [`Example::bilinear`] fills, in its order: `R G B`, then `A`
-    /// when present, then `height` when present (the facemaps.exr channel names).
-    pub fn channel_names(&self) -> Vec<&'static str> {
-        let mut v = vec!["R", "G", "B"];
+    /// when present, then every map's ([`MaterialMap::channel_names`]; the facemaps.exr
+    /// channel names).
+    pub fn channel_names(&self) -> Vec<String> {
+        let mut v: Vec<String> = ["R", "G", "B"].iter().map(|s| s.to_string()).collect();
         if self.alpha.is_some() {
-            v.push("A");
+            v.push("A".into());
         }
-        if self.height_map.is_some() {
-            v.push("height");
+        for m in &self.maps {
+            v.extend(m.channel_names());
         }
         v
     }
 
     /// Number of channels of [`Example::channel_names`].
     pub fn num_channels(&self) -> usize {
-        3 + self.alpha.is_some() as usize + self.height_map.is_some() as usize
+        3 + self.alpha.is_some() as usize + self.maps.iter().map(|m| m.channels).sum::<usize>()
     }
 
     /// Pixel (i, j) (column, row from the top), all channels into `out`.
@@ -420,8 +637,10 @@ impl Example {
             out[c] = a[k];
             c += 1;
         }
-        if let Some(h) = &self.height_map {
-            out[c] = h[k];
+        for m in &self.maps {
+            let n = m.channels;
+            out[c..c + n].copy_from_slice(&m.data[k * n..(k + 1) * n]);
+            c += n;
         }
     }
 
@@ -488,8 +707,13 @@ impl Example {
             out[c] = lerp(a);
             c += 1;
         }
-        if let Some(h) = &self.height_map {
-            out[c] = lerp(h);
+        for m in &self.maps {
+            let n = m.channels;
+            for (j, o) in out[c..c + n].iter_mut().enumerate() {
+                let d = |t: usize| m.data[k[t] * n + j];
+                *o = w[0] * d(0) + w[1] * d(1) + w[2] * d(2) + w[3] * d(3);
+            }
+            c += n;
         }
     }
 }
@@ -560,6 +784,42 @@ fn to_height(img: DynamicImage) -> Vec<f32> {
     }
 }
 
+/// A data map's values as stored, scaled to 0..1: one channel for a grayscale file, three
+/// for a colour one (alpha is ignored: data maps carry no coverage).
+fn to_data(img: DynamicImage) -> (usize, Vec<f32>) {
+    match img {
+        DynamicImage::ImageLuma8(b) => (1, b.pixels().map(|p| p.0[0] as f32 / 255.0).collect()),
+        DynamicImage::ImageLumaA8(b) => (1, b.pixels().map(|p| p.0[0] as f32 / 255.0).collect()),
+        DynamicImage::ImageLuma16(b) => (1, b.pixels().map(|p| p.0[0] as f32 / 65535.0).collect()),
+        DynamicImage::ImageLumaA16(b) => (1, b.pixels().map(|p| p.0[0] as f32 / 65535.0).collect()),
+        DynamicImage::ImageRgb8(b) => (
+            3,
+            b.pixels()
+                .flat_map(|p| p.0.map(|v| v as f32 / 255.0))
+                .collect(),
+        ),
+        DynamicImage::ImageRgba8(b) => (
+            3,
+            b.pixels()
+                .flat_map(|p| [p.0[0], p.0[1], p.0[2]].map(|v| v as f32 / 255.0))
+                .collect(),
+        ),
+        DynamicImage::ImageRgb16(b) => (
+            3,
+            b.pixels()
+                .flat_map(|p| p.0.map(|v| v as f32 / 65535.0))
+                .collect(),
+        ),
+        DynamicImage::ImageRgba16(b) => (
+            3,
+            b.pixels()
+                .flat_map(|p| [p.0[0], p.0[1], p.0[2]].map(|v| v as f32 / 65535.0))
+                .collect(),
+        ),
+        other => (3, other.to_rgb32f().pixels().flat_map(|p| p.0).collect()),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -589,7 +849,7 @@ mod tests {
         img.save(&p).unwrap();
         let e = Example::load(&p).unwrap();
         assert_eq!((e.width, e.height), (9, 8));
-        assert!(e.alpha.is_none() && e.height_map.is_none());
+        assert!(e.alpha.is_none() && e.maps.is_empty());
         let px = e.rgb[3 * 9 + 2];
         assert!((px[0] - srgb_to_linear(40.0 / 255.0)).abs() < 1e-7);
         assert!((px[1] - srgb_to_linear(90.0 / 255.0)).abs() < 1e-7);
@@ -652,8 +912,8 @@ mod tests {
             .save(&h)
             .unwrap();
         let e = Example::load_with_height(&p, Some(&h)).unwrap();
-        assert_eq!(e.height_map.as_ref().unwrap()[3], 3000.0 / 65535.0);
-        assert_eq!(e.channel_names(), vec!["R", "G", "B", "height"]);
+        assert_eq!(e.height_map().unwrap()[3], 3000.0 / 65535.0);
+        assert_eq!(e.channel_names(), vec!["R", "G", "B", "height.Y"]);
         let h2 = d.path().join("h2.png");
         ImageBuffer::from_fn(9, 8, |_, _| Luma([0u8]))
             .save(&h2)

@@ -23,6 +23,24 @@ pub struct Inputs {
     pub mesh: String,
     pub example: String,
     pub height: Option<String>,
+    /// Every map of the material (`--map`, `--height` included), in the order given.
+    pub maps: Vec<MapInfo>,
+    /// `--normal-convention`, when there is a normal map.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub normal_convention: Option<crate::synthesizer::NormalConvention>,
+}
+
+/// One map of a material as it was read and matched.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct MapInfo {
+    pub name: String,
+    pub file: String,
+    /// `colour` (sRGB-decoded) or `data` (as stored).
+    pub kind: crate::example::MapKind,
+    /// 1 (`NAME.Y`) or 3 (`NAME.R NAME.G NAME.B`).
+    pub channels: usize,
+    /// Matching weight per channel (0: copied, not matched).
+    pub weight: f32,
 }
 
 /// The example's size and channels.

@@ -99,6 +99,42 @@ pub enum Handedness {
     Outside,
 }
 
+/// How a tangent-space normal map's green channel points (`--normal-convention`).
+///
+/// Both conventions put red along the image's columns (+X to the right) and blue out of the
+/// surface; they differ in green: OpenGL's (Blender, glTF, Substance's "OpenGL" export)
+/// points up the image, DirectX's (Unreal, 3ds Max) down. Read the wrong way round, every
+/// bump looks like a dent under light from above or below.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum NormalConvention {
+    /// +Y up the image (the default, glTF's).
+    #[default]
+    OpenGl,
+    /// +Y down the image.
+    DirectX,
+}
+
+impl Handedness {
+    /// geometry.exr's `tangentHandedness`: +1 when the example's up (toward its top row)
+    /// runs along +(N x T) on the surface (`outside`: (T, up, N) is right-handed, as glTF's
+    /// w = +1), -1 when it runs along -(N x T) (`tiles`: the texture is mirrored). The
+    /// normal map in facemaps.exr is already in (T, N x T, N) either way; this tells
+    /// readers how the other maps' image axes lie.
+    pub fn bitangent_sign(self) -> i32 {
+        match self {
+            Handedness::Outside => 1,
+            Handedness::Tiles => -1,
+        }
+    }
+}
+
+/// geometry.exr channels of the field's unit direction v1, written by `synth` after P and
+/// N (`bake` has no field).
+pub const TANGENT_CHANNELS: [&str; 3] = ["T.X", "T.Y", "T.Z"];
+/// geometry.exr header attribute: [`Handedness::bitangent_sign`].
+pub const TANGENT_HANDEDNESS: &str = "tangentHandedness";
+
 /// Neighbourhood search of the multiscale method (`--search`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Search {
@@ -236,7 +272,9 @@ pub type Progress = dyn Fn(Stage, usize, usize) + Send + Sync;
 pub struct Synthesizer {
     mesh: MeshSource,
     example: ExampleSource,
-    height: Option<PathBuf>,
+    /// `--map NAME=FILE` (and `--height`, the map `height`), in the order given.
+    maps: Vec<(String, PathBuf)>,
+    normal_convention: NormalConvention,
     settings: Settings,
     resolution: usize,
     scale: Option<f64>,
@@ -272,6 +310,11 @@ pub struct SynthResult {
     /// Limit position and normal per texel (geometry.exr content); shared with the
     /// [`Session`] that produced it.
     pub geometry: Arc<TexelGeometry>,
+    /// The orientation field's unit v1 per texel (geometry.exr `T.X T.Y T.Z`): with the
+    /// normal N, the frame (T, N x T, N) that facemaps.exr's `normal.*` is expressed in.
+    pub tangents: Vec<[f32; 3]>,
+    /// Which way the example's rows run (geometry.exr `tangentHandedness`).
+    pub handedness: Handedness,
     /// The surface (for exporters that need topology, e.g. the atlas); shared with the
     /// [`Session`].
     pub surface: Arc<Surface>,
@@ -297,7 +340,8 @@ impl Synthesizer {
         Self {
             mesh: mesh.into(),
             example: example.into(),
-            height: None,
+            maps: Vec::new(),
+            normal_convention: NormalConvention::default(),
             settings: Settings::default(),
             resolution: 32,
             scale: None,
@@ -313,9 +357,20 @@ impl Synthesizer {
         }
     }
 
-    /// A height example of the same size, synthesized jointly (`--height`).
-    pub fn height(mut self, path: impl Into<PathBuf>) -> Self {
-        self.height = Some(path.into());
+    /// A height example of the same size, synthesized jointly (`--height`: the map
+    /// `height`).
+    pub fn height(self, path: impl Into<PathBuf>) -> Self {
+        self.map(crate::example::HEIGHT, path)
+    }
+    /// A further map of the material (`--map NAME=FILE`), the example's size, copied from
+    /// the same source positions; matched only with a weight ([`Weights::maps`]).
+    pub fn map(mut self, name: &str, path: impl Into<PathBuf>) -> Self {
+        self.maps.push((name.to_string(), path.into()));
+        self
+    }
+    /// How the green channel of the `normal` map is to be read (`--normal-convention`).
+    pub fn normal_convention(mut self, c: NormalConvention) -> Self {
+        self.normal_convention = c;
         self
     }
     /// Synthesis method (default [`Method::DEFAULT`], texture optimisation; see
@@ -349,7 +404,8 @@ impl Synthesizer {
         self.threads = t.into();
         self
     }
-    /// Matching weights of colour, alpha and height.
+    /// Matching weights of colour, alpha, height and the other maps ([`Weights::maps`]:
+    /// maps not named there are copied, not matched).
     pub fn weights(mut self, w: Weights) -> Self {
         self.settings.weights = w;
         self
@@ -559,33 +615,56 @@ impl Synthesizer {
         let pending = match self.example {
             ExampleSource::Path(ref p) => {
                 let ex = PendingImage::open(p)?;
-                let h = match &self.height {
-                    Some(h) => Some(PendingImage::open(h)?),
-                    None => None,
-                };
-                Some((ex, h))
+                let mut maps = Vec::with_capacity(self.maps.len());
+                for (name, file) in &self.maps {
+                    maps.push((name.clone(), PendingImage::open(file)?));
+                }
+                Some((ex, maps))
             }
             ExampleSource::Example(_) => {
-                if let Some(h) = &self.height {
+                if let Some((_, m)) = self.maps.first() {
                     return Err(Error::file(
-                        h,
-                        "a height file cannot be combined with an in-memory example; set Example::height_map instead",
+                        m,
+                        "a map file cannot be combined with an in-memory example; add it with Example::with_map instead",
                     ));
                 }
                 None
             }
         };
-        let (ex_channels, ex_pixels, has_height) = match (&pending, &self.example) {
-            (Some((ex, h)), _) => {
+        let (ex_channels, map_channels, ex_pixels, has_height) = match (&pending, &self.example) {
+            (Some((ex, maps)), _) => {
                 let i = ex.info();
                 let alpha = (i.channels == 2 || i.channels == 4) as usize;
-                (3 + alpha + h.is_some() as usize, i.pixels(), h.is_some())
+                // As Example::from_pending decodes them: height and grayscale data maps
+                // one channel, the rest three.
+                let mc: usize = maps
+                    .iter()
+                    .map(|(name, m)| {
+                        let gray = m.info().channels <= 2;
+                        if name == crate::example::HEIGHT
+                            || (gray
+                                && crate::example::MapKind::for_name(name)
+                                    == crate::example::MapKind::Data)
+                        {
+                            1
+                        } else {
+                            3
+                        }
+                    })
+                    .sum();
+                let height = maps.iter().any(|(n, _)| n == crate::example::HEIGHT);
+                (3 + alpha + mc + height as usize, mc, i.pixels(), height)
             }
-            (None, ExampleSource::Example(e)) => (
-                e.num_channels(),
-                (e.width * e.height) as u64,
-                e.channel_names().contains(&"height"),
-            ),
+            (None, ExampleSource::Example(e)) => {
+                let mc: usize = e.maps.iter().map(|m| m.channels).sum();
+                let height = e.height_map().is_some();
+                (
+                    e.num_channels() + height as usize,
+                    mc,
+                    (e.width * e.height) as u64,
+                    height,
+                )
+            }
             (None, ExampleSource::Path(_)) => unreachable!("a path example has a header"),
         };
         if self.displace.is_some() && !has_height {
@@ -600,14 +679,16 @@ impl Synthesizer {
             method: self.settings.method,
             displace: self.displace.is_some(),
         };
-        if let Some((ex, h)) = &pending {
-            if let Some(h) = h {
-                crate::example::check_same_size(ex, h)?;
+        if let Some((ex, maps)) = &pending {
+            for (name, m) in maps {
+                crate::example::check_same_size(ex, name, m)?;
             }
             let i = ex.info();
-            let decode = i
-                .decode_bytes()
-                .saturating_add(h.as_ref().map_or(0, |h| h.info().decode_bytes()));
+            let decode = maps.iter().fold(i.decode_bytes(), |s, (_, m)| {
+                s.saturating_add(m.info().decode_bytes())
+            });
+            // The maps' linear copies, beside the example's own (counted per pixel).
+            let decode = decode.saturating_add(i.pixels().saturating_mul(4 * map_channels as u64));
             crate::memory::check_example(
                 &format!(
                     "{}: image is {}x{} pixels",
@@ -628,10 +709,11 @@ impl Synthesizer {
         };
         // Both fit: decode the example, then build the surface.
         let example = match (pending, &self.example) {
-            (Some((ex, h)), _) => Example::from_pending(ex, h)?,
+            (Some((ex, maps)), _) => Example::from_pending(ex, maps)?,
             (None, ExampleSource::Example(e)) => (**e).clone(),
             (None, ExampleSource::Path(_)) => unreachable!("a path example has a header"),
         };
+        self.settings.weights.check(&example)?;
         // Any scale works: a mesh far from unit size is divided by a power of two
         // (`unit`, exact) and processed near unit size; results are reported and written
         // in the user's units (the session rebuilds the surface and geometry for writing).
@@ -681,12 +763,18 @@ impl Synthesizer {
             settings: self.settings,
             seed: self.seed,
             handedness: self.handedness,
+            normal_convention: self.normal_convention,
             displace: self.displace,
             write_options: self.write_options,
         };
         let labels = session::Labels {
             example: example_label,
-            height: self.height.as_ref().map(|h| h.display().to_string()),
+            height: self
+                .maps
+                .iter()
+                .rev()
+                .find(|(n, _)| n == crate::example::HEIGHT)
+                .map(|(_, h)| h.display().to_string()),
         };
         let result = session.run_once(example, &params, labels, started, seconds)?;
         Ok((result, txn))
@@ -767,8 +855,19 @@ impl SynthResult {
                 Ok(vec![p])
             },
             || -> Result<Vec<PathBuf>> {
-                let (_, images) =
-                    atlas::export_images(d, &self.surface, &self.maps, &Default::default())?;
+                let frames = (self.tangents.len() == self.geometry.normal.len()).then_some(
+                    crate::io::tangent::FieldFrames {
+                        tangent: &self.tangents,
+                        normal: &self.geometry.normal,
+                    },
+                );
+                let (_, images) = atlas::export_with_frames(
+                    d,
+                    &self.surface,
+                    &self.maps,
+                    &Default::default(),
+                    frames,
+                )?;
                 let mut written: Vec<PathBuf> = [
                     atlas::OBJ_NAME,
                     atlas::MTL_NAME,
@@ -777,6 +876,7 @@ impl SynthResult {
                 ]
                 .iter()
                 .map(|n| d.join(n))
+                .chain(images.maps.iter().map(|m| d.join(m.file_name())))
                 .collect();
                 if let Some(amount) = self.displace {
                     let decimate = self.write_options.decimate;
@@ -851,15 +951,25 @@ impl SynthResult {
                     let p = dir.join(GEOMETRY_FILE);
                     let g = &self.geometry;
                     let nn = g.resolution * g.resolution;
-                    crate::io::exr::write_tiles(
+                    let mut names = crate::bake::GEOMETRY_CHANNELS.to_vec();
+                    names.extend(TANGENT_CHANNELS);
+                    crate::io::exr::write_tiles_with_attributes(
                         &p,
                         crate::io::exr::TileLayout::new(g.faces, g.resolution),
-                        &crate::bake::GEOMETRY_CHANNELS,
+                        &names,
                         crate::io::exr::DEFAULT_COMPRESSION,
+                        &[(TANGENT_HANDEDNESS, self.handedness.bitangent_sign())],
                         |f, tile| {
                             for (c, out) in tile.chunks_exact_mut(nn).enumerate() {
+                                let range = f * nn..(f + 1) * nn;
+                                if c >= 6 {
+                                    for (o, t) in out.iter_mut().zip(&self.tangents[range]) {
+                                        *o = t[c % 3];
+                                    }
+                                    continue;
+                                }
                                 let src = if c < 3 { &g.pos } else { &g.normal };
-                                for (o, v) in out.iter_mut().zip(&src[f * nn..(f + 1) * nn]) {
+                                for (o, v) in out.iter_mut().zip(&src[range]) {
                                     *o = v[c % 3];
                                 }
                             }
@@ -922,6 +1032,12 @@ pub struct SynthCommand {
     pub mesh: PathBuf,
     pub example: PathBuf,
     pub height: Option<PathBuf>,
+    /// `--map NAME=FILE`, in the order given.
+    pub maps: Vec<(String, PathBuf)>,
+    /// `--match NAME=WEIGHT`.
+    pub matches: Vec<(String, f32)>,
+    /// `--normal-convention`.
+    pub normal_convention: NormalConvention,
     pub method: Method,
     pub resolution: usize,
     pub scale: Option<f64>,
@@ -961,6 +1077,15 @@ impl SynthCommand {
             .cache(self.cache.clone());
         if let Some(h) = &self.height {
             s = s.height(h);
+        }
+        for (name, file) in &self.maps {
+            s = s.map(name, file);
+        }
+        s = s.normal_convention(self.normal_convention);
+        if !self.matches.is_empty() {
+            let mut w = s.current_settings().weights.clone();
+            w.maps.extend(self.matches.iter().cloned());
+            s = s.weights(w);
         }
         if let Some(search) = self.search {
             s = s.search(search);

@@ -480,8 +480,8 @@ fn check_example(bytes: &[u8], height: Option<&[u8]>) -> Result<bool, TestCaseEr
                 prop_assert_eq!(a.len(), px);
                 prop_assert!(a.iter().all(|&v| unit(v)));
             }
-            prop_assert_eq!(e.height_map.is_some(), height.is_some());
-            if let Some(hm) = &e.height_map {
+            prop_assert_eq!(e.height_map().is_some(), height.is_some());
+            if let Some(hm) = e.height_map() {
                 prop_assert_eq!(hm.len(), px);
                 prop_assert!(hm.iter().all(|&v| unit(v)));
             }

@@ -283,7 +283,7 @@ fn scale_picks_levels_and_keeps_the_texture_size() {
 fn alpha_and_height_are_synthesized_jointly_and_displace_the_surface() {
     // RGBA stripes (the stripes are in alpha; colour is flat) with a height map derived
     // from the alpha (same size, as --height requires).
-    let mut ex = Example::load(data("textures/gimp_stripes_alpha.png")).unwrap();
+    let ex = Example::load(data("textures/gimp_stripes_alpha.png")).unwrap();
     assert!(ex.alpha.is_some());
     let hmap: Vec<f32> = ex
         .alpha
@@ -292,13 +292,17 @@ fn alpha_and_height_are_synthesized_jointly_and_displace_the_surface() {
         .iter()
         .map(|a| 0.2 + 0.6 * a)
         .collect();
-    ex.height_map = Some(hmap);
+    let ex = ex
+        .with_map(surfsynth::example::MaterialMap::from_linear(
+            "height", 1, hmap,
+        ))
+        .unwrap();
     let (k, n) = (2, 16);
     let surface = flat_grid(k);
     let r = run_along_x(&surface, &ex, n, 4, 1.0);
     assert_eq!(
         r.maps.names(),
-        vec!["R", "G", "B", "A", "height", "source.u", "source.v"]
+        vec!["R", "G", "B", "A", "height.Y", "height", "source.u", "source.v"]
     );
     // Every channel comes from the same example position.
     let (a, h, su, sv) = (

@@ -547,7 +547,7 @@ fn height_and_alpha_channels_are_synthesized_from_the_same_source() {
         .unwrap();
     assert_eq!(
         r.maps.names(),
-        ["R", "G", "B", "A", "height", "source.u", "source.v"]
+        ["R", "G", "B", "A", "height.Y", "height", "source.u", "source.v"]
     );
     let full = surfsynth::example::Example::load_with_height(&ex_path, Some(&hpath)).unwrap();
     let (su, sv) = (
@@ -558,11 +558,12 @@ fn height_and_alpha_channels_are_synthesized_from_the_same_source() {
     for i in 0..su.len() {
         assert!(su[i] >= 0.5 && su[i] <= w as f32 - 0.5 && sv[i] >= 0.5 && sv[i] <= h as f32 - 0.5);
         full.bilinear(su[i], sv[i], &mut v);
-        for (k, name) in ["R", "G", "B", "A", "height"].iter().enumerate() {
+        for (k, name) in ["R", "G", "B", "A", "height.Y"].iter().enumerate() {
             assert_eq!(r.maps.channel(name).unwrap()[i], v[k], "{name} at {i}");
         }
     }
-    assert_eq!(r.report.example.channels, ["R", "G", "B", "A", "height"]);
+    assert_eq!(r.maps.channel("height"), r.maps.channel("height.Y"));
+    assert_eq!(r.report.example.channels, ["R", "G", "B", "A", "height.Y"]);
 }
 
 #[test]

@@ -46,6 +46,42 @@ pub enum Handedness {
     Outside,
 }
 
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum NormalConvention {
+    /// Green points up the image (OpenGL, glTF, Blender).
+    Opengl,
+    /// Green points down the image (DirectX, Unreal).
+    Directx,
+}
+
+/// `--map NAME=FILE`.
+fn parse_map(s: &str) -> Result<(String, PathBuf), String> {
+    let Some((name, file)) = s.split_once('=') else {
+        return Err(format!("'{s}' is not NAME=FILE (e.g. --map normal=N.png)"));
+    };
+    surfsynth::example::check_map_name(name)?;
+    if file.is_empty() {
+        return Err(format!("'{s}': the file name after '=' is empty"));
+    }
+    Ok((name.to_string(), PathBuf::from(file)))
+}
+
+/// `--match NAME=WEIGHT`.
+fn parse_match(s: &str) -> Result<(String, f32), String> {
+    let Some((name, w)) = s.split_once('=') else {
+        return Err(format!("'{s}' is not NAME=WEIGHT (e.g. --match normal=1)"));
+    };
+    surfsynth::example::check_map_name(name)?;
+    let v: f32 = w
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{s}': '{w}' is not a number"))?;
+    if !(v.is_finite() && v >= 0.0) {
+        return Err(format!("'{s}': a weight is a finite number >= 0"));
+    }
+    Ok((name.to_string(), v))
+}
+
 #[derive(Args, Debug)]
 pub struct SynthArgs {
     /// Control mesh (OBJ).
@@ -54,9 +90,23 @@ pub struct SynthArgs {
     /// Example texture (PNG or JPEG; sRGB; alpha kept).
     #[arg(long, value_name = "E.png")]
     pub example: PathBuf,
-    /// Height example of the same size (grayscale, synthesized jointly).
+    /// Height example of the same size (grayscale, synthesized jointly; the same as
+    /// --map height=H.png).
     #[arg(long, value_name = "H.png")]
     pub height: Option<PathBuf>,
+    /// A further map of the material, the example's size, copied from the same source
+    /// positions (repeatable): normal (tangent-space), roughness, metallic, height,
+    /// ao/occlusion, or any name; names with colour/albedo/diffuse/emissive are sRGB.
+    #[arg(long = "map", value_name = "NAME=FILE", value_parser = parse_map)]
+    pub maps: Vec<(String, PathBuf)>,
+    /// Match map NAME too, with WEIGHT per channel (colour channels weigh 1; height 3 by
+    /// default; other maps are copied but not matched unless given here).
+    #[arg(long = "match", value_name = "NAME=WEIGHT", value_parser = parse_match)]
+    pub matches: Vec<(String, f32)>,
+    /// Green axis of the normal map: opengl (+Y up the image, glTF and Blender) or directx
+    /// (+Y down, Unreal).
+    #[arg(long, value_enum, default_value_t = NormalConvention::Opengl)]
+    pub normal_convention: NormalConvention,
     /// Synthesis method.
     #[arg(long, value_enum, default_value_t = Method::Optimise)]
     pub method: Method,
@@ -140,7 +190,40 @@ pub fn run(a: SynthArgs) -> anyhow::Result<()> {
     if a.decimate.is_some() && a.displace.is_none() {
         return super::usage("--decimate applies to the displaced mesh: pass --displace AMOUNT");
     }
-    if a.displace.is_some() && a.height.is_none() {
+    let has_height = a.height.is_some() || a.maps.iter().any(|(n, _)| n == "height");
+    if a.height.is_some() && a.maps.iter().any(|(n, _)| n == "height") {
+        return super::usage("--height is --map height=FILE: give one of them, not both");
+    }
+    if let Some((n, _)) = a
+        .maps
+        .iter()
+        .enumerate()
+        .find(|(i, (n, _))| a.maps[..*i].iter().any(|(m, _)| m == n))
+        .map(|(_, m)| m)
+    {
+        return super::usage(format!(
+            "--map {n}= is given twice; each map name must be unique"
+        ));
+    }
+    if let Some((n, _)) = a.matches.iter().find(|(n, _)| {
+        !(a.maps.iter().any(|(m, _)| m == n) || (n == "height" && a.height.is_some()))
+    }) {
+        let names: Vec<&str> = a
+            .maps
+            .iter()
+            .map(|(m, _)| m.as_str())
+            .chain(a.height.as_ref().map(|_| "height"))
+            .collect();
+        return super::usage(format!(
+            "--match {n}: there is no map named '{n}' (maps given: {})",
+            if names.is_empty() {
+                "none; add --map NAME=FILE".to_string()
+            } else {
+                names.join(", ")
+            }
+        ));
+    }
+    if a.displace.is_some() && !has_height {
         return super::usage(format!(
             "--displace needs a height channel, and {} has none: pass --height H.png",
             a.example.display()
@@ -167,6 +250,12 @@ pub fn run(a: SynthArgs) -> anyhow::Result<()> {
         mesh: a.mesh,
         example: a.example,
         height: a.height,
+        maps: a.maps,
+        matches: a.matches,
+        normal_convention: match a.normal_convention {
+            NormalConvention::Opengl => surfsynth::synthesizer::NormalConvention::OpenGl,
+            NormalConvention::Directx => surfsynth::synthesizer::NormalConvention::DirectX,
+        },
         method,
         resolution: a.resolution,
         scale: a.scale,

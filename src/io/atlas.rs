@@ -522,6 +522,17 @@ impl Atlas {
         out
     }
 
+    /// 16-bit linear values (data maps: normals, roughness, heights), NaN as 0.
+    pub fn to_16bit(&self) -> Vec<u16> {
+        self.pixels
+            .par_iter()
+            .map(|&v| {
+                let v = if v.is_nan() { 0.0 } else { v.clamp(0.0, 1.0) };
+                (v * 65535.0 + 0.5).floor() as u16
+            })
+            .collect()
+    }
+
     /// PNG bytes of [`Self::to_8bit`] (deterministic: fixed compression and filter).
     pub fn encode_png(&self, out: &mut impl Write) -> std::result::Result<(), String> {
         encode_png(&self.to_8bit(), &self.layout, self.channels, out)
@@ -550,6 +561,29 @@ pub fn encode_png(
     e.set_filter(png::Filter::Adaptive);
     let mut w = e.write_header().map_err(|e| e.to_string())?;
     w.write_image_data(pixels).map_err(|e| e.to_string())?;
+    w.finish().map_err(|e| e.to_string())
+}
+
+/// [`encode_png`] of 16-bit pixels (stored big-endian, as PNG wants).
+pub fn encode_png16(
+    pixels: &[u16],
+    layout: &AtlasLayout,
+    channels: usize,
+    out: &mut impl Write,
+) -> std::result::Result<(), String> {
+    let mut e = png::Encoder::new(out, layout.width() as u32, layout.height() as u32);
+    e.set_color(match channels {
+        1 => png::ColorType::Grayscale,
+        2 => png::ColorType::GrayscaleAlpha,
+        3 => png::ColorType::Rgb,
+        _ => png::ColorType::Rgba,
+    });
+    e.set_depth(png::BitDepth::Sixteen);
+    e.set_deflate_compression(png::DeflateCompression::Level(3));
+    e.set_filter(png::Filter::Adaptive);
+    let bytes: Vec<u8> = pixels.iter().flat_map(|v| v.to_be_bytes()).collect();
+    let mut w = e.write_header().map_err(|e| e.to_string())?;
+    w.write_image_data(&bytes).map_err(|e| e.to_string())?;
     w.finish().map_err(|e| e.to_string())
 }
 
@@ -758,11 +792,30 @@ impl SurfaceMesh {
 
 /// MTL text for the atlas; `alpha` adds `map_d` (cut-outs) from the atlas's alpha.
 pub fn mtl_text(atlas: &str, alpha: bool) -> String {
+    mtl_text_with_maps(atlas, alpha, &[])
+}
+
+/// [`mtl_text`] with the atlases of a material's maps, `(NAME, FILE)`: the PBR extension's
+/// statements where one exists (`norm` and `map_Bump` for the normal map — Blender's and
+/// most readers' names —, `map_Pr` roughness, `map_Pm` metallic, `disp` height, `map_Ke`
+/// emission), a comment naming the file for the others (occlusion has no MTL statement).
+pub fn mtl_text_with_maps(atlas: &str, alpha: bool, maps: &[(String, String)]) -> String {
     let mut s = format!(
         "# surfsynth material\nnewmtl {MATERIAL}\nKa 0 0 0\nKd 1 1 1\nKs 0 0 0\nd 1\nillum 1\nmap_Kd {atlas}\n"
     );
     if alpha {
         s.push_str(&format!("map_d -imfchan m {atlas}\n"));
+    }
+    for (name, file) in maps {
+        let line = match name.as_str() {
+            "normal" => format!("norm {file}\nmap_Bump -bm 1 {file}\n"),
+            "roughness" => format!("map_Pr {file}\n"),
+            "metallic" | "metalness" => format!("map_Pm {file}\n"),
+            "height" => format!("disp {file}\n"),
+            "emissive" | "emission" => format!("map_Ke {file}\n"),
+            _ => format!("# map {name} {file}\n"),
+        };
+        s.push_str(&line);
     }
     s
 }
@@ -823,18 +876,55 @@ pub fn export_images(
     maps: &FaceMaps,
     opts: &ExportOptions,
 ) -> Result<(ExportSummary, crate::io::materials::MaterialImages)> {
+    export_with_frames(dir, surface, maps, opts, None)
+}
+
+/// [`export_images`] for face maps whose `normal.*` is in the orientation field's frame
+/// (`frames`; facemaps.exr as `synth` writes it): the normal atlases are re-expressed in
+/// the tangent frames renderers derive from surface.obj's UVs ([`crate::io::tangent`]).
+pub fn export_with_frames(
+    dir: impl AsRef<Path>,
+    surface: &Surface,
+    maps: &FaceMaps,
+    opts: &ExportOptions,
+    frames: Option<crate::io::tangent::FieldFrames<'_>>,
+) -> Result<(ExportSummary, crate::io::materials::MaterialImages)> {
     let dir = dir.as_ref();
     check_maps(surface, maps, opts.gutter)?;
     let level = opts
         .level
         .unwrap_or_else(|| level_for_resolution(maps.resolution));
     let layout = AtlasLayout::new(maps.faces, maps.resolution, opts.gutter);
-    let (images, mesh) = rayon::join(
-        || crate::io::materials::material_images(surface, maps, opts.gutter),
-        || tessellate(surface, &layout, level),
-    );
+    let (images, mesh) = match frames.filter(|_| maps.channel("normal.R").is_some()) {
+        // The normal atlas needs the tessellation's triangles first.
+        Some(f) => {
+            let mesh = tessellate(surface, &layout, level);
+            let uv = crate::io::tangent::UvFrames::new(surface, &mesh, layout);
+            let normal = crate::io::tangent::normal_atlas(surface, maps, f, &uv, opts.gutter)?;
+            (
+                crate::io::materials::material_images(surface, maps, opts.gutter, normal.as_ref()),
+                mesh,
+            )
+        }
+        None => rayon::join(
+            || crate::io::materials::material_images(surface, maps, opts.gutter, None),
+            || tessellate(surface, &layout, level),
+        ),
+    };
     let images = images?;
     let alpha = images.alpha;
+
+    let mut map_files = Vec::with_capacity(images.maps.len());
+    let mut map_list = Vec::with_capacity(images.maps.len());
+    for m in &images.maps {
+        let path = dir.join(m.file_name());
+        let mut f = AtomicFile::create(&path)?;
+        f.writer()
+            .write_all(&m.png)
+            .map_err(|e| Error::io(&path, "cannot write", e))?;
+        map_files.push(f);
+        map_list.push((m.name.clone(), m.file_name()));
+    }
 
     let png_path = dir.join(ATLAS_NAME);
     let mut png = AtomicFile::create(&png_path)?;
@@ -845,7 +935,7 @@ pub fn export_images(
     let mtl_path = dir.join(MTL_NAME);
     let mut mtl = AtomicFile::create(&mtl_path)?;
     mtl.writer()
-        .write_all(mtl_text(ATLAS_NAME, alpha).as_bytes())
+        .write_all(mtl_text_with_maps(ATLAS_NAME, alpha, &map_list).as_bytes())
         .map_err(|e| Error::io(&mtl_path, "cannot write", e))?;
 
     let obj_path = dir.join(OBJ_NAME);
@@ -875,7 +965,10 @@ pub fn export_images(
     );
     let (obj, glb) = (obj?, glb?);
 
-    // The OBJ refers to the MTL, which refers to the PNG: publish in that dependency order.
+    // The OBJ refers to the MTL, which refers to the PNGs: publish in that dependency order.
+    for f in map_files {
+        f.commit()?;
+    }
     png.commit()?;
     mtl.commit()?;
     obj.commit()?;

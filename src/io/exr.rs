@@ -297,6 +297,47 @@ pub fn write_tiles<F>(
 where
     F: Fn(usize, &mut [f32]) + Sync,
 {
+    write_tiles_with_attributes(path, layout, names, compression, &[], fill, progress)
+}
+
+/// The exr crate keeps custom attributes in a `HashMap` and writes them in its iteration
+/// order, which depends on a per-map random seed: with more than one attribute in a map,
+/// two runs would write different bytes. Each fresh map gets a different seed, so maps are
+/// built until one iterates in name order (for two or three attributes a few tries): the
+/// same bytes every run.
+fn name_ordered(
+    attrs: Vec<(Text, AttributeValue)>,
+) -> std::collections::HashMap<Text, AttributeValue> {
+    let mut sorted = attrs;
+    sorted.sort_by(|a, b| a.0.as_slice().cmp(b.0.as_slice()));
+    let mut map = std::collections::HashMap::new();
+    for _ in 0..100_000 {
+        map = sorted.iter().cloned().collect();
+        if map
+            .keys()
+            .map(|k| k.as_slice())
+            .eq(sorted.iter().map(|a| a.0.as_slice()))
+        {
+            break;
+        }
+    }
+    map
+}
+
+/// [`write_tiles`] with extra integer header attributes (e.g. geometry.exr's
+/// `tangentHandedness`), written in name order beside the layer's `faces`.
+pub fn write_tiles_with_attributes<F>(
+    path: impl AsRef<Path>,
+    layout: TileLayout,
+    names: &[&str],
+    compression: Compression,
+    attributes: &[(&str, i32)],
+    fill: F,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Result<()>
+where
+    F: Fn(usize, &mut [f32]) + Sync,
+{
     let path = path.as_ref();
     check_shape(layout.faces, layout.resolution)?;
     check_names(names)?;
@@ -338,10 +379,16 @@ where
     // with both ints in one map, two runs would write different bytes. One attribute per
     // map makes the order fixed (layer map first, then the image map); readers see both as
     // ordinary header attributes.
-    header.own_attributes.other.insert(
+    let mut own = vec![(
         Text::from(ATTR_FACES),
         AttributeValue::I32(layout.faces as i32),
+    )];
+    own.extend(
+        attributes
+            .iter()
+            .map(|(k, v)| (Text::from(*k), AttributeValue::I32(*v))),
     );
+    header.own_attributes.other = name_ordered(own);
     header.shared_attributes.other.insert(
         Text::from(ATTR_RESOLUTION),
         AttributeValue::I32(layout.resolution as i32),

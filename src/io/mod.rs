@@ -12,4 +12,5 @@ pub mod gltf;
 pub mod interrupt;
 pub mod materials;
 pub mod ptex;
+pub mod tangent;
 pub mod txn;

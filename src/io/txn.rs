@@ -40,6 +40,14 @@ pub const SYNTH_OUTPUTS: &[&str] = &[
     "surface.obj",
     "surface.mtl",
     "atlas.png",
+    // The atlases of the usual maps of a material (any other `atlas_NAME.png` is written
+    // too; these are also retired when a later run does not write them again).
+    "atlas_normal.png",
+    "atlas_roughness.png",
+    "atlas_metallic.png",
+    "atlas_height.png",
+    "atlas_ao.png",
+    "atlas_occlusion.png",
     "surface.glb",
     "displaced.glb",
     "report.json",

@@ -268,8 +268,23 @@ pub fn synthesize(
     analyses: &Analyses,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<Output> {
+    settings.weights.check(example)?;
+    // The matchers see the colour and the weighted maps only; every map is copied later
+    // from the sources they find ([`face_maps`]).
+    let matched = settings.weights.matched(example);
+    let example = &matched;
     let weighted = weighted_image(example, &settings.weights);
     let mode = settings.appearance;
+    if mode == AppearanceMode::Rgb
+        && weighted.channels > 5
+        && !matches!(settings.method, Method::Multiscale | Method::Jump)
+    {
+        return Err(crate::Error::invalid(format!(
+            "--appearance rgb compares at most 5 channels with --method {}, and the example with its weighted maps has {}; use --appearance pca (the default) or weigh fewer maps",
+            settings.method.name(),
+            weighted.channels
+        )));
+    }
     match settings.method {
         Method::Coherent => Ok(with_dims!(
             mode,
@@ -347,15 +362,24 @@ pub fn appearance(
     mode: AppearanceMode,
     k: usize,
 ) -> std::sync::Arc<Appearance> {
-    let key = crate::cache::KeyBuilder::new("appearance")
+    let key = appearance_key(weighted, mode, k);
+    analyses.get("appearance", key, || {
+        Appearance::build(weighted, mode, WINDOW, k)
+    })
+}
+
+/// The cache key of an appearance space. It hashes the weighted image itself, so the
+/// maps that are matched and their weights are in it (a material with the normal map at
+/// weight 1 and one at weight 2 are different analyses); maps that are only copied are not
+/// (they change nothing the analysis computes, and leaving them out lets a material reuse
+/// the analysis of its colour alone).
+pub fn appearance_key(weighted: &Image, mode: AppearanceMode, k: usize) -> crate::cache::Key {
+    crate::cache::KeyBuilder::new("appearance")
         .image(weighted)
         .str(mode.name())
         .u64(k as u64)
         .u64(WINDOW as u64)
-        .finish();
-    analyses.get("appearance", key, || {
-        Appearance::build(weighted, mode, WINDOW, k)
-    })
+        .finish()
 }
 
 fn coherent_output<const K: usize>(
@@ -456,17 +480,26 @@ pub fn run_coherent(
 
 /// Weights of the matched channels in the l2 distance.
 ///
-/// All channels are in 0..1 (linear RGB, alpha, height scaled to the file's range), so
+/// All channels are in 0..1 (linear RGB, alpha, maps scaled to the file's range), so
 /// weight 1 means "a full-range step in this channel counts as much as a full-range step in
 /// one colour channel". Alpha defaults to 1: transparency edges are as visible as colour
 /// edges. Height defaults to 3: it is one channel against three colour channels, and a
 /// height map's structure (bumps, grooves) is what it is for; with 3 it weighs as much as
 /// the colour together, so colour and relief stay aligned.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+///
+/// Other maps of a material (`--map`) are matched only when given a weight (`--match
+/// NAME=WEIGHT`, per channel like `color`): a roughness or normal map usually follows the
+/// colour's structure, so comparing it costs time without changing what is found, and a
+/// map that is not matched is still copied from the same source positions.
+#[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Weights {
     pub color: f32,
     pub alpha: f32,
+    /// The height map's weight when [`Weights::maps`] does not name it.
     pub height: f32,
+    /// `--match NAME=WEIGHT`: the weight of each channel of map NAME (the last one given
+    /// counts).
+    pub maps: Vec<(String, f32)>,
 }
 
 impl Default for Weights {
@@ -475,19 +508,65 @@ impl Default for Weights {
             color: 1.0,
             alpha: 1.0,
             height: 3.0,
+            maps: Vec::new(),
         }
     }
 }
 
 impl Weights {
+    /// The weight of each channel of the map named `name` (0: copied, not matched).
+    pub fn map(&self, name: &str) -> f32 {
+        self.maps
+            .iter()
+            .rev()
+            .find(|(n, _)| n == name)
+            .map(|m| m.1)
+            .unwrap_or(if name == crate::example::HEIGHT {
+                self.height
+            } else {
+                0.0
+            })
+    }
+
+    /// Refuses weights of maps `example` does not have, and weights that are not finite
+    /// non-negative numbers (one line naming the map).
+    pub fn check(&self, example: &Example) -> Result<()> {
+        for (name, w) in &self.maps {
+            if example.map(name).is_none() {
+                let have: Vec<&str> = example.maps.iter().map(|m| m.name.as_str()).collect();
+                return Err(crate::Error::invalid(format!(
+                    "--match {name}: there is no map named '{name}' (maps given: {})",
+                    if have.is_empty() {
+                        "none; add --map NAME=FILE".to_string()
+                    } else {
+                        have.join(", ")
+                    }
+                )));
+            }
+            if !(w.is_finite() && *w >= 0.0) {
+                return Err(crate::Error::invalid(format!(
+                    "--match {name}={w}: a weight is a finite number >= 0"
+                )));
+            }
+        }
+        Ok(())
+    }
+
+    /// What the matchers see of `example`: its colour (and alpha) and the maps with a
+    /// positive weight.
+    pub fn matched(&self, example: &Example) -> Example {
+        example.with_maps_where(|m| self.map(&m.name) > 0.0)
+    }
+
     /// One weight per channel of [`Example::channel_names`].
     pub fn per_channel(&self, example: &Example) -> Vec<f32> {
         let mut w = vec![self.color; 3];
         if example.alpha.is_some() {
             w.push(self.alpha);
         }
-        if example.height_map.is_some() {
-            w.push(self.height);
+        for m in &example.maps {
+            let mw = self.map(&m.name);
+            w.extend(std::iter::repeat_n(mw, m.channels));
         }
         w
     }
@@ -523,27 +602,44 @@ pub fn frames_f32(frames: &[Frame]) -> Vec<[Vec3; 2]> {
         .collect()
 }
 
-/// Names of the channels of `facemaps.exr` for `example`: R G B \[A\] \[height\] source.u
-/// source.v.
-pub fn output_channels(example: &Example) -> Vec<&'static str> {
+/// Names of the channels of `facemaps.exr` for `example`: R G B \[A\], every map's
+/// (`NAME.R NAME.G NAME.B` or `NAME.Y`), `height` again when there is a height map (the
+/// name BRIEF's first contract and `--displace` use), source.u source.v.
+pub fn output_channels(example: &Example) -> Vec<String> {
     let mut v = example.channel_names();
-    v.extend(["source.u", "source.v"]);
+    if example.height_map().is_some() {
+        v.push(crate::example::HEIGHT.into());
+    }
+    v.extend(["source.u".into(), "source.v".into()]);
     v
 }
 
 /// The `facemaps.exr` content: every channel looked up bilinearly in the (unweighted)
-/// example at the texel's source position — all channels from the same place — plus the
-/// source position itself.
+/// example at the texel's source position — all channels of all maps from the same place
+/// — plus the source position itself.
 pub fn face_maps(example: &Example, source: &[[f32; 2]], faces: usize, n: usize) -> FaceMaps {
     let names = output_channels(example);
     let k = example.num_channels();
+    // The height alias: the channel of the height map, copied.
+    let alias = example.height_map().map(|_| {
+        let mut c = 3 + example.alpha.is_some() as usize;
+        for m in &example.maps {
+            if m.name == crate::example::HEIGHT {
+                break;
+            }
+            c += m.channels;
+        }
+        c
+    });
+    let kk = k + alias.is_some() as usize;
     let nn = n * n;
     assert_eq!(source.len(), faces * nn);
-    let mut maps = FaceMaps::new(faces, n, &names);
+    let name_refs: Vec<&str> = names.iter().map(|s| s.as_str()).collect();
+    let mut maps = FaceMaps::new(faces, n, &name_refs);
     // Written in place, one domain's slice of every channel per task (no second copy of
     // the maps: issue 14, item 6).
     let mut per_face: Vec<Vec<&mut [f32]>> =
-        (0..faces).map(|_| Vec::with_capacity(k + 2)).collect();
+        (0..faces).map(|_| Vec::with_capacity(kk + 2)).collect();
     for (_, data) in maps.channels.iter_mut() {
         for (f, chunk) in data.chunks_mut(nn.max(1)).enumerate().take(faces) {
             per_face[f].push(chunk);
@@ -553,15 +649,18 @@ pub fn face_maps(example: &Example, source: &[[f32; 2]], faces: usize, n: usize)
         .into_par_iter()
         .enumerate()
         .for_each(|(f, mut ch)| {
-            let mut v = [0.0f32; 8];
+            let mut v = vec![0.0f32; k];
             for i in 0..nn {
                 let s = source[f * nn + i];
-                example.bilinear(s[0], s[1], &mut v[..k]);
+                example.bilinear(s[0], s[1], &mut v);
                 for c in 0..k {
                     ch[c][i] = v[c];
                 }
-                ch[k][i] = s[0];
-                ch[k + 1][i] = s[1];
+                if let Some(a) = alias {
+                    ch[k][i] = v[a];
+                }
+                ch[kk][i] = s[0];
+                ch[kk + 1][i] = s[1];
             }
         });
     maps
@@ -579,4 +678,71 @@ pub fn geometry_maps(geom: &TexelGeometry) -> FaceMaps {
             .for_each(|(o, v)| *o = v[axis]);
     }
     maps
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::example::MaterialMap;
+
+    fn material() -> Example {
+        let rgb = (0..256)
+            .map(|i| [(i % 16) as f32 / 16.0, 0.5, 0.2])
+            .collect();
+        let nrm = (0..256 * 3).map(|i| (i % 7) as f32 / 7.0).collect();
+        let rough = (0..256).map(|i| (i / 16) as f32 / 16.0).collect();
+        Example::from_linear(16, 16, rgb)
+            .with_map(MaterialMap::from_linear("normal", 3, nrm))
+            .unwrap()
+            .with_map(MaterialMap::from_linear("roughness", 1, rough))
+            .unwrap()
+    }
+
+    /// The analysis key changes with the matched maps and their weights, not with maps that
+    /// are only copied.
+    #[test]
+    fn appearance_key_follows_matched_maps_and_weights() {
+        let ex = material();
+        let key = |w: &Weights| {
+            let m = w.matched(&ex);
+            appearance_key(&weighted_image(&m, w), AppearanceMode::Pca, DIMS)
+        };
+        let plain = Weights::default();
+        let colour_only = Example::from_linear(16, 16, ex.rgb.clone());
+        assert_eq!(
+            key(&plain),
+            appearance_key(
+                &weighted_image(&colour_only, &plain),
+                AppearanceMode::Pca,
+                DIMS
+            )
+        );
+        let mut w1 = plain.clone();
+        w1.maps.push(("normal".into(), 1.0));
+        let mut w2 = plain.clone();
+        w2.maps.push(("normal".into(), 2.0));
+        let mut w3 = plain.clone();
+        w3.maps.push(("roughness".into(), 1.0));
+        let keys = [key(&plain), key(&w1), key(&w2), key(&w3)];
+        for i in 0..4 {
+            for j in 0..i {
+                assert_ne!(keys[i], keys[j], "{i} vs {j}");
+            }
+        }
+        assert_eq!(w1.per_channel(&ex), [1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.0]);
+        assert_eq!(w1.matched(&ex).num_channels(), 6);
+    }
+
+    #[test]
+    fn unknown_match_names_are_refused() {
+        let ex = material();
+        let mut w = Weights::default();
+        w.maps.push(("metalness".into(), 1.0));
+        let e = w.check(&ex).unwrap_err().to_string();
+        assert!(
+            e.contains("metalness") && e.contains("normal, roughness"),
+            "{e}"
+        );
+        assert!(!e.contains('\n'));
+    }
 }

@@ -32,8 +32,8 @@
 //! rebuilt by every synthesis.
 
 use super::{
-    check_size, orientation_label, Handedness, MeshSource, Progress, Stage, SynthResult,
-    WriteOptions,
+    check_size, orientation_label, Handedness, MeshSource, NormalConvention, Progress, Stage,
+    SynthResult, WriteOptions,
 };
 use crate::error::{Error, Result};
 use crate::example::Example;
@@ -44,6 +44,7 @@ use crate::report::{ExampleInfo, Inputs, Report, Seconds};
 use crate::synth::footprint::LevelTexels;
 use crate::synth::{Analyses, Derived, Method, Settings, Target};
 use crate::texels::{TexelGeometry, TexelGraph};
+use rayon::prelude::*;
 use std::sync::{Arc, OnceLock};
 use std::time::Instant;
 use subdiv::{ControlMesh, Surface};
@@ -101,6 +102,9 @@ pub struct SynthParams {
     pub seed: u64,
     /// Which way round the example is laid on the surface.
     pub handedness: Handedness,
+    /// How the green channel of the example's `normal` map is to be read
+    /// (`--normal-convention`).
+    pub normal_convention: NormalConvention,
     /// `--displace AMOUNT` (needs a height channel): [`SynthResult::write`] also writes
     /// displaced.glb.
     pub displace: Option<f64>,
@@ -115,6 +119,7 @@ impl Default for SynthParams {
             settings: Settings::default(),
             seed: 1,
             handedness: Handedness::default(),
+            normal_convention: NormalConvention::default(),
             displace: None,
             write_options: WriteOptions::default(),
         }
@@ -427,12 +432,17 @@ impl Session {
         } else {
             example.path.display().to_string()
         };
+        // As the one-shot run names it: the height map's file.
+        let height = example
+            .map(crate::example::HEIGHT)
+            .filter(|m| !m.path.as_os_str().is_empty())
+            .map(|m| m.path.display().to_string());
         self.run(
             example.clone(),
             params,
             Labels {
                 example: label,
-                height: None,
+                height,
             },
             Instant::now(),
             PrepareSeconds::default(),
@@ -473,6 +483,16 @@ impl Session {
         Ok(self.finish(example, params, labels, s, started, seconds))
     }
 
+    /// The field's v1 per texel (geometry.exr `T.X T.Y T.Z`: unit directions, the same in
+    /// the user's units).
+    fn tangents(&self) -> Vec<[f32; 3]> {
+        self.texels
+            .frames
+            .par_iter()
+            .map(|f| f[0].to_array())
+            .collect()
+    }
+
     /// The synthesis stage: source positions and what the method reports.
     fn synthesis(
         &self,
@@ -488,7 +508,8 @@ impl Session {
         let settings = &params.settings;
         let n = self.resolution;
         let faces = self.faces();
-        let has_height = example.channel_names().contains(&"height");
+        settings.weights.check(example)?;
+        let has_height = example.height_map().is_some();
         if params.displace.is_some() && !has_height {
             return Err(Error::invalid(format!(
                 "--displace needs a height channel, and {} has none: pass --height H.png",
@@ -500,8 +521,9 @@ impl Session {
         }
         // This run's memory (the method and the example decide it; the mesh part was
         // checked when it was prepared).
+        // (+ the height alias channel of facemaps.exr, + source.u source.v)
         let job = Job::Synth {
-            channels: example.num_channels() + 2,
+            channels: example.num_channels() + has_height as usize + 2,
             example_pixels: example.width * example.height,
             method: settings.method,
             displace: params.displace.is_some(),
@@ -548,6 +570,7 @@ impl Session {
         let synthesis_s = t0.elapsed().as_secs_f64();
         Ok(Synthesized {
             source,
+            tangents: self.tangents(),
             appearance: out.appearance,
             details: out.details,
             cache,
@@ -591,8 +614,18 @@ impl Session {
 
         progress(Stage::Maps, 0, 1);
         let t0 = Instant::now();
-        let maps = crate::synth::face_maps(&example, &s.source, faces, n);
+        let mut maps = crate::synth::face_maps(&example, &s.source, faces, n);
         drop(s.source);
+        // facemaps.exr keeps the normal map in the field's frame (T, N x T, N): the file's
+        // green axis is image up, which is +v2 when rows run along -v2 (outside) and -v2
+        // for tiles; DirectX files have green pointing down.
+        let flip_green = (params.handedness == Handedness::Tiles)
+            != (params.normal_convention == NormalConvention::DirectX);
+        if flip_green {
+            if let Some(g) = maps.channel_mut("normal.G") {
+                g.par_iter_mut().for_each(|v| *v = 1.0 - *v);
+            }
+        }
         let maps_s = t0.elapsed().as_secs_f64();
         progress(Stage::Maps, 1, 1);
 
@@ -603,6 +636,20 @@ impl Session {
                 mesh: self.mesh_label.clone(),
                 example: labels.example,
                 height: labels.height,
+                maps: example
+                    .maps
+                    .iter()
+                    .map(|m| crate::report::MapInfo {
+                        name: m.name.clone(),
+                        file: m.path.display().to_string(),
+                        kind: m.kind,
+                        channels: m.channels,
+                        weight: settings.weights.map(&m.name),
+                    })
+                    .collect(),
+                normal_convention: example
+                    .map(crate::example::NORMAL)
+                    .map(|_| params.normal_convention),
             },
             method: settings.method,
             seed: params.seed,
@@ -632,7 +679,7 @@ impl Session {
                     .collect(),
             },
             channels: maps.names().iter().map(|s| s.to_string()).collect(),
-            weights: settings.weights,
+            weights: settings.weights.clone(),
             appearance: s.appearance,
             details: s.details,
             threads: rayon::current_num_threads(),
@@ -658,6 +705,8 @@ impl Session {
         SynthResult {
             maps,
             geometry,
+            tangents: s.tangents,
+            handedness: params.handedness,
             surface,
             example,
             report,
@@ -671,6 +720,9 @@ impl Session {
 /// What the synthesis stage hands to the maps stage.
 struct Synthesized {
     source: Vec<[f32; 2]>,
+    /// The field's v1 per texel (taken while the frames are there: a one-shot run frees
+    /// them before the maps stage).
+    tangents: Vec<[f32; 3]>,
     appearance: crate::synth::matching::appearance::AppearanceInfo,
     details: crate::synth::Details,
     cache: crate::synth::analysis::CacheReport,
