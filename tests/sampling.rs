@@ -182,7 +182,7 @@ fn survey(s: &Surface, sam: &Sampler, k: usize, texels: f64, max_bend: f64) -> M
 fn samplers_produce_square_fold_free_grids_on_five_meshes() {
     // (mesh, worst spacing of either sampler, chart-vs-march bounds for K5 δ1, K5 δ2, K9 δ1;
     // measured: cube 0.20/0.58/1.15%, torus 0.16/0.16/0.31%, Spot 0.90/1.32/1.70%, double
-    // torus 0.53/0.76/2.45%, cube_no_bottom 0.18/0.72/0.76%, edgecorner 0.02/0.04/0.08%)
+    // torus 0.53/0.76/2.45%, cube_no_bottom 0.17/0.63/1.00%, edgecorner 0.02/0.04/0.08%)
     for (rel, spacing, agree) in [
         (
             "opensubdiv-reference/catmark_cube.obj",
@@ -204,7 +204,8 @@ fn samplers_produce_square_fold_free_grids_on_five_meshes() {
             0.045,
             [0.007, 0.010, 0.028],
         ),
-        ("meshes/cube_no_bottom.obj", 0.04, [0.003, 0.009, 0.010]),
+        // K9 δ1 on the open cube: 0.76% with the Gauss–Seidel field, 1.00% with the multigrid one.
+        ("meshes/cube_no_bottom.obj", 0.04, [0.003, 0.009, 0.012]),
         (
             "opensubdiv-reference/catmark_edgecorner.obj",
             0.04,
