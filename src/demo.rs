@@ -40,6 +40,7 @@ pub fn command(out: &Path) -> SynthCommand {
     SynthCommand {
         mesh: inputs.join(MESH_NAME),
         example: inputs.join(EXAMPLE_NAME),
+        btf: None,
         height: None,
         method: Method::DEFAULT,
         resolution: RESOLUTION,

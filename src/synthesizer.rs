@@ -160,6 +160,9 @@ impl From<Surface> for MeshSource {
 pub enum ExampleSource {
     Path(PathBuf),
     Example(Box<Example>),
+    /// A BTF sample's btf.json ([`crate::btf`]): the example is its default image, and
+    /// texton synthesis ([`Method::Textons`]) analyses every image.
+    Btf(PathBuf),
 }
 
 impl From<&str> for ExampleSource {
@@ -449,6 +452,7 @@ impl Synthesizer {
                 e.path.display().to_string()
             }
             ExampleSource::Example(_) => "<in memory>".into(),
+            ExampleSource::Btf(p) => p.display().to_string(),
         }
     }
 
@@ -562,7 +566,23 @@ impl Synthesizer {
         let t0 = Instant::now();
         // Image headers first: sizes and memory are checked before a pixel is decoded (an
         // image bomb is refused here, naming the image).
+        let btf = match (&self.example, &self.height) {
+            (ExampleSource::Btf(p), Some(h)) => {
+                return Err(Error::file(
+                    h,
+                    format!(
+                        "a height file cannot be combined with the BTF sample {}",
+                        p.display()
+                    ),
+                ))
+            }
+            (ExampleSource::Btf(p), None) => {
+                Some(std::sync::Arc::new(crate::btf::BtfSample::load(p)?))
+            }
+            _ => None,
+        };
         let pending = match self.example {
+            ExampleSource::Btf(_) => None,
             ExampleSource::Path(ref p) => {
                 let ex = PendingImage::open(p)?;
                 let h = match &self.height {
@@ -592,6 +612,10 @@ impl Synthesizer {
                 (e.width * e.height) as u64,
                 e.channel_names().contains(&"height"),
             ),
+            (None, ExampleSource::Btf(_)) => {
+                let b = btf.as_ref().expect("a BTF source is loaded above");
+                (3, (b.width * b.height * b.images.len()) as u64, false)
+            }
             (None, ExampleSource::Path(_)) => unreachable!("a path example has a header"),
         };
         if self.displace.is_some() && !has_height {
@@ -636,6 +660,7 @@ impl Synthesizer {
         let example = match (pending, &self.example) {
             (Some((ex, h)), _) => Example::from_pending(ex, h)?,
             (None, ExampleSource::Example(e)) => (**e).clone(),
+            (None, ExampleSource::Btf(_)) => btf.as_ref().expect("loaded above").example(),
             (None, ExampleSource::Path(_)) => unreachable!("a path example has a header"),
         };
         // Any scale works: a mesh far from unit size is divided by a power of two
@@ -742,13 +767,24 @@ impl Synthesizer {
             .analyses
             .clone()
             .unwrap_or_else(|| std::sync::Arc::new(Analyses::new(&self.cache)));
-        let out = crate::synth::synthesize(
-            synth_example,
-            &target,
-            &self.settings,
-            &analyses,
-            &|d, t| progress(Stage::Synthesis, d * faces / t.max(1), faces),
-        )?;
+        // A BTF run hands every image to the method, turned as the example is.
+        let btf_settings;
+        let settings = match &btf {
+            None => &self.settings,
+            Some(b) => {
+                let mut s = self.settings.clone();
+                s.btf = Some(match self.handedness {
+                    Handedness::Outside => b.clone(),
+                    Handedness::Tiles => std::sync::Arc::new(b.flipped_rows()),
+                });
+                btf_settings = s;
+                &btf_settings
+            }
+        };
+        let out =
+            crate::synth::synthesize(synth_example, &target, settings, &analyses, &|d, t| {
+                progress(Stage::Synthesis, d * faces / t.max(1), faces)
+            })?;
         let cache = analyses.report(analyses.take_events());
         let mut source = out.source;
         if self.handedness == Handedness::Tiles {
@@ -785,6 +821,12 @@ impl Synthesizer {
                 mesh: mesh_label,
                 example: example_label,
                 height: self.height.as_ref().map(|h| h.display().to_string()),
+                btf: btf.as_ref().map(|b| {
+                    std::path::absolute(&b.path)
+                        .unwrap_or_else(|_| b.path.clone())
+                        .display()
+                        .to_string()
+                }),
             },
             method: self.settings.method,
             seed: self.seed,
@@ -1057,6 +1099,8 @@ pub struct WriteOptions {
 pub struct SynthCommand {
     pub mesh: PathBuf,
     pub example: PathBuf,
+    /// `--btf B.json` (instead of `example`).
+    pub btf: Option<PathBuf>,
     pub height: Option<PathBuf>,
     pub method: Method,
     pub resolution: usize,
@@ -1084,7 +1128,11 @@ impl SynthCommand {
     /// The builder for this command (threads: the current rayon pool, which the CLI sizes
     /// with `--threads`).
     pub fn synthesizer(&self) -> Synthesizer {
-        let mut s = Synthesizer::new(&self.mesh, &self.example)
+        let example = match &self.btf {
+            Some(b) => ExampleSource::Btf(b.clone()),
+            None => ExampleSource::Path(self.example.clone()),
+        };
+        let mut s = Synthesizer::new(&self.mesh, example)
             .method(self.method)
             .resolution(self.resolution)
             .scale(self.scale)
