@@ -48,8 +48,8 @@ fn main() -> anyhow::Result<()> {
 
     // The surface BTF under two lights (world directions towards the light).
     for (name, l) in [
-        ("light_left.png", [-1.0, 0.8, 0.6]),
-        ("light_right.png", [1.0, 0.8, -0.6]),
+        ("light_left.png", [1.0, 1.2, 0.4]),
+        ("light_right.png", [0.4, 1.2, -1.0]),
     ] {
         let opts = RenderOptions {
             light: Some(l),

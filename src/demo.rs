@@ -81,8 +81,8 @@ pub const BTF_RESOLUTION: usize = 16;
 pub const BTF_LIGHTS: usize = 32;
 /// The two lights of the demo's BTF previews (world directions towards the light).
 pub const BTF_PREVIEW_LIGHTS: [(&str, [f64; 3]); 2] = [
-    ("preview_light_left.png", [-1.0, 0.8, 0.6]),
-    ("preview_light_right.png", [1.0, 0.8, -0.6]),
+    ("preview_light_left.png", [1.0, 1.2, 0.4]),
+    ("preview_light_right.png", [0.4, 1.2, -1.0]),
 ];
 
 /// The BTF part of the demo (paper 003): a procedural relief ray-traced under
