@@ -199,7 +199,7 @@ pub const BLOCK: [(i32, i32); 24] = {
 const CORNER_UV: [(f64, f64); 4] = [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)];
 
 /// The neighbourhood graph over all texels (see the module docs).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct TexelGraph {
     /// Number of face domains F.
     pub faces: usize,
@@ -337,7 +337,7 @@ impl TexelGraph {
 /// a cut over them finds domain borders cheaper to cut along wherever the lists on the
 /// two sides of a border are not symmetric (measured on the double torus: 3x as many
 /// cut pairs on domain borders as inside, seam ratio 1.28).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct EdgeGraph {
     start: Vec<u32>,
     list: Vec<u32>,
@@ -345,39 +345,46 @@ pub struct EdgeGraph {
 
 impl EdgeGraph {
     /// Builds the graph (in parallel per domain; independent of the thread count).
+    ///
+    /// Within a domain the grid's 4-neighbourhood is symmetric by itself, so only the
+    /// walks across domain edges (from border texels) are collected and symmetrised; the
+    /// lists are then written in place. The peak is the graph itself plus the border
+    /// edges (it was 16 pairs of 8 B per texel, twice: 128 B per texel at the graph stage,
+    /// issue 14 item 6); the lists are the same.
     pub fn build(surface: &Surface, geom: &TexelGeometry) -> Self {
         let n = geom.resolution;
         let nn = n * n;
+        let total = geom.len();
         let inv = 1.0 / n as f64;
-        let pairs: Vec<Vec<(u32, u32)>> = (0..geom.faces)
+        // Walked edges (t, u) from the border texels, both ways round.
+        let walked: Vec<Vec<(u32, u32)>> = (0..geom.faces)
             .into_par_iter()
             .map(|d| {
                 let base = d * nn;
-                let mut out = Vec::with_capacity(4 * nn);
+                let mut out = Vec::new();
                 for y in 0..n {
                     for x in 0..n {
+                        if x > 0 && y > 0 && x + 1 < n && y + 1 < n {
+                            continue;
+                        }
                         let t = (base + y * n + x) as u32;
                         for (a, b) in [(1i64, 0i64), (-1, 0), (0, 1), (0, -1)] {
                             let (xa, yb) = (x as i64 + a, y as i64 + b);
-                            let u = if (0..n as i64).contains(&xa) && (0..n as i64).contains(&yb) {
-                                (base + yb as usize * n + xa as usize) as u32
-                            } else {
-                                let from = DomainLocation {
-                                    domain: DomainId::from_idx(d),
-                                    u: (x as f64 + 0.5) * inv,
-                                    v: (y as f64 + 0.5) * inv,
-                                };
-                                match surface.walk(from, a as f64 * inv, b as f64 * inv) {
-                                    Some(to) => {
-                                        let (tx, ty) = (texel_coord(to.u, n), texel_coord(to.v, n));
-                                        (to.domain.idx() * nn + ty * n + tx) as u32
-                                    }
-                                    None => continue,
-                                }
+                            if (0..n as i64).contains(&xa) && (0..n as i64).contains(&yb) {
+                                continue;
+                            }
+                            let from = DomainLocation {
+                                domain: DomainId::from_idx(d),
+                                u: (x as f64 + 0.5) * inv,
+                                v: (y as f64 + 0.5) * inv,
                             };
-                            if u != t {
-                                out.push((t, u));
-                                out.push((u, t));
+                            if let Some(to) = surface.walk(from, a as f64 * inv, b as f64 * inv) {
+                                let (tx, ty) = (texel_coord(to.u, n), texel_coord(to.v, n));
+                                let u = (to.domain.idx() * nn + ty * n + tx) as u32;
+                                if u != t {
+                                    out.push((t, u));
+                                    out.push((u, t));
+                                }
                             }
                         }
                     }
@@ -385,21 +392,65 @@ impl EdgeGraph {
                 out
             })
             .collect();
-        let mut all: Vec<(u32, u32)> = pairs.into_iter().flatten().collect();
-        all.par_sort_unstable();
-        all.dedup();
-        let total = geom.len();
+        let mut extra: Vec<(u32, u32)> = walked.into_iter().flatten().collect();
+        extra.par_sort_unstable();
+        extra.dedup();
+        // Texel t's list: its grid neighbours and its walked edges, ascending, unique.
+        let list_of = |t: usize, buf: &mut Vec<u32>| {
+            buf.clear();
+            let (d, i) = (t / nn, t % nn);
+            let (x, y) = (i % n, i / n);
+            let base = d * nn;
+            for (a, b) in [(1i64, 0i64), (-1, 0), (0, 1), (0, -1)] {
+                let (xa, yb) = (x as i64 + a, y as i64 + b);
+                if (0..n as i64).contains(&xa) && (0..n as i64).contains(&yb) {
+                    buf.push((base + yb as usize * n + xa as usize) as u32);
+                }
+            }
+            let lo = extra.partition_point(|p| (p.0 as usize) < t);
+            buf.extend(
+                extra[lo..]
+                    .iter()
+                    .take_while(|p| p.0 as usize == t)
+                    .map(|p| p.1),
+            );
+            buf.sort_unstable();
+            buf.dedup();
+        };
+        // Counts, then the lists written in place per domain.
         let mut start = vec![0u32; total + 1];
-        for &(a, _) in &all {
-            start[a as usize + 1] += 1;
-        }
+        start[1..]
+            .par_chunks_mut(nn.max(1))
+            .enumerate()
+            .for_each(|(d, c)| {
+                let mut buf = Vec::with_capacity(16);
+                for (i, o) in c.iter_mut().enumerate() {
+                    list_of(d * nn + i, &mut buf);
+                    *o = buf.len() as u32;
+                }
+            });
         for i in 1..start.len() {
             start[i] += start[i - 1];
         }
-        Self {
-            start,
-            list: all.into_iter().map(|p| p.1).collect(),
+        let mut list = vec![0u32; start[total] as usize];
+        let mut rest: &mut [u32] = &mut list;
+        let mut chunks = Vec::with_capacity(geom.faces);
+        for d in 0..geom.faces {
+            let len = (start[(d + 1) * nn] - start[d * nn]) as usize;
+            let (head, tail) = rest.split_at_mut(len);
+            chunks.push(head);
+            rest = tail;
         }
+        chunks.into_par_iter().enumerate().for_each(|(d, out)| {
+            let mut buf = Vec::with_capacity(16);
+            let mut k = 0;
+            for t in d * nn..(d + 1) * nn {
+                list_of(t, &mut buf);
+                out[k..k + buf.len()].copy_from_slice(&buf);
+                k += buf.len();
+            }
+        });
+        Self { start, list }
     }
 
     /// The edge neighbours of texel `t`, ascending.
@@ -615,6 +666,83 @@ mod tests {
             .join("../shared/data/meshes")
             .join(path);
         Surface::load_obj(p).unwrap()
+    }
+
+    /// The edge graph as it was first built (every edge as two pairs, sorted): the
+    /// in-place build must give the same lists.
+    fn edge_graph_by_pairs(surface: &Surface, geom: &TexelGeometry) -> EdgeGraph {
+        let n = geom.resolution;
+        let nn = n * n;
+        let inv = 1.0 / n as f64;
+        let mut all = Vec::new();
+        for d in 0..geom.faces {
+            for y in 0..n {
+                for x in 0..n {
+                    let t = (d * nn + y * n + x) as u32;
+                    for (a, b) in [(1i64, 0i64), (-1, 0), (0, 1), (0, -1)] {
+                        let (xa, yb) = (x as i64 + a, y as i64 + b);
+                        let u = if (0..n as i64).contains(&xa) && (0..n as i64).contains(&yb) {
+                            (d * nn + yb as usize * n + xa as usize) as u32
+                        } else {
+                            let from = DomainLocation {
+                                domain: DomainId::from_idx(d),
+                                u: (x as f64 + 0.5) * inv,
+                                v: (y as f64 + 0.5) * inv,
+                            };
+                            match surface.walk(from, a as f64 * inv, b as f64 * inv) {
+                                Some(to) => {
+                                    let (tx, ty) = (texel_coord(to.u, n), texel_coord(to.v, n));
+                                    (to.domain.idx() * nn + ty * n + tx) as u32
+                                }
+                                None => continue,
+                            }
+                        };
+                        if u != t {
+                            all.push((t, u));
+                            all.push((u, t));
+                        }
+                    }
+                }
+            }
+        }
+        all.sort_unstable();
+        all.dedup();
+        let mut start = vec![0u32; geom.len() + 1];
+        for &(a, _) in &all {
+            start[a as usize + 1] += 1;
+        }
+        for i in 1..start.len() {
+            start[i] += start[i - 1];
+        }
+        EdgeGraph {
+            start,
+            list: all.into_iter().map(|p| p.1).collect(),
+        }
+    }
+
+    #[test]
+    fn edge_graph_is_the_symmetric_pair_graph() {
+        // Triangles and an n-gon (T-junctions between quad and n-gon domains), an open
+        // grid (boundaries), the cube (valence-3 corners); N = 1 (every texel a corner).
+        let fan = ControlMesh::parse_obj(
+            "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 2 0 0\nv 2 1 0\nv 0.5 0.5 1\n\
+             f 1 2 7\nf 2 3 7\nf 3 4 7\nf 4 1 7\nf 2 5 6 3\n",
+        )
+        .unwrap();
+        for (s, ns) in [
+            (Surface::new(fan), &[1usize, 2, 5][..]),
+            (grid(3), &[1, 4][..]),
+            (cube(), &[1, 3, 8][..]),
+        ] {
+            for &n in ns {
+                let g = TexelGeometry::compute(&s, n);
+                assert_eq!(
+                    EdgeGraph::build(&s, &g),
+                    edge_graph_by_pairs(&s, &g),
+                    "N = {n}"
+                );
+            }
+        }
     }
 
     #[test]

@@ -275,3 +275,71 @@ fn bad_btf_inputs_are_one_line_errors_naming_the_file_and_leave_no_output() {
         assert!(!out.exists(), "{name}: {} was created", out.display());
     }
 }
+
+#[test]
+fn a_session_with_the_sample_equals_the_one_shot_btf_run() {
+    // Merged with prepared sessions: `--btf` is the session's synthesis with
+    // `Settings::btf` set, so a session given the loaded sample is bit-identical.
+    use std::sync::Arc;
+    use surfsynth::synth::Analyses;
+    use surfsynth::synthesizer::{MeshSettings, Session, SynthParams};
+    let tmp = tempfile::tempdir().unwrap();
+    let hf = HeightField::bumps(32, 4.0, 3);
+    let (s, _) = generate::sample(&hf, &generate::light_directions(8));
+    let json = generate::write(&tmp.path().join("s"), &s, serde_json::json!({})).unwrap();
+    let one_shot = Synthesizer::new(data(SPOT), ExampleSource::Btf(json.clone()))
+        .resolution(8)
+        .seed(5)
+        .method(Method::Textons)
+        .cache(CacheDir::Off)
+        .run()
+        .unwrap();
+    let settings = MeshSettings {
+        resolution: 8,
+        ..MeshSettings::default()
+    };
+    let session = Session::prepare(data(SPOT), &settings)
+        .unwrap()
+        .with_analyses(Arc::new(Analyses::new(&CacheDir::Off)));
+    let sample = BtfSample::load(&json).unwrap();
+    let mut params = SynthParams {
+        seed: 5,
+        ..SynthParams::new(Method::Textons)
+    };
+    params.settings.btf = Some(Arc::new(sample.clone()));
+    let a = session.synthesize(&sample.example(), &params).unwrap();
+    assert_eq!(a.maps.channels.len(), one_shot.maps.channels.len());
+    for ((na, da), (nb, db)) in a.maps.channels.iter().zip(&one_shot.maps.channels) {
+        assert_eq!(na, nb);
+        assert!(
+            da.iter().zip(db).all(|(x, y)| x.to_bits() == y.to_bits()),
+            "channel {na} differs between the session and the one-shot run"
+        );
+    }
+    assert!(one_shot.report.inputs.btf.is_some());
+    assert_eq!(a.report.inputs.btf, one_shot.report.inputs.btf);
+    let details = |r: &surfsynth::synthesizer::SynthResult| {
+        let mut v = serde_json::to_value(&r.report.details).unwrap();
+        // Seconds are not part of the result.
+        strip_seconds(&mut v);
+        v
+    };
+    assert_eq!(details(&a), details(&one_shot));
+    assert!(
+        serde_json::to_string(&a.report.details)
+            .unwrap()
+            .contains("textons"),
+        "the report names the texton stats"
+    );
+}
+
+fn strip_seconds(v: &mut serde_json::Value) {
+    match v {
+        serde_json::Value::Object(m) => {
+            m.retain(|k, _| !k.contains("seconds"));
+            m.values_mut().for_each(strip_seconds);
+        }
+        serde_json::Value::Array(a) => a.iter_mut().for_each(strip_seconds),
+        _ => {}
+    }
+}

@@ -539,6 +539,28 @@ impl Weights {
     }
 }
 
+/// The field's frames at every texel centre of `n`×`n` maps, as the synthesizer stores
+/// them: the same values as `frames_f32(&field.texel_frames(surface, n))` (same order,
+/// same rounding), without holding the f64 frames (48 B per texel) at the same time.
+pub fn texel_frames_f32(field: &OrientationField, surface: &Surface, n: usize) -> Vec<[Vec3; 2]> {
+    let mut out = vec![[Vec3::ZERO; 2]; surface.num_domains() * n * n];
+    if n == 0 {
+        return out;
+    }
+    let inv = 1.0 / n as f64;
+    out.par_chunks_mut(n * n)
+        .enumerate()
+        .for_each(|(d, chunk)| {
+            for (i, o) in chunk.iter_mut().enumerate() {
+                let (x, y) = (i % n, i / n);
+                let (u, v) = ((x as f64 + 0.5) * inv, (y as f64 + 0.5) * inv);
+                let f = field.frame(surface, subdiv::DomainId::from_idx(d), u, v);
+                *o = [f.v1.as_vec3(), f.v2.as_vec3()];
+            }
+        });
+    out
+}
+
 /// Frames as the synthesizer stores them: (v1, v2) in f32.
 pub fn frames_f32(frames: &[Frame]) -> Vec<[Vec3; 2]> {
     frames
@@ -563,30 +585,31 @@ pub fn face_maps(example: &Example, source: &[[f32; 2]], faces: usize, n: usize)
     let k = example.num_channels();
     let nn = n * n;
     assert_eq!(source.len(), faces * nn);
-    // Per domain, channel-major tiles; then scattered into the named channels.
-    let tiles: Vec<Vec<f32>> = (0..faces)
+    let mut maps = FaceMaps::new(faces, n, &names);
+    // Written in place, one domain's slice of every channel per task (no second copy of
+    // the maps: issue 14, item 6).
+    let mut per_face: Vec<Vec<&mut [f32]>> =
+        (0..faces).map(|_| Vec::with_capacity(k + 2)).collect();
+    for (_, data) in maps.channels.iter_mut() {
+        for (f, chunk) in data.chunks_mut(nn.max(1)).enumerate().take(faces) {
+            per_face[f].push(chunk);
+        }
+    }
+    per_face
         .into_par_iter()
-        .map(|f| {
-            let mut tile = vec![0.0f32; (k + 2) * nn];
+        .enumerate()
+        .for_each(|(f, mut ch)| {
             let mut v = [0.0f32; 8];
             for i in 0..nn {
                 let s = source[f * nn + i];
                 example.bilinear(s[0], s[1], &mut v[..k]);
                 for c in 0..k {
-                    tile[c * nn + i] = v[c];
+                    ch[c][i] = v[c];
                 }
-                tile[k * nn + i] = s[0];
-                tile[(k + 1) * nn + i] = s[1];
+                ch[k][i] = s[0];
+                ch[k + 1][i] = s[1];
             }
-            tile
-        })
-        .collect();
-    let mut maps = FaceMaps::new(faces, n, &names);
-    for (c, (_, data)) in maps.channels.iter_mut().enumerate() {
-        for (f, tile) in tiles.iter().enumerate() {
-            data[f * nn..(f + 1) * nn].copy_from_slice(&tile[c * nn..(c + 1) * nn]);
-        }
-    }
+        });
     maps
 }
 
