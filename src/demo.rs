@@ -40,6 +40,7 @@ pub fn command(out: &Path) -> SynthCommand {
     SynthCommand {
         mesh: inputs.join(MESH_NAME),
         example: inputs.join(EXAMPLE_NAME),
+        btf: None,
         height: None,
         maps: Vec::new(),
         matches: Vec::new(),
@@ -73,7 +74,49 @@ pub fn run(out: &Path) -> anyhow::Result<Report> {
     crate::render::run_cli(out, None, &crate::render::RenderOptions::default())?;
     let q = crate::eval::evaluate(out, None)?;
     println!("{}", eval_summary(&q));
+    btf(out)?;
     Ok(report)
+}
+
+/// Texels per side of the demo's BTF run (252 domains x 16² texels).
+pub const BTF_RESOLUTION: usize = 16;
+/// Lights of the demo's BTF sample.
+pub const BTF_LIGHTS: usize = 32;
+/// The two lights of the demo's BTF previews (world directions towards the light).
+pub const BTF_PREVIEW_LIGHTS: [(&str, [f64; 3]); 2] = [
+    ("preview_light_left.png", [1.0, 1.2, 0.4]),
+    ("preview_light_right.png", [0.4, 1.2, -1.0]),
+];
+
+/// The BTF part of the demo (paper 003): a procedural relief ray-traced under
+/// [`BTF_LIGHTS`] lights into `DIR/inputs/btf/` (as `surfsynth bench btf-sample` writes
+/// it), synthesized onto Spot with surface textons into `DIR/btf/`, rendered under two
+/// lights: the shadows of the relief move with the light.
+pub fn btf(out: &Path) -> anyhow::Result<()> {
+    use crate::btf::generate;
+    let inputs = out.join("inputs");
+    let hf = generate::HeightField::bumps(64, 6.0, SEED);
+    let (sample, _) = generate::sample(&hf, &generate::light_directions(BTF_LIGHTS));
+    let json = generate::write(
+        &inputs.join("btf"),
+        &sample,
+        serde_json::json!({"generator": "surfsynth demo", "height": "procedural bumps"}),
+    )?;
+    let dir = out.join("btf");
+    let mut c = command(&dir);
+    c.mesh = inputs.join(MESH_NAME);
+    c.btf = Some(json);
+    c.method = Method::Textons;
+    c.resolution = BTF_RESOLUTION;
+    run_command(&c)?;
+    for (name, l) in BTF_PREVIEW_LIGHTS {
+        let opts = crate::render::RenderOptions {
+            light: Some(l),
+            ..Default::default()
+        };
+        crate::render::run_cli(&dir, Some(&dir.join(name)), &opts)?;
+    }
+    Ok(())
 }
 
 /// One line of the headline quality measures (the full set: `surfsynth eval DIR`).

@@ -8,6 +8,7 @@
 
 pub mod bake;
 pub mod bench;
+pub mod btf;
 pub mod cache;
 pub mod demo;
 pub mod error;
@@ -20,6 +21,7 @@ pub mod memory;
 pub mod probe;
 pub mod progress;
 pub mod pyramid;
+pub mod relight;
 pub mod render;
 pub mod report;
 pub mod sampling;

@@ -92,6 +92,13 @@ const EXAMPLE_PIXEL: u64 = 240;
 /// KB/texel and 5.5–8.8 KB/example pixel with three channels.
 const MULTISCALE_TEXEL_PER_CHANNEL: u64 = 560;
 const MULTISCALE_PIXEL_PER_CHANNEL: u64 = 2500;
+/// Texton synthesis (`Method::Textons`): multiscale's texel features over the 8-dimensional
+/// texton embedding, per output texel.
+const TEXTON_TEXEL: u64 = 1700;
+/// Texton analysis per pixel of every image of the sample (`example_pixels` counts them
+/// all for a BTF run): the decoded image, its filter responses and the k-means data, plus
+/// the search model of the embedding spread over the images.
+const TEXTON_IMAGE_PIXEL: u64 = 400;
 /// `--displace`, per vertex of the tessellation: the limit mesh (its half-edge topology,
 /// f64 positions, normals and locations) and the displaced f32 copy with texture
 /// coordinates and quads. Measured: 341 MB peak with vs 108 MB without on Spot at N = 32
@@ -334,7 +341,8 @@ impl MeshSize {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Job {
     /// `synth`: `channels` of facemaps.exr (R G B \[A\] \[height\] source.u source.v) from an
-    /// example of `example_pixels` pixels, by `method`.
+    /// example of `example_pixels` pixels, by `method` (a BTF sample: the pixels of all its
+    /// images).
     Synth {
         channels: usize,
         example_pixels: usize,
@@ -426,6 +434,13 @@ pub fn estimate(size: &MeshSize, n: usize, job: &Job) -> Estimate {
                 }
                 Method::Jump => {
                     parts.push(("jump map", sat(example_pixels as u64, JUMP_MAP_PIXEL)));
+                }
+                Method::Textons => {
+                    parts.push(("texton texel features", sat(texels, TEXTON_TEXEL)));
+                    parts.push((
+                        "texton analysis",
+                        sat(example_pixels as u64, TEXTON_IMAGE_PIXEL),
+                    ));
                 }
                 Method::Multiscale => {
                     let c = channels.saturating_sub(2).max(1) as u64;

@@ -70,6 +70,10 @@ pub struct RenderOptions {
     pub displace: Option<f64>,
     /// Control mesh; `None` reads `inputs.mesh` from DIR/report.json.
     pub mesh: Option<PathBuf>,
+    /// `--light X,Y,Z`: one directional light from this world direction (towards the
+    /// light), shading the texels with [`crate::relight`] (a BTF result with its sample, a
+    /// material set with its normal/roughness maps); `None`: the fixed preview lights.
+    pub light: Option<[f64; 3]>,
 }
 
 impl Default for RenderOptions {
@@ -81,6 +85,7 @@ impl Default for RenderOptions {
             pitch: None,
             displace: None,
             mesh: None,
+            light: None,
         }
     }
 }
@@ -443,6 +448,25 @@ pub fn render_scene(
     width: u32,
     height: u32,
 ) -> Picture {
+    render_scene_lit(scene, maps, cam, width, height, None)
+}
+
+/// Ambient share of the albedo where `--light` does not reach (cast shadows of the
+/// geometry, the far side), so shadows read as shadows and not as holes.
+pub const LIT_AMBIENT: f32 = 0.06;
+
+/// [`render_scene`], or with `light` (unit, world, towards the light) over maps whose
+/// channels are the texels' lit colour (R G B, from [`crate::relight`]), A, height and the
+/// unlit colour (R G B): the lit colour where a shadow ray reaches the light, plus
+/// [`LIT_AMBIENT`] of the unlit colour everywhere.
+pub fn render_scene_lit(
+    scene: &Scene,
+    maps: &TexelMaps,
+    cam: &Camera,
+    width: u32,
+    height: u32,
+    light: Option<Vec3A>,
+) -> Picture {
     // Lights are fixed relative to the camera, so every view is lit the same way: key from
     // the upper left, fill from the right, a sky/ground hemisphere term.
     let key = (cam.up * 0.75 - cam.right * 0.55 - cam.forward * 0.45).normalize();
@@ -461,7 +485,7 @@ pub fn render_scene(
     ];
     let scale = scene.bvh.total_aabb.diagonal().length().max(1e-6);
     let eps = 2e-5 * scale;
-    let shade = |ray: &Ray, i: usize, t: f32, b: Vec2, tex: &mut [f32; 5]| -> [f32; 3] {
+    let shade = |ray: &Ray, i: usize, t: f32, b: Vec2, tex: &mut [f32; 8]| -> [f32; 3] {
         let [a, bb, c] = scene.verts[i];
         let w0 = 1.0 - b.x - b.y;
         let mut n = (scene.normals[a as usize] * w0
@@ -481,6 +505,15 @@ pub fn render_scene(
             tex,
         );
         let p = ray.origin + ray.direction * t;
+        if let Some(l) = light {
+            let lit = n.dot(l) > 0.0 && !scene.occluded(Ray::new(p + n * eps, l, 0.0, f32::MAX));
+            let on = if lit { 1.0 } else { 0.0 };
+            return [
+                on * tex[0].max(0.0) + LIT_AMBIENT * tex[5].max(0.0),
+                on * tex[1].max(0.0) + LIT_AMBIENT * tex[6].max(0.0),
+                on * tex[2].max(0.0) + LIT_AMBIENT * tex[7].max(0.0),
+            ];
+        }
         let mut light = 0.0;
         let nk = n.dot(key);
         if nk > 0.0 && !scene.occluded(Ray::new(p + n * eps, key, 0.0, f32::MAX)) {
@@ -500,7 +533,7 @@ pub fn render_scene(
         .zip(depths.par_chunks_mut(w))
         .enumerate()
         .for_each(|(y, ((row, doms), deps))| {
-            let mut tex = [0f32; 5];
+            let mut tex = [0f32; 8];
             for x in 0..w {
                 let bg = checker(x as u32, y as u32);
                 let mut acc = [0f32; 3];
@@ -582,11 +615,73 @@ fn find_mesh(dir: &Path, mesh: Option<&Path>) -> Result<PathBuf> {
     ))
 }
 
+/// The maps of [`render_scene_lit`]: every texel lit from `light` by [`crate::relight`]
+/// (the view for highlights: the camera's default direction towards the object's centre).
+fn lit_maps(
+    dir: &Path,
+    surface: &Surface,
+    maps: &FaceMaps,
+    base: &TexelMaps,
+    light: DVec3,
+    opts: &RenderOptions,
+) -> Result<TexelMaps> {
+    use crate::relight;
+    let info = relight::RunInfo::read(dir)?;
+    let sample = relight::load_btf(&info)?;
+    let n = maps.resolution;
+    let geometry_path = dir.join("geometry.exr");
+    let geometry = read_face_maps(&geometry_path).ok();
+    let normals: Vec<DVec3> = crate::texels::TexelGeometry::compute(surface, n)
+        .normal
+        .iter()
+        .map(|v| v.as_dvec3())
+        .collect();
+    let tangents = relight::tangents(surface, n, geometry.as_ref(), &info.orientation)?;
+    let yaw = opts.yaw.unwrap_or(30.0).to_radians();
+    let pitch = opts.pitch.unwrap_or(20.0).to_radians();
+    let view = DVec3::new(
+        yaw.sin() * pitch.cos(),
+        pitch.sin(),
+        yaw.cos() * pitch.cos(),
+    );
+    let lit = relight::lit_texels(
+        maps,
+        &normals,
+        &tangents,
+        &relight::Lighting {
+            light,
+            view,
+            tiles: info.tiles,
+        },
+        sample.as_ref(),
+        &dir.join("facemaps.exr"),
+    )?;
+    let k = 8;
+    let src = base.data();
+    let mut data = vec![0f32; lit.len() * k];
+    data.par_chunks_mut(k).enumerate().for_each(|(i, t)| {
+        t[..3].copy_from_slice(&lit[i]);
+        t[3] = src[i * 5 + 3];
+        t[4] = src[i * 5 + 4];
+        t[5..8].copy_from_slice(&src[i * 5..i * 5 + 3]);
+    });
+    Ok(TexelMaps::from_data(base.layout().clone(), k, data))
+}
+
 fn check_options(opts: &RenderOptions) -> Result<()> {
     for (what, v) in [("width", opts.width), ("height", opts.height)] {
         if v == 0 || v > MAX_SIDE {
             return Err(Error::invalid(format!(
                 "picture {what} {v} is out of range 1..={MAX_SIDE}"
+            )));
+        }
+    }
+    if let Some(l) = opts.light {
+        let d = DVec3::from_array(l);
+        if !d.is_finite() || d.length_squared() < 1e-24 {
+            return Err(Error::invalid(format!(
+                "--light {},{},{} is not a finite nonzero direction",
+                l[0], l[1], l[2]
             )));
         }
     }
@@ -634,7 +729,15 @@ pub fn render_dir(dir: &Path, opts: &RenderOptions) -> Result<(Picture, RenderSt
             ),
         ));
     }
-    let (texels, has_height) = texel_maps(&surface, &maps, &maps_path)?;
+    let (mut texels, has_height) = texel_maps(&surface, &maps, &maps_path)?;
+    let light = match opts.light {
+        None => None,
+        Some(l) => {
+            let l = DVec3::from_array(l).normalize();
+            texels = lit_maps(dir, &surface, &maps, &texels, l, opts)?;
+            Some(Vec3A::from(l.as_vec3()))
+        }
+    };
     if opts.displace.is_some() && !has_height {
         return Err(Error::file(
             &maps_path,
@@ -665,7 +768,7 @@ pub fn render_dir(dir: &Path, opts: &RenderOptions) -> Result<(Picture, RenderSt
     let aspect = opts.width as f64 / opts.height as f64;
     let cam = frame(&scene.positions, opts.yaw, opts.pitch, aspect);
     let t1 = Instant::now();
-    let pic = render_scene(&scene, &texels, &cam, opts.width, opts.height);
+    let pic = render_scene_lit(&scene, &texels, &cam, opts.width, opts.height, light);
     let trace = t1.elapsed().as_secs_f64();
     let coverage =
         pic.domain.iter().filter(|&&d| d != u32::MAX).count() as f64 / pic.domain.len() as f64;

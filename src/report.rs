@@ -23,6 +23,10 @@ pub struct Inputs {
     pub mesh: String,
     pub example: String,
     pub height: Option<String>,
+    /// `--btf`: the sample's btf.json, absolute (what `render --light` shades with; the
+    /// example is then its default image).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub btf: Option<String>,
     /// Every map of the material (`--map`, `--height` included), in the order given.
     pub maps: Vec<MapInfo>,
     /// `--normal-convention`, when there is a normal map.

@@ -203,6 +203,9 @@ impl From<Surface> for MeshSource {
 pub enum ExampleSource {
     Path(PathBuf),
     Example(Box<Example>),
+    /// A BTF sample's btf.json ([`crate::btf`]): the example is its default image, and
+    /// texton synthesis ([`Method::Textons`]) analyses every image.
+    Btf(PathBuf),
 }
 
 impl From<&str> for ExampleSource {
@@ -506,6 +509,7 @@ impl Synthesizer {
                 e.path.display().to_string()
             }
             ExampleSource::Example(_) => "<in memory>".into(),
+            ExampleSource::Btf(p) => p.display().to_string(),
         }
     }
 
@@ -612,7 +616,23 @@ impl Synthesizer {
         let t0 = Instant::now();
         // Image headers first: sizes and memory are checked before a pixel is decoded (an
         // image bomb is refused here, naming the image).
+        let btf = match &self.example {
+            ExampleSource::Btf(p) => {
+                if let Some((_, m)) = self.maps.first() {
+                    return Err(Error::file(
+                        m,
+                        format!(
+                            "a height or map file cannot be combined with the BTF sample {}",
+                            p.display()
+                        ),
+                    ));
+                }
+                Some(std::sync::Arc::new(crate::btf::BtfSample::load(p)?))
+            }
+            _ => None,
+        };
         let pending = match self.example {
+            ExampleSource::Btf(_) => None,
             ExampleSource::Path(ref p) => {
                 let ex = PendingImage::open(p)?;
                 let mut maps = Vec::with_capacity(self.maps.len());
@@ -665,6 +685,10 @@ impl Synthesizer {
                     height,
                 )
             }
+            (None, ExampleSource::Btf(_)) => {
+                let b = btf.as_ref().expect("a BTF source is loaded above");
+                (3, 0, (b.width * b.height * b.images.len()) as u64, false)
+            }
             (None, ExampleSource::Path(_)) => unreachable!("a path example has a header"),
         };
         if self.displace.is_some() && !has_height {
@@ -711,6 +735,7 @@ impl Synthesizer {
         let example = match (pending, &self.example) {
             (Some((ex, maps)), _) => Example::from_pending(ex, maps)?,
             (None, ExampleSource::Example(e)) => (**e).clone(),
+            (None, ExampleSource::Btf(_)) => btf.as_ref().expect("loaded above").example(),
             (None, ExampleSource::Path(_)) => unreachable!("a path example has a header"),
         };
         self.settings.weights.check(&example)?;
@@ -759,8 +784,14 @@ impl Synthesizer {
         // Mesh-side orders are set-up, not synthesis: counted in the graph stage.
         let mut seconds = session.prepare_seconds();
         seconds.graph += session.prepare_method(self.settings.method);
+        // A BTF run hands every image to the method (the session turns them as it turns
+        // the example).
+        let mut settings = self.settings;
+        if btf.is_some() {
+            settings.btf = btf;
+        }
         let params = SynthParams {
-            settings: self.settings,
+            settings,
             seed: self.seed,
             handedness: self.handedness,
             normal_convention: self.normal_convention,
@@ -1031,6 +1062,8 @@ pub struct WriteOptions {
 pub struct SynthCommand {
     pub mesh: PathBuf,
     pub example: PathBuf,
+    /// `--btf B.json` (instead of `example`).
+    pub btf: Option<PathBuf>,
     pub height: Option<PathBuf>,
     /// `--map NAME=FILE`, in the order given.
     pub maps: Vec<(String, PathBuf)>,
@@ -1064,7 +1097,11 @@ impl SynthCommand {
     /// The builder for this command (threads: the current rayon pool, which the CLI sizes
     /// with `--threads`).
     pub fn synthesizer(&self) -> Synthesizer {
-        let mut s = Synthesizer::new(&self.mesh, &self.example)
+        let example = match &self.btf {
+            Some(b) => ExampleSource::Btf(b.clone()),
+            None => ExampleSource::Path(self.example.clone()),
+        };
+        let mut s = Synthesizer::new(&self.mesh, example)
             .method(self.method)
             .resolution(self.resolution)
             .scale(self.scale)

@@ -31,6 +31,29 @@ pub enum BenchCommand {
     Grid(BenchGridArgs),
     /// Writes a square crop of an image as PNG, values unchanged (bench/peer.sh).
     Crop(BenchCropArgs),
+    /// Writes a synthetic BTF sample (003 Fig. 8): a height field ray-traced with
+    /// self-shadowing under --lights directions, as light_NN.png + btf.json.
+    BtfSample(BenchBtfSampleArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct BenchBtfSampleArgs {
+    /// Height field (grayscale PNG, linear; its central --size² crop is used). Default: a
+    /// procedural relief of round bumps.
+    #[arg(long, value_name = "H.png")]
+    pub height: Option<PathBuf>,
+    /// Light directions (rings over the hemisphere, 20°-75° elevation).
+    #[arg(long, value_name = "L", default_value_t = 32, value_parser = clap::value_parser!(u32).range(1..=1024))]
+    pub lights: u32,
+    /// Sample side in pixels.
+    #[arg(long, value_name = "S", default_value_t = 64, value_parser = clap::value_parser!(u32).range(4..=4096))]
+    pub size: u32,
+    /// Relief depth in pixels between the lowest and highest height.
+    #[arg(long, value_name = "D", default_value_t = 6.0, value_parser = super::parse_positive, allow_negative_numbers = true)]
+    pub depth: f64,
+    /// Output folder (light_NN.png and btf.json; written all at once).
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
 }
 
 #[derive(Args, Debug)]
@@ -169,6 +192,23 @@ pub fn run(a: BenchArgs) -> anyhow::Result<()> {
         BenchCommand::Grid(b) => {
             let obj = surfsynth::eval::peer::grid_obj(b.size as usize);
             surfsynth::io::atomic::write_bytes_atomic(&b.out, obj.as_bytes())?;
+            Ok(())
+        }
+        BenchCommand::BtfSample(b) => {
+            let path = surfsynth::btf::generate::write_sample_cli(
+                b.height.as_deref(),
+                b.lights as usize,
+                b.size as usize,
+                b.depth as f32,
+                &b.out,
+            )?;
+            println!(
+                "btf-sample: {} lights, {}x{} -> {}",
+                b.lights,
+                b.size,
+                b.size,
+                path.display()
+            );
             Ok(())
         }
         BenchCommand::Crop(b) => {

@@ -31,9 +31,26 @@ pub struct RenderArgs {
     /// Control mesh of the result (default: the one named in DIR/report.json).
     #[arg(long, value_name = "M.obj")]
     pub mesh: Option<PathBuf>,
+    /// One light from this world direction: a BTF result is shaded with its sample's
+    /// images of the nearest lights, a material set with its normal/roughness maps.
+    #[arg(
+        long,
+        value_name = "X,Y,Z",
+        value_delimiter = ',',
+        allow_negative_numbers = true
+    )]
+    pub light: Option<Vec<f64>>,
 }
 
 pub fn run(a: RenderArgs) -> anyhow::Result<()> {
+    if let Some(l) = &a.light {
+        if l.len() != 3 {
+            return super::usage(format!(
+                "--light takes three numbers X,Y,Z (a direction towards the light), got {}",
+                l.len()
+            ));
+        }
+    }
     let opts = surfsynth::render::RenderOptions {
         width: a.width,
         height: a.height,
@@ -41,6 +58,7 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
         pitch: a.pitch,
         displace: a.displace,
         mesh: a.mesh,
+        light: a.light.map(|l| [l[0], l[1], l[2]]),
     };
     surfsynth::render::run_cli(&a.dir, a.out.as_deref(), &opts)
 }

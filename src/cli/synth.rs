@@ -20,6 +20,9 @@ pub enum Method {
     Optimise,
     /// Jump maps: region growing, continuations and weighted jumps, no matching (002).
     Jump,
+    /// BTF synthesis with surface textons: every image of --btf at once (003; the default
+    /// with --btf).
+    Textons,
 }
 
 #[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
@@ -88,8 +91,17 @@ pub struct SynthArgs {
     #[arg(long, value_name = "M.obj")]
     pub mesh: PathBuf,
     /// Example texture (PNG or JPEG; sRGB; alpha kept).
-    #[arg(long, value_name = "E.png")]
-    pub example: PathBuf,
+    #[arg(
+        long,
+        value_name = "E.png",
+        required_unless_present = "btf",
+        conflicts_with = "btf"
+    )]
+    pub example: Option<PathBuf>,
+    /// BTF sample: a btf.json naming images of one patch under several light directions
+    /// (docs/btf.md); synthesized with surface textons unless --method says otherwise.
+    #[arg(long, value_name = "B.json", conflicts_with_all = ["height", "maps"])]
+    pub btf: Option<PathBuf>,
     /// Height example of the same size (grayscale, synthesized jointly; the same as
     /// --map height=H.png).
     #[arg(long, value_name = "H.png")]
@@ -107,9 +119,9 @@ pub struct SynthArgs {
     /// (+Y down, Unreal).
     #[arg(long, value_enum, default_value_t = NormalConvention::Opengl)]
     pub normal_convention: NormalConvention,
-    /// Synthesis method.
-    #[arg(long, value_enum, default_value_t = Method::Optimise)]
-    pub method: Method,
+    /// Synthesis method (default: optimise; textons with --btf).
+    #[arg(long, value_enum)]
+    pub method: Option<Method>,
     /// What neighbourhoods are compared in: appearance space (pca) or raw channels (rgb).
     #[arg(long, value_enum, default_value_t = Appearance::Pca)]
     pub appearance: Appearance,
@@ -177,12 +189,20 @@ fn parse_patch_size(s: &str) -> Result<usize, String> {
     Ok(v)
 }
 
-pub fn run(a: SynthArgs) -> anyhow::Result<()> {
+pub fn run(mut a: SynthArgs) -> anyhow::Result<()> {
     // The handler lives in the library (surfsynth::synthesizer::run_command).
-    if a.search.is_some() && a.method != Method::Multiscale {
+    let chosen = a.method.unwrap_or(if a.btf.is_some() {
+        Method::Textons
+    } else {
+        Method::Optimise
+    });
+    if chosen == Method::Textons && a.btf.is_none() {
+        return super::usage("--method textons needs a BTF sample: pass --btf B.json");
+    }
+    if a.search.is_some() && !matches!(chosen, Method::Multiscale | Method::Textons) {
         return super::usage(format!(
-            "--search applies to --method multiscale only (--method {} has no search structure)",
-            a.method
+            "--search applies to --method multiscale and textons only (--method {} has no search structure)",
+            chosen
                 .to_possible_value()
                 .map_or("?".into(), |v| v.get_name().to_string())
         ));
@@ -226,20 +246,24 @@ pub fn run(a: SynthArgs) -> anyhow::Result<()> {
     if a.displace.is_some() && !has_height {
         return super::usage(format!(
             "--displace needs a height channel, and {} has none: pass --height H.png",
-            a.example.display()
+            a.example
+                .as_ref()
+                .or(a.btf.as_ref())
+                .map_or(String::new(), |p| p.display().to_string())
         ));
     }
-    if a.patch_size.is_some() && !matches!(a.method, Method::Patches | Method::Optimise) {
+    if a.patch_size.is_some() && !matches!(chosen, Method::Patches | Method::Optimise) {
         return super::usage("--patch-size applies to --method patches and optimise only");
     }
     surfsynth::memory::set_limit(a.max_memory);
     use surfsynth::synthesizer::Search as S;
-    let method = match a.method {
+    let method = match chosen {
         Method::Coherent => surfsynth::synthesizer::Method::Coherent,
         Method::Multiscale => surfsynth::synthesizer::Method::Multiscale,
         Method::Patches => surfsynth::synthesizer::Method::Patches,
         Method::Optimise => surfsynth::synthesizer::Method::Optimise,
         Method::Jump => surfsynth::synthesizer::Method::Jump,
+        Method::Textons => surfsynth::synthesizer::Method::Textons,
     };
     let cache = match (a.cache, a.no_cache) {
         (_, true) => surfsynth::synthesizer::CacheDir::Off,
@@ -248,7 +272,8 @@ pub fn run(a: SynthArgs) -> anyhow::Result<()> {
     };
     surfsynth::synthesizer::run_command(&surfsynth::synthesizer::SynthCommand {
         mesh: a.mesh,
-        example: a.example,
+        example: a.example.take().unwrap_or_default(),
+        btf: a.btf,
         height: a.height,
         maps: a.maps,
         matches: a.matches,

@@ -11,6 +11,8 @@
 //!   §4.2–4.4, after Kwatra et al. 2005) — the default, which keeps structure best.
 //! - [`jump`]: jump-map synthesis (paper 002, Zelinka & Garland): no matching at
 //!   synthesis time, the example analysed once ([`matching::jumpmap`]).
+//! - [`textons`]: BTF synthesis with surface textons (paper 003): one source per texel for
+//!   every image of a BTF sample ([`crate::btf`]), multiscale k-coherence over textons.
 //!
 //! Below them, what they share:
 //! - [`matching`]: appearance space, example tables, similar-place lists, neighbourhood
@@ -41,6 +43,7 @@ pub mod patches;
 pub mod per_thread;
 pub mod schedule;
 pub mod synth2d;
+pub mod textons;
 
 pub use analysis::Analyses;
 pub use coherent::{CoherentParams, DomainOrder, Order};
@@ -48,6 +51,7 @@ pub use jump::JumpParams;
 pub use multiscale::MultiscaleParams;
 pub use optimise::OptimiseParams;
 pub use patches::PatchParams;
+pub use textons::TextonParams;
 
 use crate::error::Result;
 use crate::example::Example;
@@ -78,6 +82,10 @@ pub enum Method {
     Optimise,
     /// Paper 002: jump maps (Zelinka & Garland), region growing over the texels.
     Jump,
+    /// Paper 003: BTF synthesis with surface textons ([`Settings::btf`]; without a BTF
+    /// sample, the example as a one-image sample). Not in [`Method::ALL`], the methods of
+    /// plain examples.
+    Textons,
 }
 
 impl Method {
@@ -102,6 +110,7 @@ impl Method {
             Method::Patches => "patches",
             Method::Optimise => "optimise",
             Method::Jump => "jump",
+            Method::Textons => "textons",
         }
     }
 }
@@ -111,9 +120,14 @@ impl std::str::FromStr for Method {
     fn from_str(s: &str) -> std::result::Result<Self, String> {
         Method::ALL
             .into_iter()
+            .chain([Method::Textons])
             .find(|m| m.name() == s)
             .ok_or_else(|| {
-                let names: Vec<_> = Method::ALL.iter().map(|m| m.name()).collect();
+                let names: Vec<_> = Method::ALL
+                    .iter()
+                    .chain(&[Method::Textons])
+                    .map(|m| m.name())
+                    .collect();
                 format!(
                     "unknown method '{s}' (expected one of {})",
                     names.join(", ")
@@ -172,6 +186,11 @@ pub struct Settings {
     pub patches: PatchParams,
     pub optimise: OptimiseParams,
     pub jump: JumpParams,
+    pub textons: TextonParams,
+    /// The BTF sample of a `--btf` run (images under several lights; the example is its
+    /// default image). Texton synthesis analyses every image; other methods use the
+    /// example only.
+    pub btf: Option<std::sync::Arc<crate::btf::BtfSample>>,
 }
 
 impl Default for Settings {
@@ -185,6 +204,8 @@ impl Default for Settings {
             patches: PatchParams::default(),
             optimise: OptimiseParams::default(),
             jump: JumpParams::default(),
+            textons: TextonParams::default(),
+            btf: None,
         }
     }
 }
@@ -211,6 +232,10 @@ pub enum Details {
     Jump {
         params: JumpParams,
         stats: jump::Stats,
+    },
+    Textons {
+        params: TextonParams,
+        stats: textons::Stats,
     },
 }
 
@@ -339,6 +364,27 @@ pub fn synthesize(
                 source: out.source,
                 appearance: out.stats.appearance,
                 details: Details::Multiscale(out.stats),
+            })
+        }
+        Method::Textons => {
+            let one;
+            let sample = match &settings.btf {
+                Some(s) => &**s,
+                None => {
+                    let mut ex = example.clone();
+                    ex.alpha = None;
+                    ex.maps.clear();
+                    one = crate::btf::BtfSample::from_images(vec![ex], vec![Vec3::Z.as_dvec3()])?;
+                    &one
+                }
+            };
+            let p = settings.textons;
+            let (source, stats) =
+                textons::run(sample, target, &p, &settings.multiscale, analyses, progress)?;
+            Ok(Output {
+                source,
+                appearance: stats.synthesis.appearance,
+                details: Details::Textons { params: p, stats },
             })
         }
         Method::Patches => Ok(with_dims!(

@@ -520,11 +520,15 @@ impl Session {
             crate::memory::check_displace(&self.mesh_label, a, self.extent)?;
         }
         // This run's memory (the method and the example decide it; the mesh part was
-        // checked when it was prepared).
+        // checked when it was prepared). A BTF sample counts the pixels of all its images.
+        let example_pixels = match &settings.btf {
+            Some(b) => b.width * b.height * b.images.len(),
+            None => example.width * example.height,
+        };
         // (+ the height alias channel of facemaps.exr, + source.u source.v)
         let job = Job::Synth {
             channels: example.num_channels() + has_height as usize + 2,
-            example_pixels: example.width * example.height,
+            example_pixels,
             method: settings.method,
             displace: params.displace.is_some(),
         };
@@ -546,6 +550,17 @@ impl Session {
                 flipped = example.flipped_rows();
                 &flipped
             }
+        };
+        // A BTF sample ([`Settings::btf`]) is turned as the example is.
+        let btf_settings;
+        let settings = match (&settings.btf, params.handedness) {
+            (Some(b), Handedness::Tiles) => {
+                let mut s = settings.clone();
+                s.btf = Some(Arc::new(b.flipped_rows()));
+                btf_settings = s;
+                &btf_settings
+            }
+            _ => settings,
         };
         let target = Target {
             surface: &self.surface,
@@ -636,6 +651,18 @@ impl Session {
                 mesh: self.mesh_label.clone(),
                 example: labels.example,
                 height: labels.height,
+                // `--btf` (what `render --light` shades with): the sample's btf.json,
+                // absolute; none for a sample made in memory.
+                btf: settings
+                    .btf
+                    .as_ref()
+                    .filter(|b| !b.path.as_os_str().is_empty())
+                    .map(|b| {
+                        std::path::absolute(&b.path)
+                            .unwrap_or_else(|_| b.path.clone())
+                            .display()
+                            .to_string()
+                    }),
                 maps: example
                     .maps
                     .iter()

@@ -364,11 +364,6 @@ pub fn run_with(
     models: &ModelSource<'_>,
     progress: &(dyn Fn(u64, u64) + Sync),
 ) -> Result<Output> {
-    let n = inputs.resolution;
-    if n == 0 {
-        return Err(Error::invalid("resolution must be at least 1"));
-    }
-    let surface = inputs.surface;
     let c = example.num_channels();
     if inputs.weights.len() != c {
         return Err(Error::invalid(format!(
@@ -376,51 +371,82 @@ pub fn run_with(
             inputs.weights.len()
         )));
     }
+    let build = |j0: usize, n_levels: usize| -> Result<std::sync::Arc<Model>> {
+        // Example analysis: weighted channels (so that plain l2 is the weighted distance),
+        // pyramid from level j0.
+        let mut img = Image::from_example(example);
+        let sw: Vec<f32> = inputs.weights.iter().map(|w| w.max(0.0).sqrt()).collect();
+        for px in img.data.chunks_exact_mut(c) {
+            for (v, s) in px.iter_mut().zip(&sw) {
+                *v *= s;
+            }
+        }
+        for _ in 0..j0 {
+            img = img.downsample();
+        }
+        let key = model_key(&img, n_levels, inputs.appearance, &params.model);
+        models(key, &|| {
+            // Appearance space per level: each level's own 5x5 neighbourhoods, projected.
+            let mut pyramid = crate::pyramid::Pyramid::build(img.clone(), n_levels);
+            let mut appearance = None;
+            if inputs.appearance == AppearanceMode::Pca {
+                for level in &mut pyramid.levels {
+                    let a = Appearance::build(level, AppearanceMode::Pca, WINDOW, DIMS);
+                    appearance.get_or_insert(a.info);
+                    *level = a.image;
+                }
+            }
+            let appearance = appearance.unwrap_or(AppearanceInfo {
+                dims: c,
+                window: 1,
+                kept_variance: 1.0,
+            });
+            Ok(Model {
+                model: ExampleModel::from_pyramid(pyramid, params.model)?,
+                appearance,
+            })
+        })
+    };
+    run_on_model(
+        [example.width, example.height],
+        inputs,
+        params,
+        &build,
+        progress,
+    )
+}
+
+/// Where [`run_on_model`] gets its model: `build(j0, levels)` returns the search model of
+/// `levels` pyramid levels starting at example level `j0` (the first level finer than the
+/// texels can show skipped).
+pub type ModelBuilder<'a> = dyn Fn(usize, usize) -> Result<std::sync::Arc<Model>> + 'a;
+
+/// The synthesis itself, on any example-side model of an example of `size` pixels: what
+/// [`run_with`] does after building the (appearance-space) pyramid, and what texton
+/// synthesis ([`crate::synth::textons`]) runs on its pyramid of texton embeddings.
+pub fn run_on_model(
+    size: [usize; 2],
+    inputs: &Inputs<'_>,
+    params: &MultiscaleParams,
+    build: &ModelBuilder<'_>,
+    progress: &(dyn Fn(u64, u64) + Sync),
+) -> Result<Output> {
+    let n = inputs.resolution;
+    if n == 0 {
+        return Err(Error::invalid("resolution must be at least 1"));
+    }
+    let surface = inputs.surface;
     let (j0, res) = plan_levels(
-        example.width,
-        example.height,
+        size[0],
+        size[1],
         n,
         inputs.spacing,
         inputs.scale,
         params.max_levels,
     )?;
     let n_levels = res.len();
-
-    // Example analysis: weighted channels (so that plain l2 is the weighted distance),
-    // pyramid from level j0.
     let t0 = Instant::now();
-    let mut img = Image::from_example(example);
-    let sw: Vec<f32> = inputs.weights.iter().map(|w| w.max(0.0).sqrt()).collect();
-    for px in img.data.chunks_exact_mut(c) {
-        for (v, s) in px.iter_mut().zip(&sw) {
-            *v *= s;
-        }
-    }
-    for _ in 0..j0 {
-        img = img.downsample();
-    }
-    let key = model_key(&img, n_levels, inputs.appearance, &params.model);
-    let built = models(key, &|| {
-        // Appearance space per level: each level's own 5x5 neighbourhoods, projected.
-        let mut pyramid = crate::pyramid::Pyramid::build(img.clone(), n_levels);
-        let mut appearance = None;
-        if inputs.appearance == AppearanceMode::Pca {
-            for level in &mut pyramid.levels {
-                let a = Appearance::build(level, AppearanceMode::Pca, WINDOW, DIMS);
-                appearance.get_or_insert(a.info);
-                *level = a.image;
-            }
-        }
-        let appearance = appearance.unwrap_or(AppearanceInfo {
-            dims: c,
-            window: 1,
-            kept_variance: 1.0,
-        });
-        Ok(Model {
-            model: ExampleModel::from_pyramid(pyramid, params.model)?,
-            appearance,
-        })
-    })?;
+    let built = build(j0, n_levels)?;
     let (model, appearance) = (&built.model, built.appearance);
     let model_seconds = t0.elapsed().as_secs_f64();
 
@@ -517,7 +543,7 @@ pub fn run_with(
         let out_geo = LevelGeometry::new(surface, inputs.field, n, corners.clone());
         geometry_seconds += t0.elapsed().as_secs_f64();
         stats.resampled = out_geo.len() as u64;
-        resample(&out_geo, &geo, &finest, inputs.scale, example)
+        resample(&out_geo, &geo, &finest, inputs.scale, size)
     };
     stats.geometry_seconds = geometry_seconds;
     stats.search_seconds = search_seconds;
@@ -677,9 +703,9 @@ fn resample(
     syn: &LevelGeometry,
     src: &[[f32; 2]],
     scale: f64,
-    example: &Example,
+    size: [usize; 2],
 ) -> Vec<[f32; 2]> {
-    let (hi_x, hi_y) = (example.width as f32 - 0.5, example.height as f32 - 0.5);
+    let (hi_x, hi_y) = (size[0] as f32 - 0.5, size[1] as f32 - 0.5);
     (0..out.len())
         .into_par_iter()
         .map(|t| {

@@ -159,7 +159,7 @@ impl Pca {
 /// Leading `k` eigenpairs of the symmetric `n x n` matrix `a` by subspace iteration with
 /// Rayleigh–Ritz (`p = k + 8` vectors for faster convergence of the last wanted ones).
 /// Returns eigenvalues (descending) and `k x n` eigenvectors.
-fn top_eigen(a: &[f64], n: usize, k: usize) -> (Vec<f64>, Vec<f64>) {
+pub(crate) fn top_eigen(a: &[f64], n: usize, k: usize) -> (Vec<f64>, Vec<f64>) {
     let p = (k + 8).min(n);
     // Deterministic start: pseudo-random vectors from the counter hash.
     let mut q: Vec<f64> = (0..p * n)

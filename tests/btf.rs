@@ -1,0 +1,345 @@
+//! BTF synthesis with surface textons (issue 15 item 3, paper 003): a sample ray-traced from
+//! a height field (as 003 Fig. 8), synthesized onto Spot; the result relit under two sample
+//! lights differs where the height field casts shadows, and under each light matches the
+//! sample's image in pf4 within 1.2x of a plain synthesis of that image; bit-identical for
+//! any thread count; the analysis is cached; bad btf.json inputs are one-line errors that
+//! leave nothing in `--out`.
+
+mod common;
+
+use common::data;
+use glam::DVec3;
+use std::path::{Path, PathBuf};
+use surfsynth::btf::generate::{self, HeightField};
+use surfsynth::btf::BtfSample;
+use surfsynth::cache::CacheDir;
+use surfsynth::io::exr::FaceMaps;
+use surfsynth::synthesizer::{ExampleSource, Method, Synthesizer};
+
+const SPOT: &str = "meshes/spot_control_mesh.obj";
+/// CI-sized: 48² sample, 16 lights (two rings: 20° and 75° elevation), Spot at N = 16.
+const SIZE: usize = 48;
+const LIGHTS: usize = 16;
+const N: usize = 16;
+
+/// The krita relief's central crop, 5 pixels deep, under [`LIGHTS`] lights: written as a
+/// BTF folder in `dir`; returns the json and the shadow flags per image.
+fn krita_sample(dir: &Path) -> (PathBuf, Vec<Vec<bool>>) {
+    let hf = HeightField::load(&data("textures/krita_bump_relief.png"), Some(SIZE), 5.0).unwrap();
+    let (s, shadows) = generate::sample(&hf, &generate::light_directions(LIGHTS));
+    let json = generate::write(&dir.join("sample"), &s, serde_json::json!({"test": true})).unwrap();
+    (json, shadows)
+}
+
+/// `maps` with R, G, B replaced by the sample under image `i`'s light at every texel's
+/// source position (the light the same in every texel's frame: what a view of the
+/// surface BTF under that light, with the macro-shading taken out, shows).
+fn relit(maps: &FaceMaps, s: &BtfSample, i: usize) -> FaceMaps {
+    let su = maps.channel("source.u").unwrap().to_vec();
+    let sv = maps.channel("source.v").unwrap().to_vec();
+    let w = s.blend_weights(s.lights[i]);
+    assert_eq!(
+        w,
+        vec![(i, 1.0)],
+        "a sample light blends its own image only"
+    );
+    let mut out = maps.clone();
+    for (name, data) in out.channels.iter_mut() {
+        let c = match name.as_str() {
+            "R" => 0,
+            "G" => 1,
+            "B" => 2,
+            _ => continue,
+        };
+        for (t, v) in data.iter_mut().enumerate() {
+            *v = s.colour(&w, su[t], sv[t])[c];
+        }
+    }
+    out
+}
+
+fn pf4(
+    colour: &FaceMaps,
+    geometry: &FaceMaps,
+    ex: &surfsynth::example::Example,
+    scale: f64,
+) -> f64 {
+    surfsynth::eval::patch_fidelities(colour, geometry, ex, Some(scale))
+        .pf4
+        .unwrap()
+}
+
+#[test]
+fn relit_textons_differ_under_shadows_and_match_each_light_like_a_plain_synthesis() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (json, shadows) = krita_sample(tmp.path());
+    let sample = BtfSample::load(&json).unwrap();
+    let out = tmp.path().join("run");
+    let (r, report) = Synthesizer::new(data(SPOT), ExampleSource::Btf(json.clone()))
+        .method(Method::Textons)
+        .resolution(N)
+        .seed(2)
+        .cache(CacheDir::Off)
+        .run_to(&out)
+        .unwrap();
+    assert_eq!(report.method, Method::Textons);
+    let geometry = r.geometry_maps();
+    let scale = report.scale;
+    // Two low lights from opposite sides (first ring: 20° elevation, azimuths 0° and 180°).
+    let (a, b) = (0, LIGHTS / 4);
+    assert!(sample.lights[a].dot(sample.lights[b]) < -0.5);
+    let (ma, mb) = (relit(&r.maps, &sample, a), relit(&r.maps, &sample, b));
+
+    // Where a source pixel is shadowed under one light and lit under the other, the two
+    // relit results differ much more than where both light it.
+    let su = r.maps.channel("source.u").unwrap();
+    let sv = r.maps.channel("source.v").unwrap();
+    let lum = |m: &FaceMaps, t: usize| {
+        m.channel("R").unwrap()[t] + m.channel("G").unwrap()[t] + m.channel("B").unwrap()[t]
+    };
+    let (mut shadow_diff, mut shadow_n, mut lit_diff, mut lit_n) = (0f64, 0usize, 0f64, 0usize);
+    for t in 0..su.len() {
+        let (x, y) = (su[t] as usize, sv[t] as usize);
+        let p = y.min(SIZE - 1) * SIZE + x.min(SIZE - 1);
+        let d = (lum(&ma, t) - lum(&mb, t)).abs() as f64;
+        match (shadows[a][p], shadows[b][p]) {
+            (true, false) | (false, true) => {
+                shadow_diff += d;
+                shadow_n += 1
+            }
+            (false, false) => {
+                lit_diff += d;
+                lit_n += 1
+            }
+            _ => {}
+        }
+    }
+    assert!(
+        shadow_n > su.len() / 20,
+        "too few shadowed texels: {shadow_n}"
+    );
+    let (sd, ld) = (shadow_diff / shadow_n as f64, lit_diff / lit_n as f64);
+    assert!(
+        sd > 2.0 * ld && sd > 0.1,
+        "shadow difference {sd} vs lit {ld}"
+    );
+
+    // Each light: pf4 against that light's image, within 1.2x of a plain (multiscale)
+    // synthesis of the image alone.
+    for i in [a, b] {
+        let ex = sample.images[i].clone();
+        let ours = pf4(if i == a { &ma } else { &mb }, &geometry, &ex, scale);
+        let plain = Synthesizer::new(data(SPOT), ex.clone())
+            .method(Method::Multiscale)
+            .resolution(N)
+            .seed(2)
+            .cache(CacheDir::Off)
+            .run()
+            .unwrap();
+        let theirs = pf4(&plain.maps, &geometry, &ex, scale);
+        eprintln!("light {i}: textons pf4 {ours:.3}, plain multiscale {theirs:.3}");
+        assert!(
+            ours <= 1.2 * theirs,
+            "light {i}: pf4 {ours} > 1.2 x {theirs}"
+        );
+    }
+
+    // The pictures `render --light` draws differ too.
+    let opts = |l: DVec3| surfsynth::render::RenderOptions {
+        width: 96,
+        height: 72,
+        light: Some(l.to_array()),
+        ..Default::default()
+    };
+    let la = DVec3::new(1.0, 1.0, 0.4);
+    let (pa, _) = surfsynth::render::render_dir(&out, &opts(la)).unwrap();
+    let (pb, _) =
+        surfsynth::render::render_dir(&out, &opts(la * DVec3::new(-1.0, 1.0, -1.0))).unwrap();
+    let differ = pa
+        .rgb
+        .iter()
+        .zip(&pb.rgb)
+        .filter(|(x, y)| (0..3).any(|c| (x[c] - y[c]).abs() > 0.05))
+        .count();
+    assert!(
+        differ > pa.rgb.len() / 10,
+        "{differ} of {} pixels differ",
+        pa.rgb.len()
+    );
+}
+
+#[test]
+fn textons_do_not_depend_on_the_thread_count_and_are_cached() {
+    let tmp = tempfile::tempdir().unwrap();
+    let hf = HeightField::bumps(32, 4.0, 3);
+    let (s, _) = generate::sample(&hf, &generate::light_directions(8));
+    let json = generate::write(&tmp.path().join("s"), &s, serde_json::json!({})).unwrap();
+    let cache = tmp.path().join("cache");
+    let run = |threads: usize, cache: CacheDir| {
+        Synthesizer::new(data(SPOT), ExampleSource::Btf(json.clone()))
+            .method(Method::Textons)
+            .resolution(8)
+            .seed(5)
+            .threads(threads)
+            .cache(cache)
+            .run()
+            .unwrap()
+    };
+    let one = run(1, CacheDir::Off).maps;
+    let three = run(3, CacheDir::Dir(cache.clone())).maps;
+    for ((na, da), (nb, db)) in one.channels.iter().zip(&three.channels) {
+        assert_eq!(na, nb);
+        assert!(
+            da.iter().zip(db).all(|(x, y)| x.to_bits() == y.to_bits()),
+            "channel {na} differs between 1 and 3 threads"
+        );
+    }
+    let names: Vec<String> = std::fs::read_dir(&cache)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    for kind in ["textons-", "texton-model-"] {
+        assert!(
+            names.iter().any(|n| n.starts_with(kind)),
+            "no {kind} entry in {names:?}"
+        );
+    }
+    // From the cache: the same result.
+    let again = run(2, CacheDir::Dir(cache)).maps;
+    assert_eq!(again.channels, one.channels);
+}
+
+/// Runs the binary's `synth --btf JSON`; returns (exit code, stderr).
+fn synth_btf(json: &Path, out: &Path) -> (i32, String) {
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_surfsynth"))
+        .args(["synth", "--mesh"])
+        .arg(data(SPOT))
+        .arg("--btf")
+        .arg(json)
+        .args(["--resolution", "4", "--no-cache", "--out"])
+        .arg(out)
+        .output()
+        .unwrap();
+    (
+        o.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&o.stderr).into_owned(),
+    )
+}
+
+fn png(path: &Path, w: u32, h: u32) {
+    image::RgbImage::from_pixel(w, h, image::Rgb([90, 120, 150]))
+        .save(path)
+        .unwrap();
+}
+
+#[test]
+fn bad_btf_inputs_are_one_line_errors_naming_the_file_and_leave_no_output() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    png(&d.join("a.png"), 16, 16);
+    png(&d.join("b.png"), 17, 16);
+    let cases: [(&str, &str, &str); 4] = [
+        (
+            "malformed.json",
+            "{ \"images\": [ {\"file\": \"a.png\", ",
+            "malformed.json",
+        ),
+        (
+            "missing.json",
+            r#"{"images": [{"file": "a.png", "light": [0, 0, 1]}, {"file": "nope.png", "light": [1, 0, 1]}]}"#,
+            "nope.png",
+        ),
+        (
+            "sizes.json",
+            r#"{"images": [{"file": "a.png", "light": [0, 0, 1]}, {"file": "b.png", "light": [1, 0, 1]}]}"#,
+            "b.png",
+        ),
+        (
+            "light.json",
+            r#"{"images": [{"file": "a.png", "light": [0, 0, 0]}]}"#,
+            "light.json",
+        ),
+    ];
+    for (name, text, named) in cases {
+        let json = d.join(name);
+        std::fs::write(&json, text).unwrap();
+        let out = d.join(format!("out-{name}"));
+        let (code, err) = synth_btf(&json, &out);
+        assert_eq!(code, 1, "{name}: {err}");
+        let lines: Vec<&str> = err.lines().collect();
+        assert_eq!(lines.len(), 1, "{name}: {err}");
+        assert!(
+            lines[0].starts_with("error: ") && lines[0].contains(named),
+            "{name}: {err}"
+        );
+        assert!(!out.exists(), "{name}: {} was created", out.display());
+    }
+}
+
+#[test]
+fn a_session_with_the_sample_equals_the_one_shot_btf_run() {
+    // Merged with prepared sessions: `--btf` is the session's synthesis with
+    // `Settings::btf` set, so a session given the loaded sample is bit-identical.
+    use std::sync::Arc;
+    use surfsynth::synth::Analyses;
+    use surfsynth::synthesizer::{MeshSettings, Session, SynthParams};
+    let tmp = tempfile::tempdir().unwrap();
+    let hf = HeightField::bumps(32, 4.0, 3);
+    let (s, _) = generate::sample(&hf, &generate::light_directions(8));
+    let json = generate::write(&tmp.path().join("s"), &s, serde_json::json!({})).unwrap();
+    let one_shot = Synthesizer::new(data(SPOT), ExampleSource::Btf(json.clone()))
+        .resolution(8)
+        .seed(5)
+        .method(Method::Textons)
+        .cache(CacheDir::Off)
+        .run()
+        .unwrap();
+    let settings = MeshSettings {
+        resolution: 8,
+        ..MeshSettings::default()
+    };
+    let session = Session::prepare(data(SPOT), &settings)
+        .unwrap()
+        .with_analyses(Arc::new(Analyses::new(&CacheDir::Off)));
+    let sample = BtfSample::load(&json).unwrap();
+    let mut params = SynthParams {
+        seed: 5,
+        ..SynthParams::new(Method::Textons)
+    };
+    params.settings.btf = Some(Arc::new(sample.clone()));
+    let a = session.synthesize(&sample.example(), &params).unwrap();
+    assert_eq!(a.maps.channels.len(), one_shot.maps.channels.len());
+    for ((na, da), (nb, db)) in a.maps.channels.iter().zip(&one_shot.maps.channels) {
+        assert_eq!(na, nb);
+        assert!(
+            da.iter().zip(db).all(|(x, y)| x.to_bits() == y.to_bits()),
+            "channel {na} differs between the session and the one-shot run"
+        );
+    }
+    assert!(one_shot.report.inputs.btf.is_some());
+    assert_eq!(a.report.inputs.btf, one_shot.report.inputs.btf);
+    let details = |r: &surfsynth::synthesizer::SynthResult| {
+        let mut v = serde_json::to_value(&r.report.details).unwrap();
+        // Seconds are not part of the result.
+        strip_seconds(&mut v);
+        v
+    };
+    assert_eq!(details(&a), details(&one_shot));
+    assert!(
+        serde_json::to_string(&a.report.details)
+            .unwrap()
+            .contains("textons"),
+        "the report names the texton stats"
+    );
+}
+
+fn strip_seconds(v: &mut serde_json::Value) {
+    match v {
+        serde_json::Value::Object(m) => {
+            m.retain(|k, _| !k.contains("seconds"));
+            m.values_mut().for_each(strip_seconds);
+        }
+        serde_json::Value::Array(a) => a.iter_mut().for_each(strip_seconds),
+        _ => {}
+    }
+}
