@@ -43,6 +43,7 @@ pub fn command(out: &Path) -> SynthCommand {
         height: None,
         method: Method::DEFAULT,
         resolution: RESOLUTION,
+        texel_size: None,
         scale: None,
         orientation: Orientation::Auto,
         seed: SEED,

@@ -68,6 +68,10 @@ pub struct Report {
     /// h: median distance between adjacent texel centres (BRIEF), for reference.
     pub texel_spacing: f64,
     pub resolution: usize,
+    /// `--texel-size` (then `resolution` is the largest face side and the faces' own
+    /// resolutions are in facemaps.exr's header).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub texel_size: Option<f64>,
     pub orientation: String,
     /// Face domains F.
     pub faces: usize,

@@ -232,6 +232,7 @@ pub struct Synthesizer {
     height: Option<PathBuf>,
     settings: Settings,
     resolution: usize,
+    texel_size: Option<f64>,
     scale: Option<f64>,
     orientation: Orientation,
     seed: u64,
@@ -291,6 +292,7 @@ impl Synthesizer {
             height: None,
             settings: Settings::default(),
             resolution: 32,
+            texel_size: None,
             scale: None,
             orientation: Orientation::Auto,
             seed: 1,
@@ -318,6 +320,13 @@ impl Synthesizer {
     /// Texels per side of every face map (>= 1).
     pub fn resolution(mut self, n: usize) -> Self {
         self.resolution = n;
+        self
+    }
+    /// Per-face resolutions for a texel spacing of about `l` surface units
+    /// (`--texel-size`, [`crate::layout::TexelLayout::for_texel_size`]) instead of one
+    /// [`Synthesizer::resolution`] for all faces; `None` = the resolution.
+    pub fn texel_size(mut self, l: impl Into<Option<f64>>) -> Self {
+        self.texel_size = l.into();
         self
     }
     /// Surface length covered by one example pixel; `None` = median texel spacing.
@@ -459,6 +468,18 @@ impl Synthesizer {
                 "resolution {} is out of range: use 1 to {MAX_RESOLUTION} texels per side",
                 self.resolution
             )));
+        }
+        if let Some(l) = self.texel_size {
+            if !(l.is_finite() && l > 0.0) {
+                return Err(Error::invalid(format!(
+                    "texel size {l} is not a positive surface length per texel"
+                )));
+            }
+            if self.settings.method == Method::Multiscale {
+                return Err(Error::invalid(
+                    "the multiscale method needs one resolution for all faces: use --resolution, not --texel-size",
+                ));
+            }
         }
         if let Some(s) = self.scale {
             if !(s.is_finite() && s > 0.0) {
@@ -626,11 +647,27 @@ impl Synthesizer {
             )?;
         }
         let control = match self.mesh {
-            MeshSource::Path(ref p) => Some(crate::memory::load_control_checked(p, n, &job)?),
+            MeshSource::Path(ref p) => Some(match self.texel_size {
+                None => crate::memory::load_control_checked(p, n, &job)?,
+                Some(l) => crate::memory::load_control_checked_texel_size(p, l, &job)?,
+            }),
             MeshSource::Surface(ref s) => {
-                crate::memory::check_surface(s, n, &job)?;
+                match self.texel_size {
+                    None => crate::memory::check_surface(s, n, &job)?,
+                    Some(l) => crate::memory::check_surface_texel_size(s, l, &job)?,
+                }
                 None
             }
+        };
+        // The patch depth follows the finest texels (with a texel size: the longest control
+        // edge over the texel size, an upper bound of any face's side).
+        let n_depth = match (self.texel_size, &control, &self.mesh) {
+            (None, _, _) => n,
+            (Some(l), Some(c), _) => crate::memory::texel_size_side(c, l),
+            (Some(l), None, MeshSource::Surface(s)) => {
+                crate::memory::texel_size_side(&s.control, l)
+            }
+            (Some(_), None, MeshSource::Path(_)) => unreachable!("a path mesh is read above"),
         };
         // Both fit: decode the example, then build the surface.
         let example = match (pending, &self.example) {
@@ -666,14 +703,27 @@ impl Synthesizer {
                 for p in &mut inner.mesh.positions {
                     *p /= unit;
                 }
-                (crate::memory::build_surface(inner, n), Some(c))
+                (crate::memory::build_surface(inner, n_depth), Some(c))
             }
-            (Some(c), _) => (crate::memory::build_surface(c, n), None),
+            (Some(c), _) => (crate::memory::build_surface(c, n_depth), None),
             (None, MeshSource::Surface(s)) => ((**s).clone(), None),
             (None, MeshSource::Path(_)) => unreachable!("a path mesh is read above"),
         };
         let faces = surface.num_domains();
-        check_size(faces, n)?;
+        // The texel layout: one N, or per-face resolutions from the texel size (in the
+        // surface's working units), checked against the guard with its real texel total.
+        let layout = std::sync::Arc::new(match self.texel_size {
+            None => {
+                check_size(faces, n)?;
+                crate::layout::TexelLayout::uniform(faces, n)
+            }
+            Some(l) => {
+                let layout = crate::layout::TexelLayout::for_texel_size(&surface, l / unit);
+                check_texels(&mesh_label, &layout)?;
+                crate::memory::check_layout(&mesh_label, &surface.control, &layout, &job)?;
+                layout
+            }
+        });
         // Inputs are good: check --out and open it (nothing appears in it until the end).
         let txn = match out_dir {
             Some(dir) => Some(OutputTxn::begin(dir, crate::io::txn::SYNTH_OUTPUTS)?),
@@ -684,7 +734,7 @@ impl Synthesizer {
 
         progress(Stage::Geometry, 0, faces);
         let t0 = Instant::now();
-        let geometry = TexelGeometry::compute(&surface, n);
+        let geometry = TexelGeometry::compute_layout(&surface, layout.clone());
         let geometry_s = t0.elapsed().as_secs_f64();
         progress(Stage::Geometry, faces, faces);
 
@@ -692,7 +742,7 @@ impl Synthesizer {
         let t0 = Instant::now();
         let field = OrientationField::compute(&surface, &self.orientation)
             .map_err(|e| Error::invalid(format!("orientation field for {mesh_label}: {e:#}")))?;
-        let frames = crate::synth::frames_f32(&field.texel_frames(&surface, n));
+        let frames = crate::synth::layout_frames(&field, &surface, &layout);
         let field_s = t0.elapsed().as_secs_f64();
         progress(Stage::Field, 1, 1);
 
@@ -764,20 +814,20 @@ impl Synthesizer {
             // Back to the user's units for writing (positions, normals, displacement).
             surface = match (user_control, &self.mesh) {
                 (_, MeshSource::Surface(s)) => (**s).clone(),
-                (Some(c), _) => crate::memory::build_surface(c, n),
+                (Some(c), _) => crate::memory::build_surface(c, n_depth),
                 (None, MeshSource::Path(_)) => unreachable!("kept when unit != 1"),
             };
-            geometry = TexelGeometry::compute(&surface, n);
+            geometry = TexelGeometry::compute_layout(&surface, layout.clone());
         }
         let (scale, spacing) = (scale * unit, spacing * unit);
 
         progress(Stage::Maps, 0, 1);
         let t0 = Instant::now();
-        let maps = crate::synth::face_maps(&example, &source, faces, n);
+        let maps = crate::synth::face_maps(&example, &source, &layout);
         let maps_s = t0.elapsed().as_secs_f64();
         progress(Stage::Maps, 1, 1);
 
-        let texels = (faces * n * n) as u64;
+        let texels = layout.len() as u64;
         let mut report = Report {
             tool: "surfsynth".into(),
             version: env!("CARGO_PKG_VERSION").into(),
@@ -791,7 +841,10 @@ impl Synthesizer {
             scale,
             scale_source: scale_source.into(),
             texel_spacing: spacing,
-            resolution: n,
+            resolution: layout
+                .uniform_n()
+                .unwrap_or(layout.max_dims().0.max(layout.max_dims().1)),
+            texel_size: self.texel_size,
             orientation: orientation_label(&self.orientation),
             faces,
             control_faces: surface.control.mesh.num_faces(),
@@ -849,6 +902,19 @@ fn orientation_label(o: &Orientation) -> String {
         Orientation::Axis(a) => format!("axis ({}, {}, {})", a.x, a.y, a.z),
         Orientation::Constraints(p) => p.display().to_string(),
     }
+}
+
+/// [`check_size`] for a per-face layout.
+fn check_texels(what: &str, layout: &crate::layout::TexelLayout) -> Result<()> {
+    if layout.len() as u128 >= u32::MAX as u128 {
+        return Err(Error::invalid(format!(
+            "{what}: {} face domains at this texel size are {} texels; at most {} are supported: raise --texel-size",
+            layout.faces(),
+            layout.len(),
+            u32::MAX - 1
+        )));
+    }
+    Ok(())
 }
 
 /// Refuses sizes whose maps would not fit an EXR image or u32 texel indices.
@@ -986,16 +1052,16 @@ impl SynthResult {
                     // `geometry_maps()`, without a second copy of the maps).
                     let p = dir.join(GEOMETRY_FILE);
                     let g = &self.geometry;
-                    let nn = g.resolution * g.resolution;
                     crate::io::exr::write_tiles(
                         &p,
-                        crate::io::exr::TileLayout::new(g.faces, g.resolution),
+                        crate::io::exr::TileLayout::of(g.layout.clone()),
                         &crate::bake::GEOMETRY_CHANNELS,
                         crate::io::exr::DEFAULT_COMPRESSION,
                         |f, tile| {
-                            for (c, out) in tile.chunks_exact_mut(nn).enumerate() {
+                            let r = g.layout.range(f);
+                            for (c, out) in tile.chunks_exact_mut(r.len()).enumerate() {
                                 let src = if c < 3 { &g.pos } else { &g.normal };
-                                for (o, v) in out.iter_mut().zip(&src[f * nn..(f + 1) * nn]) {
+                                for (o, v) in out.iter_mut().zip(&src[r.clone()]) {
                                     *o = v[c % 3];
                                 }
                             }
@@ -1060,6 +1126,8 @@ pub struct SynthCommand {
     pub height: Option<PathBuf>,
     pub method: Method,
     pub resolution: usize,
+    /// `--texel-size L` (per-face resolutions instead of `resolution`).
+    pub texel_size: Option<f64>,
     pub scale: Option<f64>,
     pub orientation: Orientation,
     pub seed: u64,
@@ -1087,6 +1155,7 @@ impl SynthCommand {
         let mut s = Synthesizer::new(&self.mesh, &self.example)
             .method(self.method)
             .resolution(self.resolution)
+            .texel_size(self.texel_size)
             .scale(self.scale)
             .orientation(self.orientation.clone())
             .seed(self.seed)
@@ -1140,8 +1209,12 @@ pub fn summary_line(r: &Report, out: &Path) -> String {
         let f = |v: Option<f64>| v.map_or("n/a".to_string(), |v| format!("{v:.3}"));
         format!("; pf1 {} pf4 {} pf8 {}", f(p.pf1), f(p.pf4), f(p.pf8))
     });
+    let each = match r.texel_size {
+        None => format!("{n}x{n} each", n = r.resolution),
+        Some(l) => format!("texel size {l}, up to {n}x{n}", n = r.resolution),
+    };
     format!(
-        "synth: {} domains, {} texels ({n}x{n} each) in {:.2} s ({} texels/s; synthesis {:.2} s, {} texels/s){pf} -> {}",
+        "synth: {} domains, {} texels ({each}) in {:.2} s ({} texels/s; synthesis {:.2} s, {} texels/s){pf} -> {}",
         r.faces,
         r.texels,
         r.seconds.total,
@@ -1149,7 +1222,6 @@ pub fn summary_line(r: &Report, out: &Path) -> String {
         r.seconds.synthesis,
         si(r.synthesis_texels_per_second),
         out.display(),
-        n = r.resolution
     )
 }
 

@@ -43,7 +43,7 @@ pub fn material_images(
     maps: &FaceMaps,
     gutter: usize,
 ) -> Result<MaterialImages> {
-    let layout = AtlasLayout::new(maps.faces, maps.resolution, gutter);
+    let layout = AtlasLayout::of(maps.layout.clone(), gutter);
     let png = |pixels: Vec<u8>, channels: usize| -> Result<Vec<u8>> {
         let mut out = Vec::new();
         encode_png(&pixels, &layout, channels, &mut out)
@@ -64,7 +64,7 @@ pub fn material_images(
         roughness: rough.is_some(),
         metallic: metal.is_some(),
     };
-    let len = maps.faces * maps.resolution * maps.resolution;
+    let len = maps.layout.len();
     // Three independent atlases; PNG encoding is single-threaded, so they run side by side.
     let (base, (normal, orm_png)) = rayon::join(
         || -> Result<(Vec<u8>, bool)> {

@@ -150,7 +150,7 @@ impl Derived {
     /// The region-growing order of `texels`.
     pub fn growth(&self, texels: &LevelTexels) -> &[u32] {
         self.growth
-            .get_or_init(|| jump::growth_order(texels.edges(), texels.len(), texels.resolution()))
+            .get_or_init(|| jump::growth_order(texels.edges(), texels.layout()))
     }
 }
 
@@ -303,10 +303,15 @@ pub fn synthesize(
         }
         Method::Multiscale => {
             let weights = settings.weights.per_channel(example);
+            let Some(resolution) = target.texels.layout().uniform_n() else {
+                return Err(crate::Error::invalid(
+                    "the multiscale method needs one resolution for all faces: use --resolution, not --texel-size",
+                ));
+            };
             let inputs = multiscale::Inputs {
                 surface: target.surface,
                 field: target.field,
-                resolution: target.texels.resolution(),
+                resolution,
                 spacing: target.spacing,
                 scale: target.scale(),
                 seed: target.seed,
@@ -379,7 +384,7 @@ fn coherent_output<const K: usize>(
         scale: t.step,
         seed: target.seed,
     };
-    let faces = t.geometry.faces;
+    let faces = t.geometry.faces();
     let out = coherent::run(&features, inputs, params, &|d| progress(d, faces));
     Output {
         source: out.source,
@@ -493,6 +498,26 @@ impl Weights {
     }
 }
 
+/// The field's frames at every texel centre of `layout`, as the synthesizer stores them. A
+/// uniform layout takes [`OrientationField::texel_frames`] (the same values as always).
+pub fn layout_frames(
+    field: &OrientationField,
+    surface: &Surface,
+    layout: &crate::layout::TexelLayout,
+) -> Vec<[Vec3; 2]> {
+    if let Some(n) = layout.uniform_n() {
+        return frames_f32(&field.texel_frames(surface, n));
+    }
+    (0..layout.len())
+        .into_par_iter()
+        .map(|t| {
+            let l = layout.location(t);
+            let f = field.frame(surface, l.domain, l.u, l.v);
+            [f.v1.as_vec3(), f.v2.as_vec3()]
+        })
+        .collect()
+}
+
 /// Frames as the synthesizer stores them: (v1, v2) in f32.
 pub fn frames_f32(frames: &[Frame]) -> Vec<[Vec3; 2]> {
     frames
@@ -512,19 +537,24 @@ pub fn output_channels(example: &Example) -> Vec<&'static str> {
 /// The `facemaps.exr` content: every channel looked up bilinearly in the (unweighted)
 /// example at the texel's source position — all channels from the same place — plus the
 /// source position itself.
-pub fn face_maps(example: &Example, source: &[[f32; 2]], faces: usize, n: usize) -> FaceMaps {
+pub fn face_maps(
+    example: &Example,
+    source: &[[f32; 2]],
+    layout: &std::sync::Arc<crate::layout::TexelLayout>,
+) -> FaceMaps {
     let names = output_channels(example);
     let k = example.num_channels();
-    let nn = n * n;
-    assert_eq!(source.len(), faces * nn);
+    assert_eq!(source.len(), layout.len());
     // Per domain, channel-major tiles; then scattered into the named channels.
-    let tiles: Vec<Vec<f32>> = (0..faces)
+    let tiles: Vec<Vec<f32>> = (0..layout.faces())
         .into_par_iter()
         .map(|f| {
+            let r = layout.range(f);
+            let nn = r.len();
             let mut tile = vec![0.0f32; (k + 2) * nn];
             let mut v = [0.0f32; 8];
             for i in 0..nn {
-                let s = source[f * nn + i];
+                let s = source[r.start + i];
                 example.bilinear(s[0], s[1], &mut v[..k]);
                 for c in 0..k {
                     tile[c * nn + i] = v[c];
@@ -535,10 +565,12 @@ pub fn face_maps(example: &Example, source: &[[f32; 2]], faces: usize, n: usize)
             tile
         })
         .collect();
-    let mut maps = FaceMaps::new(faces, n, &names);
+    let mut maps = FaceMaps::with_layout(layout.clone(), &names);
     for (c, (_, data)) in maps.channels.iter_mut().enumerate() {
         for (f, tile) in tiles.iter().enumerate() {
-            data[f * nn..(f + 1) * nn].copy_from_slice(&tile[c * nn..(c + 1) * nn]);
+            let r = layout.range(f);
+            let nn = r.len();
+            data[r].copy_from_slice(&tile[c * nn..(c + 1) * nn]);
         }
     }
     maps
@@ -547,7 +579,7 @@ pub fn face_maps(example: &Example, source: &[[f32; 2]], faces: usize, n: usize)
 /// The `geometry.exr` content (P.X P.Y P.Z N.X N.Y N.Z), from already evaluated texels.
 pub fn geometry_maps(geom: &TexelGeometry) -> FaceMaps {
     let names = crate::bake::GEOMETRY_CHANNELS;
-    let mut maps = FaceMaps::new(geom.faces, geom.resolution, &names);
+    let mut maps = FaceMaps::with_layout(geom.layout.clone(), &names);
     for (c, (_, data)) in maps.channels.iter_mut().enumerate() {
         let src = if c < 3 { &geom.pos } else { &geom.normal };
         let axis = c % 3;
