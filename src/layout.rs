@@ -283,10 +283,10 @@ impl TexelLayout {
         self.index(d, c(u, nu), c(v, nv))
     }
 
-    /// One line for reports and errors: "N = 32" or "texel size: 4x4 to 64x32 per face".
+    /// For reports and errors: "N = 32", or "4 to 4096 texels per face" with per-face resolutions.
     pub fn describe(&self) -> String {
         match &self.kind {
-            Kind::Uniform(n) => format!("{n}² texels per face"),
+            Kind::Uniform(n) => format!("N = {n}"),
             Kind::PerFace(r) => {
                 let min = r.iter().map(|r| r.u() * r.v()).min().unwrap_or(0);
                 let max = r.iter().map(|r| r.u() * r.v()).max().unwrap_or(0);

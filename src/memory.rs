@@ -25,7 +25,11 @@
 //!   the per-thread scratch: the maps are streamed, never held whole.
 //!
 //! The check runs after the control mesh is parsed and before the surface is built, so
-//! nothing large has been allocated yet when it refuses.
+//! nothing large has been allocated yet when it refuses. With `--texel-size` the texel
+//! count depends on the limit surface, so there are two checks: before the surface, an
+//! upper estimate from the control faces' area ([`texel_size_estimate`]: refuses absurd
+//! sizes before anything is built), and after it, before any texel is allocated, the real
+//! total of the per-face layout ([`check_layout`]).
 
 use crate::error::{Error, Result};
 use crate::synth::Method;

@@ -1056,7 +1056,7 @@ impl SynthResult {
                         &p,
                         crate::io::exr::TileLayout::of(g.layout.clone()),
                         &crate::bake::GEOMETRY_CHANNELS,
-                        crate::io::exr::DEFAULT_COMPRESSION,
+                        crate::io::exr::compression_for(&g.layout),
                         |f, tile| {
                             let r = g.layout.range(f);
                             for (c, out) in tile.chunks_exact_mut(r.len()).enumerate() {

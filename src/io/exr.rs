@@ -6,6 +6,11 @@
 //! The header carries the ints `surfsynth.faces` (F) and `surfsynth.resolution` (N). Inside a
 //! tile, texel (x, y) (x from the left, y from the top) is (u, v) = ((x+0.5)/N, (y+0.5)/N).
 //!
+//! With per-face resolutions (`--texel-size`, [`crate::layout`]) the tile is as large as
+//! the largest domain along u and along v, each domain's nu x nv texels sit at its tile's
+//! top-left (the rest is zero), and the header holds [`ATTR_RESOLUTIONS`] instead of
+//! [`ATTR_RESOLUTION`]; OIIO and OpenEXR read it as an ordinary tiled image.
+//!
 //! Why tiles: one tile per domain makes each domain one contiguous, independently compressed
 //! block, so a domain can be produced (or read) alone. [`write_tiles`] exploits that: it
 //! asks a callback for one domain at a time, in parallel batches, and streams compressed
@@ -57,6 +62,18 @@ pub const ATTR_RESOLUTIONS: &str = "surfsynth.resolutions";
 /// well under half the speed of evaluation. Users who prefer small files pass
 /// `--compression zip`; every reader handles all of them.
 pub const DEFAULT_COMPRESSION: Compression = Compression::Uncompressed;
+
+/// The compression [`write_face_maps`] and the synthesizer use for maps of `layout`:
+/// [`DEFAULT_COMPRESSION`] with one N; RLE with per-face resolutions, whose tiles are as
+/// large as the largest face and zero beyond each face's texels — RLE stores those runs
+/// almost for free at about the speed of no compression (Spot, texel size 0.004, 393k
+/// texels: geometry.exr 25.2 MB uncompressed, 9.9 MB RLE, 9.3 MB ZIP at 4.5x the time).
+pub fn compression_for(layout: &TexelLayout) -> Compression {
+    match layout.uniform_n() {
+        Some(_) => DEFAULT_COMPRESSION,
+        None => Compression::RLE,
+    }
+}
 
 /// Largest supported resolution (texels per tile side). Far beyond any practical use
 /// (8192² texels per face is 256 MiB per channel per face); a guard against typos.
@@ -218,7 +235,7 @@ impl FaceMaps {
         for (name, data) in &self.channels {
             if data.len() != len {
                 return Err(Error::invalid(format!(
-                    "face map channel '{name}' has {} values, expected {len} ({} faces, {})",
+                    "face map channel '{name}' has {} values, expected {len} ({} faces at {})",
                     data.len(),
                     self.faces(),
                     self.layout.describe()
@@ -277,9 +294,9 @@ pub struct FaceMapsInfo {
     pub compression: String,
 }
 
-/// Writes `maps` to `path` (atomically) with [`DEFAULT_COMPRESSION`].
+/// Writes `maps` to `path` (atomically) with [`compression_for`] its layout.
 pub fn write_face_maps(path: impl AsRef<Path>, maps: &FaceMaps) -> Result<()> {
-    write_face_maps_with(path, maps, DEFAULT_COMPRESSION)
+    write_face_maps_with(path, maps, compression_for(&maps.layout))
 }
 
 /// Writes `maps` to `path` (atomically) with the given compression. Only lossless
