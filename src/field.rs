@@ -50,11 +50,23 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use subdiv::{BaseLocation, DomainId, FaceId, LimitMesh, Surface, VertexId};
 
+mod choice;
+pub use choice::{bent_fraction, Choice};
+
+/// Example pixels over which `auto` wants the field straight: half the extent of BRIEF's
+/// pf8 window (7 samples 8 px apart plus the discs), so a window centred anywhere sees rows
+/// bend by at most [`choice::TURN`] on either side.
+pub const STRUCTURE_PIXELS: f64 = 28.0;
+
 /// How the field is chosen.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Orientation {
-    /// The smoothest field (singularities only where topology forces them).
+    /// The straightest of the smooth field and the three world-axis fields, scored on a
+    /// coarse level by the area where the frame turns fast over the structure length
+    /// ([`FieldOptions::structure_length`]; module `choice` says why and how).
     Auto,
+    /// The smoothest field (singularities only where topology forces them).
+    Smooth,
     /// Closest to a world axis projected on the tangent planes, then smoothed.
     Axis(DVec3),
     /// Constraints from a file (see docs/field.md).
@@ -67,6 +79,7 @@ impl Orientation {
         let axis = |v: DVec3| Orientation::Axis(v);
         match s.trim() {
             "auto" => Orientation::Auto,
+            "smooth" => Orientation::Smooth,
             "+x" | "x" => axis(DVec3::X),
             "-x" => axis(DVec3::NEG_X),
             "+y" | "y" => axis(DVec3::Y),
@@ -81,6 +94,7 @@ impl Orientation {
     pub fn label(&self) -> String {
         match self {
             Orientation::Auto => "auto".into(),
+            Orientation::Smooth => "smooth".into(),
             Orientation::Axis(a) => {
                 let names = [
                     (DVec3::X, "+x"),
@@ -148,6 +162,9 @@ pub struct FieldOptions {
     pub max_sweeps: usize,
     /// A level stops when a sweep lowers E by less than this fraction.
     pub tolerance: f64,
+    /// The length over which `auto` wants the field straight (the builder: 28 example
+    /// pixels, half of pf8's window). `None`: 1/16 of the bounding-box diagonal.
+    pub structure_length: Option<f64>,
 }
 
 impl Default for FieldOptions {
@@ -159,6 +176,7 @@ impl Default for FieldOptions {
             target_weight: 8.0,
             max_sweeps: 60,
             tolerance: 1e-7,
+            structure_length: None,
         }
     }
 }
@@ -193,6 +211,8 @@ pub struct OrientationField {
     corner_v1: HashMap<u32, DVec3>,
     history: Vec<LevelHistory>,
     label: String,
+    /// What `auto` chose (None for every other orientation).
+    choice: Option<Choice>,
 }
 
 /// A parsed constraints file (docs/field.md).
@@ -799,6 +819,20 @@ fn two_colour(start: &[u32], nbr: &[u32]) -> Vec<Vec<u32>> {
     vec![a, b]
 }
 
+/// The level the field lives on: [`FieldOptions::level`], or the finest automatic one.
+fn final_level(surface: &Surface, opts: &FieldOptions) -> u32 {
+    match opts.level {
+        Some(l) => l.max(1),
+        None => {
+            let mut l = 1;
+            while l < opts.max_level.max(1) && faces_at(surface, l + 1) <= opts.max_faces {
+                l += 1;
+            }
+            l
+        }
+    }
+}
+
 /// Faces of a limit mesh at `level`.
 fn faces_at(surface: &Surface, level: u32) -> usize {
     surface.num_base_quads() << (2 * (level - 1))
@@ -854,14 +888,44 @@ impl OrientationField {
         Self::compute_with(surface, orientation, &FieldOptions::default())
     }
 
-    /// Computes the field (see the module doc for the method).
+    /// Computes the field (see the module doc for the method); `auto` scores the
+    /// candidates first (module `choice`).
     pub fn compute_with(
         surface: &Surface,
         orientation: &Orientation,
         opts: &FieldOptions,
     ) -> anyhow::Result<Self> {
+        if *orientation != Orientation::Auto {
+            return Self::compute_fixed(surface, orientation, opts);
+        }
+        let length = opts.structure_length.unwrap_or_else(|| {
+            let (lo, hi) = surface.bounds();
+            (hi - lo).length() / 16.0
+        });
+        let level = final_level(surface, opts);
+        let (chosen, choice, done) = choice::straightest(surface, opts, level, length)?;
+        let mut field = match done {
+            Some(f) => f,
+            None => Self::compute_fixed(surface, &chosen, opts)?,
+        };
+        field.label = orientation.label();
+        field.choice = Some(choice);
+        Ok(field)
+    }
+
+    /// What `auto` chose and the candidates' scores (None for other orientations).
+    pub fn choice(&self) -> Option<&Choice> {
+        self.choice.as_ref()
+    }
+
+    /// The field of one orientation that needs no choosing (not `auto`).
+    fn compute_fixed(
+        surface: &Surface,
+        orientation: &Orientation,
+        opts: &FieldOptions,
+    ) -> anyhow::Result<Self> {
         let constraints = match orientation {
-            Orientation::Auto => Constraints::default(),
+            Orientation::Auto | Orientation::Smooth => Constraints::default(),
             Orientation::Axis(a) => {
                 if a.length() < 1e-12 || !a.is_finite() {
                     bail!(
@@ -889,16 +953,7 @@ impl OrientationField {
                 bail!("{at}constraint on vertex {i}, but the mesh has {nctl} vertices (0-based)");
             }
         }
-        let level = match opts.level {
-            Some(l) => l.max(1),
-            None => {
-                let mut l = 1;
-                while l < opts.max_level.max(1) && faces_at(surface, l + 1) <= opts.max_faces {
-                    l += 1;
-                }
-                l
-            }
-        };
+        let level = final_level(surface, opts);
         let (lo, hi) = surface.bounds();
         let diag = (hi - lo).length().max(1e-300);
 
@@ -940,7 +995,7 @@ impl OrientationField {
             prev = Some((lm, v1, corner_v1));
         }
         let (mesh, mut v1, mut corner_v1) = prev.expect("at least one level");
-        if *orientation == Orientation::Auto {
+        if *orientation == Orientation::Smooth {
             align_global_rotation(&mesh, &mut v1, &mut corner_v1);
         }
         Ok(OrientationField {
@@ -949,6 +1004,7 @@ impl OrientationField {
             corner_v1,
             history,
             label: orientation.label(),
+            choice: None,
         })
     }
 

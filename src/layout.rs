@@ -86,6 +86,17 @@ pub struct TexelLayout {
     start: Vec<usize>,
 }
 
+impl Default for TexelLayout {
+    /// No domains (what an emptied texel graph holds).
+    fn default() -> Self {
+        Self {
+            kind: Kind::Uniform(1),
+            faces: 0,
+            start: vec![0],
+        }
+    }
+}
+
 impl TexelLayout {
     /// `faces` domains of `n`×`n` texels (n ≥ 1).
     pub fn uniform(faces: usize, n: usize) -> Self {

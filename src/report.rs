@@ -73,6 +73,9 @@ pub struct Report {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub texel_size: Option<f64>,
     pub orientation: String,
+    /// What `--orient auto` chose and every candidate's score (absent otherwise).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub orientation_choice: Option<OrientationChoice>,
     /// Face domains F.
     pub faces: usize,
     /// Faces of the control mesh.
@@ -109,6 +112,18 @@ pub struct Report {
     /// Per-example analysis of the run: where each came from (memory, the disk cache, or
     /// computed), and whether the cache was hit ([`crate::synth::analysis`]).
     pub cache: crate::synth::analysis::CacheReport,
+}
+
+/// `auto`'s choice among candidate fields ([`crate::field::Choice`]).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct OrientationChoice {
+    /// `smooth`, `+x`, `+y` or `+z`.
+    pub chosen: String,
+    /// Surface length (user units) over which straightness was scored.
+    pub structure_length: f64,
+    /// Per candidate: the fraction of the surface where the frame turns by more than
+    /// 0.1 rad over the structure length (lower is straighter), in candidate order.
+    pub bent_fraction: Vec<(String, f64)>,
 }
 
 impl Report {

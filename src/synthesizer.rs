@@ -42,6 +42,11 @@
 //! # }
 //! ```
 //!
+//! For many syntheses on one mesh (an interactive tool, a seed sweep), [`Session`] keeps
+//! the mesh-side stages (surface, texel geometry, field, graphs) and the per-example
+//! analysis between them; the builder above is a session used once (module
+//! [`session`]).
+//!
 //! Errors are [`crate::Error`]s with one-line messages that name the file and the problem
 //! (a missing or corrupt example, a height map of another size, resolution 0, ...). Nothing
 //! is written until [`SynthResult::write`], which writes every file atomically and removes
@@ -49,16 +54,18 @@
 
 use crate::error::{Error, Result};
 use crate::example::{Example, PendingImage};
-use crate::field::{Orientation, OrientationField};
-use crate::io::exr::{write_face_maps, FaceMaps, MAX_RESOLUTION};
+use crate::field::Orientation;
+use crate::io::exr::{write_face_maps, FaceMaps};
 use crate::io::txn::OutputTxn;
-use crate::report::{ExampleInfo, Inputs, Report, Seconds};
-use crate::synth::footprint::LevelTexels;
-use crate::synth::Target;
-use crate::texels::{TexelGeometry, TexelGraph};
+use crate::report::Report;
+use crate::texels::TexelGeometry;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::time::Instant;
 use subdiv::Surface;
+
+pub mod session;
+pub use session::{MeshSettings, PrepareSeconds, Session, SynthParams};
 
 pub use crate::cache::CacheDir;
 pub use crate::synth::matching::appearance::AppearanceMode;
@@ -263,10 +270,12 @@ impl std::fmt::Debug for Synthesizer {
 pub struct SynthResult {
     /// facemaps.exr content: R G B \[A\] \[height\] source.u source.v.
     pub maps: FaceMaps,
-    /// Limit position and normal per texel (geometry.exr content).
-    pub geometry: TexelGeometry,
-    /// The surface (for exporters that need topology, e.g. the atlas).
-    pub surface: Surface,
+    /// Limit position and normal per texel (geometry.exr content); shared with the
+    /// [`Session`] that produced it.
+    pub geometry: Arc<TexelGeometry>,
+    /// The surface (for exporters that need topology, e.g. the atlas); shared with the
+    /// [`Session`].
+    pub surface: Arc<Surface>,
     /// The example as loaded (linear).
     pub example: Example,
     /// report.json content; `seconds.write`, `seconds.total` and the rates are completed
@@ -440,15 +449,7 @@ impl Synthesizer {
     }
 
     fn mesh_label(&self) -> String {
-        match &self.mesh {
-            MeshSource::Path(p) => p.display().to_string(),
-            MeshSource::Surface(s) => s
-                .control
-                .path
-                .as_ref()
-                .map(|p| p.display().to_string())
-                .unwrap_or_else(|| "<in memory>".into()),
-        }
+        mesh_source_label(&self.mesh)
     }
 
     fn example_label(&self) -> String {
@@ -463,31 +464,16 @@ impl Synthesizer {
 
     /// Checks parameters that need no file (cheap; `run` calls it first).
     pub fn validate(&self) -> Result<()> {
-        if self.resolution == 0 || self.resolution > MAX_RESOLUTION {
-            return Err(Error::invalid(format!(
-                "resolution {} is out of range: use 1 to {MAX_RESOLUTION} texels per side",
-                self.resolution
-            )));
+        if self.texel_size.is_some() && self.settings.method == Method::Multiscale {
+            return Err(Error::invalid(MULTISCALE_TEXEL_SIZE));
         }
-        if let Some(l) = self.texel_size {
-            if !(l.is_finite() && l > 0.0) {
-                return Err(Error::invalid(format!(
-                    "texel size {l} is not a positive surface length per texel"
-                )));
-            }
-            if self.settings.method == Method::Multiscale {
-                return Err(Error::invalid(
-                    "the multiscale method needs one resolution for all faces: use --resolution, not --texel-size",
-                ));
-            }
+        MeshSettings {
+            resolution: self.resolution,
+            texel_size: self.texel_size,
+            scale: self.scale,
+            orientation: Orientation::Auto,
         }
-        if let Some(s) = self.scale {
-            if !(s.is_finite() && s > 0.0) {
-                return Err(Error::invalid(format!(
-                    "scale {s} is not a positive surface length per example pixel"
-                )));
-            }
-        }
+        .validate()?;
         if self.threads == Some(0) {
             return Err(Error::invalid("threads must be at least 1"));
         }
@@ -677,18 +663,8 @@ impl Synthesizer {
         };
         // Any scale works: a mesh far from unit size is divided by a power of two
         // (`unit`, exact) and processed near unit size; results are reported and written
-        // in the user's units (the surface and geometry are rebuilt for writing below).
-        let user_control = match (control, &self.mesh) {
-            (Some(c), _) => Some(c),
-            (None, MeshSource::Surface(s)) => {
-                crate::memory::check_coordinate_range(&mesh_label, &s.control)?;
-                (crate::memory::normalising_unit(&s.control) != 1.0).then(|| s.control.clone())
-            }
-            (None, MeshSource::Path(_)) => unreachable!("a path mesh is read above"),
-        };
-        let unit = user_control
-            .as_ref()
-            .map_or(1.0, crate::memory::normalising_unit);
+        // in the user's units (the session rebuilds the surface and geometry for writing).
+        let (user_control, unit) = session::units(control, &self.mesh, &mesh_label)?;
         if let Some(a) = self.displace {
             let control = match (&user_control, &self.mesh) {
                 (Some(c), _) => c,
@@ -697,33 +673,11 @@ impl Synthesizer {
             };
             crate::memory::check_displace(&mesh_label, a, crate::memory::extent(control))?;
         }
-        let (surface, user_control) = match (user_control, &self.mesh) {
-            (Some(c), _) if unit != 1.0 => {
-                let mut inner = c.clone();
-                for p in &mut inner.mesh.positions {
-                    *p /= unit;
-                }
-                (crate::memory::build_surface(inner, n_depth), Some(c))
-            }
-            (Some(c), _) => (crate::memory::build_surface(c, n_depth), None),
-            (None, MeshSource::Surface(s)) => ((**s).clone(), None),
-            (None, MeshSource::Path(_)) => unreachable!("a path mesh is read above"),
-        };
-        let faces = surface.num_domains();
+        let (surface, user_control) =
+            session::working_surface(user_control, unit, self.mesh, n_depth);
         // The texel layout: one N, or per-face resolutions from the texel size (in the
         // surface's working units), checked against the guard with its real texel total.
-        let layout = std::sync::Arc::new(match self.texel_size {
-            None => {
-                check_size(faces, n)?;
-                crate::layout::TexelLayout::uniform(faces, n)
-            }
-            Some(l) => {
-                let layout = crate::layout::TexelLayout::for_texel_size(&surface, l / unit);
-                check_texels(&mesh_label, &layout)?;
-                crate::memory::check_layout(&mesh_label, &surface.control, &layout, &job)?;
-                layout
-            }
-        });
+        let layout = session::texel_layout(&surface, n, self.texel_size, unit, &mesh_label, &job)?;
         // Inputs are good: check --out and open it (nothing appears in it until the end).
         let txn = match out_dir {
             Some(dir) => Some(OutputTxn::begin(dir, crate::io::txn::SYNTH_OUTPUTS)?),
@@ -732,177 +686,73 @@ impl Synthesizer {
         let load = t0.elapsed().as_secs_f64();
         progress(Stage::Load, 1, 1);
 
-        progress(Stage::Geometry, 0, faces);
-        let t0 = Instant::now();
-        let geometry = TexelGeometry::compute_layout(&surface, layout.clone());
-        let geometry_s = t0.elapsed().as_secs_f64();
-        progress(Stage::Geometry, faces, faces);
-
-        progress(Stage::Field, 0, 1);
-        let t0 = Instant::now();
-        let field = OrientationField::compute(&surface, &self.orientation)
-            .map_err(|e| Error::invalid(format!("orientation field for {mesh_label}: {e:#}")))?;
-        let frames = crate::synth::layout_frames(&field, &surface, &layout);
-        let field_s = t0.elapsed().as_secs_f64();
-        progress(Stage::Field, 1, 1);
-
-        progress(Stage::Graph, 0, 1);
-        let t0 = Instant::now();
-        let graph = TexelGraph::build(&surface, &geometry);
-        let spacing = geometry.median_spacing(&surface);
-        let (scale, scale_source) = match self.scale {
-            Some(s) => (s / unit, "given"),
-            None => (spacing, "median texel spacing"),
-        };
-        if !(scale.is_finite() && scale > 0.0) {
-            return Err(Error::invalid(format!(
-                "{mesh_label}: the surface is degenerate (median texel spacing {scale}); pass --scale"
-            )));
-        }
-        let texels = LevelTexels::from_parts(&surface, geometry, graph, frames, scale);
-        // Mesh-side orders are set-up, not synthesis (a session computes them once).
-        let derived = crate::synth::Derived::default();
-        if self.settings.method == Method::Jump {
-            derived.growth(&texels);
-        }
-        let graph_s = t0.elapsed().as_secs_f64();
-        progress(Stage::Graph, 1, 1);
-
-        progress(Stage::Synthesis, 0, faces);
-        let t0 = Instant::now();
-        // The synthesizers lay image rows along −v2 (Handedness::Outside); for Tiles they
-        // get the example upside down, and the sources are turned back below.
-        let flipped;
-        let synth_example = match self.handedness {
-            Handedness::Outside => &example,
-            Handedness::Tiles => {
-                flipped = example.flipped_rows();
-                &flipped
-            }
-        };
-        let target = Target {
-            surface: &surface,
-            field: &field,
-            texels: &texels,
-            spacing,
-            seed: self.seed,
-            derived: &derived,
-        };
+        // The mesh-side stages (geometry, field, graph) and the synthesis are a session's,
+        // prepared here for one synthesis.
         let analyses = self
             .analyses
             .clone()
             .unwrap_or_else(|| std::sync::Arc::new(Analyses::new(&self.cache)));
-        let out = crate::synth::synthesize(
-            synth_example,
-            &target,
-            &self.settings,
-            &analyses,
-            &|d, t| progress(Stage::Synthesis, d * faces / t.max(1), faces),
-        )?;
-        let cache = analyses.report(analyses.take_events());
-        let mut source = out.source;
-        if self.handedness == Handedness::Tiles {
-            let h = example.height as f32;
-            for s in &mut source {
-                s[1] = h - s[1];
-            }
-        }
-        let synthesis_s = t0.elapsed().as_secs_f64();
-        let mut geometry = texels.geometry;
-        let mut surface = surface;
-        if unit != 1.0 {
-            // Back to the user's units for writing (positions, normals, displacement).
-            surface = match (user_control, &self.mesh) {
-                (_, MeshSource::Surface(s)) => (**s).clone(),
-                (Some(c), _) => crate::memory::build_surface(c, n_depth),
-                (None, MeshSource::Path(_)) => unreachable!("kept when unit != 1"),
-            };
-            geometry = TexelGeometry::compute_layout(&surface, layout.clone());
-        }
-        let (scale, spacing) = (scale * unit, spacing * unit);
-
-        progress(Stage::Maps, 0, 1);
-        let t0 = Instant::now();
-        let maps = crate::synth::face_maps(&example, &source, &layout);
-        let maps_s = t0.elapsed().as_secs_f64();
-        progress(Stage::Maps, 1, 1);
-
-        let texels = layout.len() as u64;
-        let mut report = Report {
-            tool: "surfsynth".into(),
-            version: env!("CARGO_PKG_VERSION").into(),
-            inputs: Inputs {
-                mesh: mesh_label,
-                example: example_label,
-                height: self.height.as_ref().map(|h| h.display().to_string()),
-            },
-            method: self.settings.method,
-            seed: self.seed,
-            scale,
-            scale_source: scale_source.into(),
-            texel_spacing: spacing,
-            resolution: layout
-                .uniform_n()
-                .unwrap_or(layout.max_dims().0.max(layout.max_dims().1)),
+        let mesh_settings = MeshSettings {
+            resolution: n,
             texel_size: self.texel_size,
-            orientation: orientation_label(&self.orientation),
-            faces,
-            control_faces: surface.control.mesh.num_faces(),
-            texels,
-            example: ExampleInfo {
-                width: example.width,
-                height: example.height,
-                channels: example
-                    .channel_names()
-                    .iter()
-                    .map(|s| s.to_string())
-                    .collect(),
-            },
-            channels: maps.names().iter().map(|s| s.to_string()).collect(),
-            weights: self.settings.weights,
-            appearance: out.appearance,
-            details: out.details,
-            threads: rayon::current_num_threads(),
-            displace: self.displace,
-            handedness: self.handedness,
-            seconds: Seconds {
-                load,
-                geometry: geometry_s,
-                field: field_s,
-                graph: graph_s,
-                synthesis: synthesis_s,
-                maps: maps_s,
-                write: 0.0,
-                total: started.elapsed().as_secs_f64(),
-            },
-            texels_per_second: 0.0,
-            synthesis_texels_per_second: 0.0,
-            peak_memory_bytes: None,
-            patch_fidelity: None,
-            cache,
+            scale: self.scale,
+            orientation: self.orientation.clone(),
         };
-        report.update_rates();
-        let result = SynthResult {
-            maps,
-            geometry,
+        let loaded = session::Loaded {
+            mesh_label,
             surface,
-            example,
-            report,
+            user_control,
+            unit,
+            layout,
+            n_depth,
+            load_seconds: load,
+        };
+        let session =
+            Session::from_loaded(loaded, &mesh_settings, analyses, self.progress.clone())?;
+        // Mesh-side orders are set-up, not synthesis: counted in the graph stage.
+        let mut seconds = session.prepare_seconds();
+        seconds.graph += session.prepare_method(self.settings.method);
+        let params = SynthParams {
+            settings: self.settings,
+            seed: self.seed,
+            handedness: self.handedness,
             displace: self.displace,
             write_options: self.write_options,
-            started,
         };
+        let labels = session::Labels {
+            example: example_label,
+            height: self.height.as_ref().map(|h| h.display().to_string()),
+        };
+        let result = session.run_once(example, &params, labels, started, seconds)?;
         Ok((result, txn))
+    }
+}
+
+/// How reports and messages name a mesh source.
+fn mesh_source_label(mesh: &MeshSource) -> String {
+    match mesh {
+        MeshSource::Path(p) => p.display().to_string(),
+        MeshSource::Surface(s) => s
+            .control
+            .path
+            .as_ref()
+            .map(|p| p.display().to_string())
+            .unwrap_or_else(|| "<in memory>".into()),
     }
 }
 
 fn orientation_label(o: &Orientation) -> String {
     match o {
         Orientation::Auto => "auto".into(),
+        Orientation::Smooth => "smooth".into(),
         Orientation::Axis(a) => format!("axis ({}, {}, {})", a.x, a.y, a.z),
         Orientation::Constraints(p) => p.display().to_string(),
     }
 }
+
+/// Why the multiscale method refuses per-face resolutions.
+pub(crate) const MULTISCALE_TEXEL_SIZE: &str =
+    "the multiscale method needs one resolution for all faces: use --resolution, not --texel-size";
 
 /// [`check_size`] for a per-face layout.
 fn check_texels(what: &str, layout: &crate::layout::TexelLayout) -> Result<()> {
@@ -1190,15 +1040,45 @@ pub fn run_command(c: &SynthCommand) -> Result<Report> {
         .on_progress(move |s, d, t| bars.update(s, d, t))
         .run_to_with(&c.out, |r| {
             // Measured before writing, so report.json is written once, with the rest.
+            // pf reads the geometry as maps: the texel geometry is parked as those maps
+            // meanwhile (the same f32 values, rebuilt exactly), so both are not held at
+            // the run's peak (the pf point cloud; 24 B per texel less).
+            let geometry_maps = r.geometry_maps();
+            r.geometry = Arc::new(TexelGeometry {
+                layout: r.geometry.layout.clone(),
+                pos: Vec::new(),
+                normal: Vec::new(),
+            });
             r.report.patch_fidelity = Some(crate::eval::summary_fidelity(
                 &r.maps,
-                &r.geometry_maps(),
+                &geometry_maps,
                 &r.example,
                 r.report.scale,
             ));
+            r.geometry = Arc::new(geometry_from_maps(&geometry_maps));
         })?;
     println!("{}", summary_line(&report, &c.out));
     Ok(report)
+}
+
+/// The texel geometry back from its maps ([`SynthResult::geometry_maps`]; exact: the
+/// same f32 values).
+fn geometry_from_maps(m: &FaceMaps) -> TexelGeometry {
+    let ch = |k: usize| {
+        m.channel(crate::bake::GEOMETRY_CHANNELS[k])
+            .expect("geometry maps have every geometry channel")
+    };
+    let xyz = |o: usize| -> Vec<glam::Vec3> {
+        let (x, y, z) = (ch(o), ch(o + 1), ch(o + 2));
+        (0..x.len())
+            .map(|i| glam::Vec3::new(x[i], y[i], z[i]))
+            .collect()
+    };
+    TexelGeometry {
+        layout: m.layout.clone(),
+        pos: xyz(0),
+        normal: xyz(3),
+    }
 }
 
 /// One line: domains, texels, seconds, texels/s (whole run and synthesis alone), and

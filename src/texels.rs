@@ -229,7 +229,7 @@ pub const BLOCK: [(i32, i32); 24] = {
 const CORNER_UV: [(f64, f64); 4] = [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)];
 
 /// The neighbourhood graph over all texels (see the module docs).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct TexelGraph {
     /// Where every texel is.
     pub layout: Arc<TexelLayout>,
@@ -370,7 +370,7 @@ impl TexelGraph {
 /// times finer domain, the coarse texel's step lands on one fine texel, but every fine
 /// border texel's step lands on a coarse one, and symmetry adds the pair: each coarse
 /// border texel ends up joined to the k fine texels along it.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct EdgeGraph {
     start: Vec<u32>,
     list: Vec<u32>,
@@ -378,37 +378,48 @@ pub struct EdgeGraph {
 
 impl EdgeGraph {
     /// Builds the graph (in parallel per domain; independent of the thread count).
+    ///
+    /// Within a domain the grid's 4-neighbourhood is symmetric by itself, so only the
+    /// walks across domain edges (from border texels) are collected and symmetrised; the
+    /// lists are then written in place. The peak is the graph itself plus the border
+    /// edges (it was 16 pairs of 8 B per texel, twice: 128 B per texel at the graph stage,
+    /// issue 14 item 6); the lists are the same.
     pub fn build(surface: &Surface, geom: &TexelGeometry) -> Self {
         let layout = &geom.layout;
-        let pairs: Vec<Vec<(u32, u32)>> = (0..layout.faces())
+        let faces = layout.faces();
+        let total = geom.len();
+        // Walked edges (t, u) from the border texels, both ways round. With per-face
+        // resolutions u may be an interior texel of a finer neighbour; the lists below look
+        // the walked edges up for every texel.
+        let walked: Vec<Vec<(u32, u32)>> = (0..faces)
             .into_par_iter()
             .map(|d| {
                 let (nu, nv) = layout.dims(d);
                 let (iu, iv) = (1.0 / nu as f64, 1.0 / nv as f64);
                 let base = layout.start(d);
-                let mut out = Vec::with_capacity(4 * nu * nv);
+                let mut out = Vec::new();
                 for y in 0..nv {
                     for x in 0..nu {
+                        if x > 0 && y > 0 && x + 1 < nu && y + 1 < nv {
+                            continue;
+                        }
                         let t = (base + y * nu + x) as u32;
                         for (a, b) in [(1i64, 0i64), (-1, 0), (0, 1), (0, -1)] {
                             let (xa, yb) = (x as i64 + a, y as i64 + b);
-                            let u = if (0..nu as i64).contains(&xa) && (0..nv as i64).contains(&yb)
-                            {
-                                (base + yb as usize * nu + xa as usize) as u32
-                            } else {
-                                let from = DomainLocation {
-                                    domain: DomainId::from_idx(d),
-                                    u: (x as f64 + 0.5) * iu,
-                                    v: (y as f64 + 0.5) * iv,
-                                };
-                                match surface.walk(from, a as f64 * iu, b as f64 * iv) {
-                                    Some(to) => layout.texel_at(to.domain.idx(), to.u, to.v) as u32,
-                                    None => continue,
-                                }
+                            if (0..nu as i64).contains(&xa) && (0..nv as i64).contains(&yb) {
+                                continue;
+                            }
+                            let from = DomainLocation {
+                                domain: DomainId::from_idx(d),
+                                u: (x as f64 + 0.5) * iu,
+                                v: (y as f64 + 0.5) * iv,
                             };
-                            if u != t {
-                                out.push((t, u));
-                                out.push((u, t));
+                            if let Some(to) = surface.walk(from, a as f64 * iu, b as f64 * iv) {
+                                let u = layout.texel_at(to.domain.idx(), to.u, to.v) as u32;
+                                if u != t {
+                                    out.push((t, u));
+                                    out.push((u, t));
+                                }
                             }
                         }
                     }
@@ -416,21 +427,69 @@ impl EdgeGraph {
                 out
             })
             .collect();
-        let mut all: Vec<(u32, u32)> = pairs.into_iter().flatten().collect();
-        all.par_sort_unstable();
-        all.dedup();
-        let total = geom.len();
+        let mut extra: Vec<(u32, u32)> = walked.into_iter().flatten().collect();
+        extra.par_sort_unstable();
+        extra.dedup();
+        // Texel t = (d, x, y)'s list: its grid neighbours and its walked edges, ascending,
+        // unique.
+        let list_of = |d: usize, i: usize, buf: &mut Vec<u32>| {
+            buf.clear();
+            let (nu, nv) = layout.dims(d);
+            let base = layout.start(d);
+            let t = base + i;
+            let (x, y) = (i % nu, i / nu);
+            for (a, b) in [(1i64, 0i64), (-1, 0), (0, 1), (0, -1)] {
+                let (xa, yb) = (x as i64 + a, y as i64 + b);
+                if (0..nu as i64).contains(&xa) && (0..nv as i64).contains(&yb) {
+                    buf.push((base + yb as usize * nu + xa as usize) as u32);
+                }
+            }
+            let lo = extra.partition_point(|p| (p.0 as usize) < t);
+            buf.extend(
+                extra[lo..]
+                    .iter()
+                    .take_while(|p| p.0 as usize == t)
+                    .map(|p| p.1),
+            );
+            buf.sort_unstable();
+            buf.dedup();
+        };
+        // Counts, then the lists written in place per domain.
         let mut start = vec![0u32; total + 1];
-        for &(a, _) in &all {
-            start[a as usize + 1] += 1;
-        }
+        layout
+            .split_mut(&mut start[1..], 1)
+            .into_par_iter()
+            .enumerate()
+            .for_each(|(d, c)| {
+                let mut buf = Vec::with_capacity(16);
+                for (i, o) in c.iter_mut().enumerate() {
+                    list_of(d, i, &mut buf);
+                    *o = buf.len() as u32;
+                }
+            });
         for i in 1..start.len() {
             start[i] += start[i - 1];
         }
-        Self {
-            start,
-            list: all.into_iter().map(|p| p.1).collect(),
+        let mut list = vec![0u32; start[total] as usize];
+        let mut rest: &mut [u32] = &mut list;
+        let mut chunks = Vec::with_capacity(faces);
+        for d in 0..faces {
+            let r = layout.range(d);
+            let len = (start[r.end] - start[r.start]) as usize;
+            let (head, tail) = std::mem::take(&mut rest).split_at_mut(len);
+            chunks.push(head);
+            rest = tail;
         }
+        chunks.into_par_iter().enumerate().for_each(|(d, out)| {
+            let mut buf = Vec::with_capacity(16);
+            let mut k = 0;
+            for i in 0..layout.count(d) {
+                list_of(d, i, &mut buf);
+                out[k..k + buf.len()].copy_from_slice(&buf);
+                k += buf.len();
+            }
+        });
+        Self { start, list }
     }
 
     /// The edge neighbours of texel `t`, ascending.
@@ -640,6 +699,93 @@ mod tests {
             .join("../shared/data/meshes")
             .join(path);
         Surface::load_obj(p).unwrap()
+    }
+
+    /// The edge graph as it was first built (every edge as two pairs, sorted): the
+    /// in-place build must give the same lists.
+    fn edge_graph_by_pairs(surface: &Surface, geom: &TexelGeometry) -> EdgeGraph {
+        let layout = &geom.layout;
+        let mut all = Vec::new();
+        for d in 0..layout.faces() {
+            let (nu, nv) = layout.dims(d);
+            let (iu, iv) = (1.0 / nu as f64, 1.0 / nv as f64);
+            let base = layout.start(d);
+            for y in 0..nv {
+                for x in 0..nu {
+                    let t = (base + y * nu + x) as u32;
+                    for (a, b) in [(1i64, 0i64), (-1, 0), (0, 1), (0, -1)] {
+                        let (xa, yb) = (x as i64 + a, y as i64 + b);
+                        let u = if (0..nu as i64).contains(&xa) && (0..nv as i64).contains(&yb) {
+                            (base + yb as usize * nu + xa as usize) as u32
+                        } else {
+                            let from = DomainLocation {
+                                domain: DomainId::from_idx(d),
+                                u: (x as f64 + 0.5) * iu,
+                                v: (y as f64 + 0.5) * iv,
+                            };
+                            match surface.walk(from, a as f64 * iu, b as f64 * iv) {
+                                Some(to) => layout.texel_at(to.domain.idx(), to.u, to.v) as u32,
+                                None => continue,
+                            }
+                        };
+                        if u != t {
+                            all.push((t, u));
+                            all.push((u, t));
+                        }
+                    }
+                }
+            }
+        }
+        all.sort_unstable();
+        all.dedup();
+        let mut start = vec![0u32; geom.len() + 1];
+        for &(a, _) in &all {
+            start[a as usize + 1] += 1;
+        }
+        for i in 1..start.len() {
+            start[i] += start[i - 1];
+        }
+        EdgeGraph {
+            start,
+            list: all.into_iter().map(|p| p.1).collect(),
+        }
+    }
+
+    #[test]
+    fn edge_graph_is_the_symmetric_pair_graph() {
+        // Triangles and an n-gon (T-junctions between quad and n-gon domains), an open
+        // grid (boundaries), the cube (valence-3 corners); N = 1 (every texel a corner).
+        let fan = ControlMesh::parse_obj(
+            "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 2 0 0\nv 2 1 0\nv 0.5 0.5 1\n\
+             f 1 2 7\nf 2 3 7\nf 3 4 7\nf 4 1 7\nf 2 5 6 3\n",
+        )
+        .unwrap();
+        for (s, ns) in [
+            (Surface::new(fan), &[1usize, 2, 5][..]),
+            (grid(3), &[1, 4][..]),
+            (cube(), &[1, 3, 8][..]),
+        ] {
+            for &n in ns {
+                let g = TexelGeometry::compute(&s, n);
+                assert_eq!(
+                    EdgeGraph::build(&s, &g),
+                    edge_graph_by_pairs(&s, &g),
+                    "N = {n}"
+                );
+            }
+            // Per-face resolutions (ratios up to 8:1, non-square domains).
+            let res = (0..s.num_domains())
+                .map(|d| {
+                    crate::layout::Resolution::new((d % 4) as u8, ((d / 2) % 4) as u8).unwrap()
+                })
+                .collect();
+            let g = TexelGeometry::compute_layout(&s, Arc::new(TexelLayout::per_face(res)));
+            assert_eq!(
+                EdgeGraph::build(&s, &g),
+                edge_graph_by_pairs(&s, &g),
+                "per-face"
+            );
+        }
     }
 
     #[test]

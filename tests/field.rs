@@ -17,7 +17,7 @@ fn energy_falls_monotonically_on_every_level() {
         "meshes/cube_no_bottom.obj",
     ] {
         let s = load(rel);
-        for o in [Orientation::Auto, Orientation::Axis(DVec3::Y)] {
+        for o in [Orientation::Smooth, Orientation::Axis(DVec3::Y)] {
             let f = OrientationField::compute(&s, &o).unwrap();
             for h in f.history() {
                 let e = &h.energy;
@@ -88,7 +88,7 @@ fn auto_fields_have_only_the_singularities_topology_forces() {
         ("meshes/cube_no_bottom.obj", 1, 1),
     ] {
         let s = load(rel);
-        let f = OrientationField::compute(&s, &Orientation::Auto).unwrap();
+        let f = OrientationField::compute(&s, &Orientation::Smooth).unwrap();
         let sing = f.singularities();
         let total: i32 = sing.iter().map(|x| x.index).sum();
         println!("{rel}: {} singular faces, total index {total}", sing.len());
@@ -105,7 +105,7 @@ fn auto_fields_have_only_the_singularities_topology_forces() {
 #[test]
 fn frames_are_orthonormal_and_continuous_across_domain_edges() {
     let s = load("opensubdiv-reference/spot_control_mesh.obj");
-    let f = OrientationField::compute(&s, &Orientation::Auto).unwrap();
+    let f = OrientationField::compute(&s, &Orientation::Smooth).unwrap();
     let frames = f.texel_frames(&s, 8);
     assert_eq!(frames.len(), s.num_domains() * 64);
     for fr in &frames {
@@ -184,7 +184,7 @@ fn result_does_not_depend_on_the_thread_count() {
                     level: Some(4),
                     ..Default::default()
                 };
-                OrientationField::compute_with(&s, &Orientation::Auto, &opts).unwrap()
+                OrientationField::compute_with(&s, &Orientation::Smooth, &opts).unwrap()
             })
     };
     let (a, b) = (run(1), run(3));
@@ -222,7 +222,7 @@ fn auto_field_on_flat_grids_follows_world_x_then_y() {
             .collect();
         let faces: Vec<&[u32]> = faces.iter().map(|f| &f[..]).collect();
         let s = Surface::new(subdiv::ControlMesh::from_faces(p, &faces).unwrap());
-        let f = OrientationField::compute(&s, &Orientation::Auto).unwrap();
+        let f = OrientationField::compute(&s, &Orientation::Smooth).unwrap();
         let mut worst = 0.0f64;
         for d in 0..s.num_domains() {
             for (u, v) in [(0.5, 0.5), (0.1, 0.9), (0.95, 0.05)] {

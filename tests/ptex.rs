@@ -274,7 +274,7 @@ fn synth(mesh: &Path, example: &Path, n: usize) -> (tempfile::TempDir, Surface, 
         .unwrap();
     r.write(dir.path()).unwrap();
     let maps = read_face_maps(dir.path().join("facemaps.exr")).unwrap();
-    (dir, r.surface, maps)
+    (dir, std::sync::Arc::unwrap_or_clone(r.surface), maps)
 }
 
 /// The 2×2 mean of face `f`, channel `k`, level-0 texels (x, y) at N, reduced once (Ptex

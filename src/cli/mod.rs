@@ -208,7 +208,7 @@ pub fn parse_pixels(s: &str) -> Result<u32, String> {
     Ok(v)
 }
 
-/// `--orient`: `auto`, an axis `+x|-x|+y|-y|+z|-z` (a bare `x` means `+x`), or the path of
+/// `--orient`: `auto`, `smooth`, an axis `+x|-x|+y|-y|+z|-z` (a bare `x` means `+x`), or the path of
 /// an existing constraints file.
 pub fn parse_orient(s: &str) -> Result<surfsynth::field::Orientation, String> {
     use glam::DVec3;
@@ -224,6 +224,9 @@ pub fn parse_orient(s: &str) -> Result<surfsynth::field::Orientation, String> {
     if lower == "auto" {
         return Ok(Orientation::Auto);
     }
+    if lower == "smooth" {
+        return Ok(Orientation::Smooth);
+    }
     let (sign, rest) = match lower.as_bytes().first() {
         Some(b'+') => (1.0, &lower[1..]),
         Some(b'-') => (-1.0, &lower[1..]),
@@ -237,7 +240,7 @@ pub fn parse_orient(s: &str) -> Result<surfsynth::field::Orientation, String> {
         return Ok(Orientation::Constraints(p.to_path_buf()));
     }
     Err(format!(
-        "'{s}' is not auto, +x, -x, +y, -y, +z, -z or an existing constraints file"
+        "'{s}' is not auto, smooth, +x, -x, +y, -y, +z, -z or an existing constraints file"
     ))
 }
 

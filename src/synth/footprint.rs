@@ -55,7 +55,8 @@ const STRETCH_MAX: f32 = 1.25;
 /// The texels of one synthesis level: where they are, who their neighbours are, and the
 /// field's frame at each.
 pub struct LevelTexels {
-    pub geometry: TexelGeometry,
+    /// Shared: a prepared session hands it to every result for writing.
+    pub geometry: std::sync::Arc<TexelGeometry>,
     pub graph: TexelGraph,
     /// (v1, v2) per texel.
     pub frames: Vec<[Vec3; 2]>,
@@ -70,7 +71,7 @@ impl LevelTexels {
     pub fn new(surface: &Surface, field: &OrientationField, n: usize, step: f64) -> Self {
         let geometry = TexelGeometry::compute(surface, n);
         let graph = TexelGraph::build(surface, &geometry);
-        let frames = super::frames_f32(&field.texel_frames(surface, n));
+        let frames = super::texel_frames_f32(field, surface, n);
         Self::from_parts(surface, geometry, graph, frames, step)
     }
 
@@ -97,7 +98,7 @@ impl LevelTexels {
     ) -> Self {
         let edges = EdgeGraph::build(surface, &geometry);
         Self {
-            geometry,
+            geometry: std::sync::Arc::new(geometry),
             graph,
             frames,
             step,

@@ -499,14 +499,15 @@ impl Weights {
 }
 
 /// The field's frames at every texel centre of `layout`, as the synthesizer stores them. A
-/// uniform layout takes [`OrientationField::texel_frames`] (the same values as always).
+/// uniform layout takes [`texel_frames_f32`] (the same values as always); either way the
+/// frames are computed in f32 directly, without holding the f64 frames.
 pub fn layout_frames(
     field: &OrientationField,
     surface: &Surface,
     layout: &crate::layout::TexelLayout,
 ) -> Vec<[Vec3; 2]> {
     if let Some(n) = layout.uniform_n() {
-        return frames_f32(&field.texel_frames(surface, n));
+        return texel_frames_f32(field, surface, n);
     }
     (0..layout.len())
         .into_par_iter()
@@ -516,6 +517,28 @@ pub fn layout_frames(
             [f.v1.as_vec3(), f.v2.as_vec3()]
         })
         .collect()
+}
+
+/// The field's frames at every texel centre of `n`×`n` maps, as the synthesizer stores
+/// them: the same values as `frames_f32(&field.texel_frames(surface, n))` (same order,
+/// same rounding), without holding the f64 frames (48 B per texel) at the same time.
+pub fn texel_frames_f32(field: &OrientationField, surface: &Surface, n: usize) -> Vec<[Vec3; 2]> {
+    let mut out = vec![[Vec3::ZERO; 2]; surface.num_domains() * n * n];
+    if n == 0 {
+        return out;
+    }
+    let inv = 1.0 / n as f64;
+    out.par_chunks_mut(n * n)
+        .enumerate()
+        .for_each(|(d, chunk)| {
+            for (i, o) in chunk.iter_mut().enumerate() {
+                let (x, y) = (i % n, i / n);
+                let (u, v) = ((x as f64 + 0.5) * inv, (y as f64 + 0.5) * inv);
+                let f = field.frame(surface, subdiv::DomainId::from_idx(d), u, v);
+                *o = [f.v1.as_vec3(), f.v2.as_vec3()];
+            }
+        });
+    out
 }
 
 /// Frames as the synthesizer stores them: (v1, v2) in f32.
@@ -544,35 +567,38 @@ pub fn face_maps(
 ) -> FaceMaps {
     let names = output_channels(example);
     let k = example.num_channels();
+    let faces = layout.faces();
     assert_eq!(source.len(), layout.len());
-    // Per domain, channel-major tiles; then scattered into the named channels.
-    let tiles: Vec<Vec<f32>> = (0..layout.faces())
+    let mut maps = FaceMaps::with_layout(layout.clone(), &names);
+    // Written in place, one domain's slice of every channel per task (no second copy of
+    // the maps: issue 14, item 6); a domain's slice is its layout range (per-face sizes).
+    let mut per_face: Vec<Vec<&mut [f32]>> =
+        (0..faces).map(|_| Vec::with_capacity(k + 2)).collect();
+    for (_, data) in maps.channels.iter_mut() {
+        let mut rest: &mut [f32] = data.as_mut_slice();
+        for (f, slot) in per_face.iter_mut().enumerate() {
+            let (chunk, tail) = std::mem::take(&mut rest).split_at_mut(layout.range(f).len());
+            slot.push(chunk);
+            rest = tail;
+        }
+    }
+    per_face
         .into_par_iter()
-        .map(|f| {
+        .enumerate()
+        .for_each(|(f, mut ch)| {
             let r = layout.range(f);
             let nn = r.len();
-            let mut tile = vec![0.0f32; (k + 2) * nn];
             let mut v = [0.0f32; 8];
             for i in 0..nn {
                 let s = source[r.start + i];
                 example.bilinear(s[0], s[1], &mut v[..k]);
                 for c in 0..k {
-                    tile[c * nn + i] = v[c];
+                    ch[c][i] = v[c];
                 }
-                tile[k * nn + i] = s[0];
-                tile[(k + 1) * nn + i] = s[1];
+                ch[k][i] = s[0];
+                ch[k + 1][i] = s[1];
             }
-            tile
-        })
-        .collect();
-    let mut maps = FaceMaps::with_layout(layout.clone(), &names);
-    for (c, (_, data)) in maps.channels.iter_mut().enumerate() {
-        for (f, tile) in tiles.iter().enumerate() {
-            let r = layout.range(f);
-            let nn = r.len();
-            data[r].copy_from_slice(&tile[c * nn..(c + 1) * nn]);
-        }
-    }
+        });
     maps
 }
 

@@ -1,0 +1,782 @@
+//! Prepared sessions: the mesh-side stages of a run (surface, texel geometry, orientation
+//! field, texel graph, what methods derive from them) done once, then any number of
+//! syntheses on them — another seed, example or method costs only the synthesis. This is
+//! what an interactive tool calls (issue 14, item 4).
+//!
+//! ```no_run
+//! use surfsynth::example::Example;
+//! use surfsynth::synthesizer::{Method, MeshSettings, Session, SynthParams};
+//!
+//! # fn main() -> surfsynth::Result<()> {
+//! let session = Session::prepare("spot_control_mesh.obj", &MeshSettings::default())?;
+//! let gravel = Example::load("gravel.png")?;
+//! for seed in [1, 2, 3] {
+//!     let params = SynthParams { seed, ..SynthParams::new(Method::Jump) };
+//!     let result = session.synthesize(&gravel, &params)?;
+//!     result.write(format!("out/seed-{seed}"))?;
+//! }
+//! # Ok(())
+//! # }
+//! ```
+//!
+//! The one-shot builder ([`super::Synthesizer`]) runs exactly these stages — it prepares
+//! a session and synthesizes once — so a session's outputs are bit-identical to a
+//! one-shot run with the same inputs (tests/session.rs).
+//!
+//! What is kept, and why it may be kept: everything here depends on the mesh, the
+//! resolution, the scale and the orientation only ([`MeshSettings`]), never on the
+//! example or the seed. Per-example analysis (appearance space, jump maps, k-coherence
+//! lists) is kept by the session's [`Analyses`] (the "prepared example"), keyed by the
+//! example's pixels and parameters, so a second synthesis with the same example skips it.
+//! Patch footprints are laid from seeded centres and sized by the example, so they are
+//! rebuilt by every synthesis.
+
+use super::{
+    check_size, check_texels, orientation_label, Handedness, MeshSource, Progress, Stage,
+    SynthResult, WriteOptions,
+};
+use crate::error::{Error, Result};
+use crate::example::Example;
+use crate::field::{Orientation, OrientationField};
+use crate::io::exr::MAX_RESOLUTION;
+use crate::layout::TexelLayout;
+use crate::memory::{Job, MeshSize};
+use crate::report::{ExampleInfo, Inputs, Report, Seconds};
+use crate::synth::footprint::LevelTexels;
+use crate::synth::{Analyses, Derived, Method, Settings, Target};
+use crate::texels::{TexelGeometry, TexelGraph};
+use std::sync::{Arc, OnceLock};
+use std::time::Instant;
+use subdiv::{ControlMesh, Surface};
+
+/// What a prepared mesh depends on: everything of a run that is not the example, the
+/// method or the seed.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MeshSettings {
+    /// Texels per side of every face map (1 to [`MAX_RESOLUTION`]); unused when
+    /// `texel_size` is set.
+    pub resolution: usize,
+    /// `--texel-size L`: every face gets its own power-of-two resolution, about `L`
+    /// surface units per texel ([`TexelLayout::for_texel_size`]), instead of one N for all
+    /// faces. `None` = `resolution` everywhere.
+    pub texel_size: Option<f64>,
+    /// Surface length covered by one example pixel; `None` = median texel spacing.
+    pub scale: Option<f64>,
+    /// Orientation field (`--orient`).
+    pub orientation: Orientation,
+}
+
+impl Default for MeshSettings {
+    /// Resolution 32, the median texel spacing as scale, orientation `auto` (as
+    /// [`super::Synthesizer::new`]).
+    fn default() -> Self {
+        Self {
+            resolution: 32,
+            texel_size: None,
+            scale: None,
+            orientation: Orientation::Auto,
+        }
+    }
+}
+
+impl MeshSettings {
+    /// Checks what needs no file.
+    pub fn validate(&self) -> Result<()> {
+        if self.resolution == 0 || self.resolution > MAX_RESOLUTION {
+            return Err(Error::invalid(format!(
+                "resolution {} is out of range: use 1 to {MAX_RESOLUTION} texels per side",
+                self.resolution
+            )));
+        }
+        if let Some(l) = self.texel_size {
+            if !(l.is_finite() && l > 0.0) {
+                return Err(Error::invalid(format!(
+                    "texel size {l} is not a positive surface length per texel"
+                )));
+            }
+        }
+        if let Some(s) = self.scale {
+            if !(s.is_finite() && s > 0.0) {
+                return Err(Error::invalid(format!(
+                    "scale {s} is not a positive surface length per example pixel"
+                )));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// What one synthesis on a prepared session depends on besides the example.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SynthParams {
+    /// The method and its tuning.
+    pub settings: Settings,
+    /// Random seed; the same seed gives bit-identical maps for any thread count.
+    pub seed: u64,
+    /// Which way round the example is laid on the surface.
+    pub handedness: Handedness,
+    /// `--displace AMOUNT` (needs a height channel): [`SynthResult::write`] also writes
+    /// displaced.glb.
+    pub displace: Option<f64>,
+    /// How [`SynthResult::write`] writes the renderer outputs.
+    pub write_options: WriteOptions,
+}
+
+impl Default for SynthParams {
+    /// [`Method::DEFAULT`] with default settings, seed 1, [`Handedness::Tiles`].
+    fn default() -> Self {
+        Self {
+            settings: Settings::default(),
+            seed: 1,
+            handedness: Handedness::default(),
+            displace: None,
+            write_options: WriteOptions::default(),
+        }
+    }
+}
+
+impl SynthParams {
+    /// The defaults with `method`.
+    pub fn new(method: Method) -> Self {
+        let mut p = Self::default();
+        p.settings.method = method;
+        p
+    }
+}
+
+/// Seconds of the mesh-side stages, paid once by [`Session::prepare`].
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PrepareSeconds {
+    /// Reading the mesh and building the limit surface.
+    pub load: f64,
+    pub geometry: f64,
+    pub field: f64,
+    pub graph: f64,
+}
+
+impl PrepareSeconds {
+    /// All stages together.
+    pub fn total(&self) -> f64 {
+        self.load + self.geometry + self.field + self.graph
+    }
+}
+
+/// A prepared mesh (see the module docs): prepare once with [`Session::prepare`], then
+/// [`Session::synthesize`] as often as wanted. Syntheses run in the current rayon pool
+/// (wrap them in `ThreadPool::install` for another); results do not depend on its size.
+pub struct Session {
+    mesh_label: String,
+    resolution: usize,
+    /// Where every texel is: one N ([`MeshSettings::resolution`]) or per-face
+    /// resolutions ([`MeshSettings::texel_size`]).
+    layout: Arc<TexelLayout>,
+    texel_size: Option<f64>,
+    /// Subdivision depth the surfaces are built for (the finest face's side).
+    n_depth: usize,
+    orientation: Orientation,
+    /// The surface and texels in working units (the user's divided by `unit`).
+    surface: Arc<Surface>,
+    field: OrientationField,
+    texels: LevelTexels,
+    derived: Derived,
+    /// Median texel spacing and scale, working units.
+    spacing: f64,
+    scale: f64,
+    scale_source: &'static str,
+    /// Power of two the user's mesh was divided by (1 near unit size; docs/robustness.md).
+    unit: f64,
+    /// Far from unit size: the user's control mesh, and (built on first use, for writing)
+    /// the surface and texel geometry in the user's units.
+    user_control: Option<ControlMesh>,
+    user: OnceLock<(Arc<Surface>, Arc<TexelGeometry>)>,
+    /// Extent of the user's control mesh (displacement check).
+    extent: f64,
+    /// For the memory check of each synthesis (the method and example change it).
+    size: MeshSize,
+    seconds: PrepareSeconds,
+    analyses: Arc<Analyses>,
+    progress: Option<Arc<Progress>>,
+}
+
+impl std::fmt::Debug for Session {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Session")
+            .field("mesh", &self.mesh_label)
+            .field("layout", &self.layout.describe())
+            .field("faces", &self.surface.num_domains())
+            .finish_non_exhaustive()
+    }
+}
+
+/// The memory job of preparing a mesh before any example or method is known: the
+/// cheapest method, RGB, no example (each synthesis checks its own job again).
+const MESH_JOB: Job = Job::Synth {
+    channels: 5,
+    example_pixels: 0,
+    method: Method::Coherent,
+    displace: false,
+};
+
+/// The user's control mesh where it must be kept (a mesh far from unit size: outputs are
+/// written in the user's units) and the power of two it is divided by for processing.
+pub(super) fn units(
+    control: Option<ControlMesh>,
+    mesh: &MeshSource,
+    label: &str,
+) -> Result<(Option<ControlMesh>, f64)> {
+    let user_control = match (control, mesh) {
+        (Some(c), _) => Some(c),
+        (None, MeshSource::Surface(s)) => {
+            crate::memory::check_coordinate_range(label, &s.control)?;
+            (crate::memory::normalising_unit(&s.control) != 1.0).then(|| s.control.clone())
+        }
+        (None, MeshSource::Path(_)) => unreachable!("a path mesh is read before"),
+    };
+    let unit = user_control
+        .as_ref()
+        .map_or(1.0, crate::memory::normalising_unit);
+    Ok((user_control, unit))
+}
+
+/// The surface in working units, and the user's control mesh when it differs.
+pub(super) fn working_surface(
+    user_control: Option<ControlMesh>,
+    unit: f64,
+    mesh: MeshSource,
+    n: usize,
+) -> (Surface, Option<ControlMesh>) {
+    match (user_control, mesh) {
+        (Some(c), _) if unit != 1.0 => {
+            let mut inner = c.clone();
+            for p in &mut inner.mesh.positions {
+                *p /= unit;
+            }
+            (crate::memory::build_surface(inner, n), Some(c))
+        }
+        (Some(c), _) => (crate::memory::build_surface(c, n), None),
+        (None, MeshSource::Surface(s)) => (*s, None),
+        (None, MeshSource::Path(_)) => unreachable!("a path mesh is read before"),
+    }
+}
+
+/// The texel layout of `surface` (working units; the user's divided by `unit`): `n`×`n`
+/// everywhere, or per-face resolutions for `texel_size` (in the user's units), checked
+/// against the memory guard for `job` with its real texel total.
+pub(super) fn texel_layout(
+    surface: &Surface,
+    n: usize,
+    texel_size: Option<f64>,
+    unit: f64,
+    label: &str,
+    job: &Job,
+) -> Result<Arc<TexelLayout>> {
+    let faces = surface.num_domains();
+    Ok(Arc::new(match texel_size {
+        None => {
+            check_size(faces, n)?;
+            TexelLayout::uniform(faces, n)
+        }
+        Some(l) => {
+            let layout = TexelLayout::for_texel_size(surface, l / unit);
+            check_texels(label, &layout)?;
+            crate::memory::check_layout(label, &surface.control, &layout, job)?;
+            layout
+        }
+    }))
+}
+
+/// The subdivision depth's resolution: `n`, or with a texel size the longest control edge
+/// over the texel size (an upper bound of any face's side).
+pub(super) fn depth_resolution(control: &ControlMesh, n: usize, texel_size: Option<f64>) -> usize {
+    match texel_size {
+        None => n,
+        Some(l) => crate::memory::texel_size_side(control, l),
+    }
+}
+
+/// The surface built so far by the load stage, handed to [`Session::from_loaded`].
+pub(super) struct Loaded {
+    pub mesh_label: String,
+    pub surface: Surface,
+    pub user_control: Option<ControlMesh>,
+    pub unit: f64,
+    /// The texel layout ([`texel_layout`]) and the depth the surfaces are built for.
+    pub layout: Arc<TexelLayout>,
+    pub n_depth: usize,
+    pub load_seconds: f64,
+}
+
+impl Session {
+    /// Prepares `mesh` (an OBJ path or a [`Surface`]): reads it, checks the memory it
+    /// needs, builds the limit surface, the texel geometry, the orientation field and the
+    /// texel graph. Per-example analysis goes through an [`Analyses`] on the default cache
+    /// folder ([`Session::with_analyses`] shares another).
+    pub fn prepare(mesh: impl Into<MeshSource>, settings: &MeshSettings) -> Result<Session> {
+        settings.validate()?;
+        let t0 = Instant::now();
+        let mesh = mesh.into();
+        let n = settings.resolution;
+        let label = super::mesh_source_label(&mesh);
+        let texel_size = settings.texel_size;
+        let control = match (&mesh, texel_size) {
+            (MeshSource::Path(p), None) => {
+                Some(crate::memory::load_control_checked(p, n, &MESH_JOB)?)
+            }
+            (MeshSource::Path(p), Some(l)) => Some(crate::memory::load_control_checked_texel_size(
+                p, l, &MESH_JOB,
+            )?),
+            (MeshSource::Surface(s), None) => {
+                crate::memory::check_surface(s, n, &MESH_JOB)?;
+                None
+            }
+            (MeshSource::Surface(s), Some(l)) => {
+                crate::memory::check_surface_texel_size(s, l, &MESH_JOB)?;
+                None
+            }
+        };
+        let n_depth = match (&control, &mesh) {
+            (Some(c), _) => depth_resolution(c, n, texel_size),
+            (None, MeshSource::Surface(s)) => depth_resolution(&s.control, n, texel_size),
+            (None, MeshSource::Path(_)) => unreachable!("a path mesh is read above"),
+        };
+        let (user_control, unit) = units(control, &mesh, &label)?;
+        let (surface, user_control) = working_surface(user_control, unit, mesh, n_depth);
+        let layout = texel_layout(&surface, n, texel_size, unit, &label, &MESH_JOB)?;
+        let loaded = Loaded {
+            mesh_label: label,
+            surface,
+            user_control,
+            unit,
+            layout,
+            n_depth,
+            load_seconds: t0.elapsed().as_secs_f64(),
+        };
+        Self::from_loaded(
+            loaded,
+            settings,
+            Arc::new(Analyses::new(&crate::cache::CacheDir::Default)),
+            None,
+        )
+    }
+
+    /// The stages after loading (geometry, field, graph), as the one-shot builder runs
+    /// them.
+    pub(super) fn from_loaded(
+        loaded: Loaded,
+        settings: &MeshSettings,
+        analyses: Arc<Analyses>,
+        progress: Option<Arc<Progress>>,
+    ) -> Result<Session> {
+        let Loaded {
+            mesh_label,
+            surface,
+            user_control,
+            unit,
+            layout,
+            n_depth,
+            load_seconds,
+        } = loaded;
+        let n = settings.resolution;
+        let report = |s: Stage, d: usize, t: usize| {
+            if let Some(p) = &progress {
+                p(s, d, t)
+            }
+        };
+        let faces = surface.num_domains();
+        let extent = crate::memory::extent(user_control.as_ref().unwrap_or(&surface.control));
+        let size = MeshSize::of(user_control.as_ref().unwrap_or(&surface.control));
+
+        report(Stage::Geometry, 0, faces);
+        let t0 = Instant::now();
+        let geometry = TexelGeometry::compute_layout(&surface, layout.clone());
+        let geometry_s = t0.elapsed().as_secs_f64();
+        report(Stage::Geometry, faces, faces);
+
+        let spacing = geometry.median_spacing(&surface);
+        let (scale, scale_source) = match settings.scale {
+            Some(s) => (s / unit, "given"),
+            None => (spacing, "median texel spacing"),
+        };
+        if !(scale.is_finite() && scale > 0.0) {
+            return Err(Error::invalid(format!(
+                "{mesh_label}: the surface is degenerate (median texel spacing {scale}); pass --scale"
+            )));
+        }
+
+        report(Stage::Field, 0, 1);
+        let t0 = Instant::now();
+        // `auto` wants the field straight over half of pf8's window (BRIEF).
+        let field_options = crate::field::FieldOptions {
+            structure_length: Some(crate::field::STRUCTURE_PIXELS * scale),
+            ..Default::default()
+        };
+        let field = OrientationField::compute_with(&surface, &settings.orientation, &field_options)
+            .map_err(|e| Error::invalid(format!("orientation field for {mesh_label}: {e:#}")))?;
+        let frames = crate::synth::layout_frames(&field, &surface, &layout);
+        let field_s = t0.elapsed().as_secs_f64();
+        report(Stage::Field, 1, 1);
+
+        report(Stage::Graph, 0, 1);
+        let t0 = Instant::now();
+        let graph = TexelGraph::build(&surface, &geometry);
+        let texels = LevelTexels::from_parts(&surface, geometry, graph, frames, scale);
+        let graph_s = t0.elapsed().as_secs_f64();
+        report(Stage::Graph, 1, 1);
+
+        Ok(Session {
+            mesh_label,
+            resolution: n,
+            layout,
+            texel_size: settings.texel_size,
+            n_depth,
+            orientation: settings.orientation.clone(),
+            surface: Arc::new(surface),
+            field,
+            texels,
+            derived: Derived::default(),
+            spacing,
+            scale,
+            scale_source,
+            unit,
+            user_control,
+            user: OnceLock::new(),
+            extent,
+            size,
+            seconds: PrepareSeconds {
+                load: load_seconds,
+                geometry: geometry_s,
+                field: field_s,
+                graph: graph_s,
+            },
+            analyses,
+            progress,
+        })
+    }
+
+    /// Shares `analyses` (per-example analysis kept in memory and its cache folder) with
+    /// other sessions or builders of this process.
+    pub fn with_analyses(mut self, analyses: Arc<Analyses>) -> Self {
+        self.analyses = analyses;
+        self
+    }
+
+    /// Progress callback of later syntheses (see [`Progress`]).
+    pub fn on_progress(mut self, f: impl Fn(Stage, usize, usize) + Send + Sync + 'static) -> Self {
+        self.progress = Some(Arc::new(f));
+        self
+    }
+
+    /// The per-example analyses this session keeps.
+    pub fn analyses(&self) -> &Arc<Analyses> {
+        &self.analyses
+    }
+
+    /// Seconds the preparation took, per stage.
+    pub fn prepare_seconds(&self) -> PrepareSeconds {
+        self.seconds
+    }
+
+    /// Face domains.
+    pub fn faces(&self) -> usize {
+        self.surface.num_domains()
+    }
+
+    /// Where every texel is (one N, or per-face resolutions).
+    pub fn layout(&self) -> &Arc<TexelLayout> {
+        &self.layout
+    }
+
+    /// Texels of every synthesis (domains × N², or the per-face layout's total).
+    pub fn texels(&self) -> usize {
+        self.texels.len()
+    }
+
+    /// Computes now what `method` derives from the mesh on its first use (the jump
+    /// method's region-growing order), so that no synthesis pays for it; returns the
+    /// seconds it took. The one-shot builder calls it in its graph stage.
+    pub fn prepare_method(&self, method: Method) -> f64 {
+        let t0 = Instant::now();
+        if method == Method::Jump {
+            self.derived.growth(&self.texels);
+        }
+        t0.elapsed().as_secs_f64()
+    }
+
+    /// Synthesizes `example` with `params` on the prepared mesh. The result's report has
+    /// zero seconds for the prepared stages (load, geometry, field, graph: see
+    /// [`Session::prepare_seconds`]) and its total counts from this call.
+    pub fn synthesize(&self, example: &Example, params: &SynthParams) -> Result<SynthResult> {
+        let label = if example.path.as_os_str().is_empty() {
+            "<in memory>".to_string()
+        } else {
+            example.path.display().to_string()
+        };
+        self.run(
+            example.clone(),
+            params,
+            Labels {
+                example: label,
+                height: None,
+            },
+            Instant::now(),
+            PrepareSeconds::default(),
+        )
+    }
+
+    /// The synthesis stages (synthesis, maps) and the report: one code path for sessions
+    /// and one-shot runs. `started` and `seconds` are what the report counts as the run's
+    /// start and its preparation.
+    pub(super) fn run(
+        &self,
+        example: Example,
+        params: &SynthParams,
+        labels: Labels,
+        started: Instant,
+        seconds: PrepareSeconds,
+    ) -> Result<SynthResult> {
+        let s = self.synthesis(&example, params, &labels)?;
+        Ok(self.finish(example, params, labels, s, started, seconds))
+    }
+
+    /// [`Session::run`] for the one-shot builder: the session is used once, so what only
+    /// synthesis needs (texel graphs, frames, derived orders) is freed before the maps are
+    /// built — the maps stage then holds the texel geometry, the sources and the maps.
+    pub(super) fn run_once(
+        mut self,
+        example: Example,
+        params: &SynthParams,
+        labels: Labels,
+        started: Instant,
+        seconds: PrepareSeconds,
+    ) -> Result<SynthResult> {
+        let s = self.synthesis(&example, params, &labels)?;
+        drop(std::mem::take(&mut self.texels.graph));
+        drop(std::mem::take(&mut self.texels.edges));
+        drop(std::mem::take(&mut self.texels.frames));
+        drop(std::mem::take(&mut self.derived));
+        Ok(self.finish(example, params, labels, s, started, seconds))
+    }
+
+    /// The synthesis stage: source positions and what the method reports.
+    fn synthesis(
+        &self,
+        example: &Example,
+        params: &SynthParams,
+        labels: &Labels,
+    ) -> Result<Synthesized> {
+        let progress = |s: Stage, d: usize, t: usize| {
+            if let Some(p) = &self.progress {
+                p(s, d, t)
+            }
+        };
+        let settings = &params.settings;
+        let n = self.resolution;
+        let faces = self.faces();
+        if self.layout.uniform_n().is_none() && settings.method == Method::Multiscale {
+            return Err(Error::invalid(super::MULTISCALE_TEXEL_SIZE));
+        }
+        let has_height = example.channel_names().contains(&"height");
+        if params.displace.is_some() && !has_height {
+            return Err(Error::invalid(format!(
+                "--displace needs a height channel, and {} has none: pass --height H.png",
+                labels.example
+            )));
+        }
+        if let Some(a) = params.displace {
+            crate::memory::check_displace(&self.mesh_label, a, self.extent)?;
+        }
+        // This run's memory (the method and the example decide it; the mesh part was
+        // checked when it was prepared).
+        let job = Job::Synth {
+            channels: example.num_channels() + 2,
+            example_pixels: example.width * example.height,
+            method: settings.method,
+            displace: params.displace.is_some(),
+        };
+        match self.texel_size {
+            None => crate::memory::check(
+                &self.mesh_label,
+                n,
+                &job,
+                &crate::memory::estimate(&self.size, n, &job),
+            )?,
+            Some(_) => crate::memory::check_layout(
+                &self.mesh_label,
+                &self.surface.control,
+                &self.layout,
+                &job,
+            )?,
+        }
+
+        progress(Stage::Synthesis, 0, faces);
+        let t0 = Instant::now();
+        // The synthesizers lay image rows along −v2 (Handedness::Outside); for Tiles they
+        // get the example upside down, and the sources are turned back below.
+        let flipped;
+        let synth_example = match params.handedness {
+            Handedness::Outside => example,
+            Handedness::Tiles => {
+                flipped = example.flipped_rows();
+                &flipped
+            }
+        };
+        let target = Target {
+            surface: &self.surface,
+            field: &self.field,
+            texels: &self.texels,
+            spacing: self.spacing,
+            seed: params.seed,
+            derived: &self.derived,
+        };
+        let out =
+            crate::synth::synthesize(synth_example, &target, settings, &self.analyses, &|d, t| {
+                progress(Stage::Synthesis, d * faces / t.max(1), faces)
+            })?;
+        let cache = self.analyses.report(self.analyses.take_events());
+        let mut source = out.source;
+        if params.handedness == Handedness::Tiles {
+            let h = example.height as f32;
+            for s in &mut source {
+                s[1] = h - s[1];
+            }
+        }
+        let synthesis_s = t0.elapsed().as_secs_f64();
+        Ok(Synthesized {
+            source,
+            appearance: out.appearance,
+            details: out.details,
+            cache,
+            seconds: synthesis_s,
+        })
+    }
+
+    /// The maps stage and the report.
+    fn finish(
+        &self,
+        example: Example,
+        params: &SynthParams,
+        labels: Labels,
+        s: Synthesized,
+        started: Instant,
+        seconds: PrepareSeconds,
+    ) -> SynthResult {
+        let progress = |st: Stage, d: usize, t: usize| {
+            if let Some(p) = &self.progress {
+                p(st, d, t)
+            }
+        };
+        let settings = &params.settings;
+        let faces = self.faces();
+        let layout = &self.layout;
+        // Written in the user's units (positions, normals, displacement).
+        let (surface, geometry) = if self.unit != 1.0 {
+            let (s, g) = self.user.get_or_init(|| {
+                let s = match &self.user_control {
+                    Some(c) => crate::memory::build_surface(c.clone(), self.n_depth),
+                    None => unreachable!("kept when unit != 1"),
+                };
+                let g = TexelGeometry::compute_layout(&s, layout.clone());
+                (Arc::new(s), Arc::new(g))
+            });
+            (s.clone(), g.clone())
+        } else {
+            (self.surface.clone(), self.texels.geometry.clone())
+        };
+        let (scale, spacing) = (self.scale * self.unit, self.spacing * self.unit);
+
+        progress(Stage::Maps, 0, 1);
+        let t0 = Instant::now();
+        let maps = crate::synth::face_maps(&example, &s.source, layout);
+        drop(s.source);
+        let maps_s = t0.elapsed().as_secs_f64();
+        progress(Stage::Maps, 1, 1);
+
+        let mut report = Report {
+            tool: "surfsynth".into(),
+            version: env!("CARGO_PKG_VERSION").into(),
+            inputs: Inputs {
+                mesh: self.mesh_label.clone(),
+                example: labels.example,
+                height: labels.height,
+            },
+            method: settings.method,
+            seed: params.seed,
+            scale,
+            scale_source: self.scale_source.into(),
+            texel_spacing: spacing,
+            resolution: layout
+                .uniform_n()
+                .unwrap_or(layout.max_dims().0.max(layout.max_dims().1)),
+            texel_size: self.texel_size,
+            orientation: orientation_label(&self.orientation),
+            orientation_choice: self
+                .field
+                .choice()
+                .map(|c| crate::report::OrientationChoice {
+                    chosen: c.chosen.clone(),
+                    structure_length: c.length * self.unit,
+                    bent_fraction: c.scores.clone(),
+                }),
+            faces,
+            control_faces: surface.control.mesh.num_faces(),
+            texels: layout.len() as u64,
+            example: ExampleInfo {
+                width: example.width,
+                height: example.height,
+                channels: example
+                    .channel_names()
+                    .iter()
+                    .map(|s| s.to_string())
+                    .collect(),
+            },
+            channels: maps.names().iter().map(|s| s.to_string()).collect(),
+            weights: settings.weights,
+            appearance: s.appearance,
+            details: s.details,
+            threads: rayon::current_num_threads(),
+            displace: params.displace,
+            handedness: params.handedness,
+            seconds: Seconds {
+                load: seconds.load,
+                geometry: seconds.geometry,
+                field: seconds.field,
+                graph: seconds.graph,
+                synthesis: s.seconds,
+                maps: maps_s,
+                write: 0.0,
+                total: started.elapsed().as_secs_f64(),
+            },
+            texels_per_second: 0.0,
+            synthesis_texels_per_second: 0.0,
+            peak_memory_bytes: None,
+            patch_fidelity: None,
+            cache: s.cache,
+        };
+        report.update_rates();
+        SynthResult {
+            maps,
+            geometry,
+            surface,
+            example,
+            report,
+            displace: params.displace,
+            write_options: params.write_options,
+            started,
+        }
+    }
+}
+
+/// What the synthesis stage hands to the maps stage.
+struct Synthesized {
+    source: Vec<[f32; 2]>,
+    appearance: crate::synth::matching::appearance::AppearanceInfo,
+    details: crate::synth::Details,
+    cache: crate::synth::analysis::CacheReport,
+    seconds: f64,
+}
+
+/// How the report names the example and the height map.
+pub(super) struct Labels {
+    pub example: String,
+    pub height: Option<String>,
+}
