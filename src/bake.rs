@@ -182,6 +182,53 @@ pub fn bake_to_file(
     })
 }
 
+/// [`bake_to_file`] for per-face resolutions (`bake --texel-size`): domain d's texel
+/// centres ((x+0.5)/nu, (y+0.5)/nv), same channel order.
+pub fn bake_layout_to_file(
+    surface: &Surface,
+    layout: std::sync::Arc<crate::layout::TexelLayout>,
+    path: impl AsRef<Path>,
+    compression: Compression,
+    progress: &ProgressBar,
+) -> Result<BakeStats> {
+    let t = Instant::now();
+    let faces = surface.num_domains();
+    let tiles = TileLayout::of(layout.clone());
+    progress.set_length(faces as u64);
+    write_tiles(
+        path,
+        tiles,
+        &GEOMETRY_CHANNELS,
+        compression,
+        |d, out| {
+            let (nu, nv) = layout.dims(d);
+            let nn = nu * nv;
+            for y in 0..nv {
+                let v = (y as f64 + 0.5) / nv as f64;
+                for x in 0..nu {
+                    let s = surface.eval(DomainId(d as u32), (x as f64 + 0.5) / nu as f64, v);
+                    let i = y * nu + x;
+                    for (k, c) in [s.p.x, s.p.y, s.p.z, s.n.x, s.n.y, s.n.z]
+                        .iter()
+                        .enumerate()
+                    {
+                        out[k * nn + i] = *c as f32;
+                    }
+                }
+            }
+        },
+        &|done| progress.set_position(done as u64),
+    )?;
+    progress.finish_and_clear();
+    let (a, b) = layout.max_dims();
+    Ok(BakeStats {
+        domains: faces,
+        resolution: a.max(b),
+        texels: layout.len() as u64,
+        seconds: t.elapsed().as_secs_f64(),
+    })
+}
+
 /// Evaluates every domain without keeping or writing anything (the benchmark's
 /// "evaluation alone"); returns a checksum so the work cannot be optimised away.
 pub fn eval_only(surface: &Surface, n: usize) -> f64 {

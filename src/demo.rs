@@ -47,6 +47,7 @@ pub fn command(out: &Path) -> SynthCommand {
         normal_convention: Default::default(),
         method: Method::DEFAULT,
         resolution: RESOLUTION,
+        texel_size: None,
         scale: None,
         orientation: Orientation::Auto,
         seed: SEED,

@@ -16,6 +16,7 @@ pub mod eval;
 pub mod example;
 pub mod field;
 pub mod io;
+pub mod layout;
 pub mod maps;
 pub mod memory;
 pub mod probe;

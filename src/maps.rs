@@ -2,19 +2,21 @@
 //! corners (Ying et al. 2001, §5 step 1: "neighbouring domains' texels are used near
 //! borders").
 //!
-//! Layout: F domains × N×N texels × C f32 channels, texel (x, y) of domain d at global index
-//! (d·N + y)·N + x, centre (u, v) = ((x + 0.5)/N, (y + 0.5)/N) — the same layout as
-//! `facemaps.exr` tiles and [`crate::field::OrientationField::texel_frames`].
+//! Layout ([`TexelLayout`]): F domains of nu×nv texels (one N for all, or per-face under
+//! `--texel-size`) × C f32 channels, texel (x, y) of domain d at global index
+//! start(d) + y·nu + x, centre (u, v) = ((x + 0.5)/nu, (y + 0.5)/nv) — the same layout as
+//! `facemaps.exr` tiles and [`crate::texels::TexelGeometry`].
 //!
 //! A bilinear fetch near a border needs texel centres just outside [0, 1]², which belong to
 //! a neighbouring domain (possibly rotated, possibly at a different scale where a quad
 //! domain meets an n-gon sub-face, possibly around an extraordinary corner). [`MapLayout`]
-//! precomputes, once per resolution, a *ring* of 4N + 4 such outside centres per domain:
+//! precomputes, once per layout, a *ring* of 2(nu + nv) + 4 such outside centres per domain:
 //! each is found by walking straight from the nearest inside centre across the edge
 //! ([`subdiv::Surface::walk`]) and stored as the (edge-clamped) bilinear taps of the
 //! neighbour at the point reached. A fetch is then at most 4 × 4 table reads, with no walk
 //! and no allocation. Outside an open boundary the ring repeats the nearest inside texel.
 
+use crate::layout::TexelLayout;
 use rayon::prelude::*;
 use std::sync::Arc;
 use subdiv::{DomainId, DomainLocation, Surface};
@@ -53,45 +55,49 @@ struct Ring {
     w: [f32; 4],
 }
 
-/// Texel layout at one resolution, with the cross-face ring (see the module doc).
+/// Texel layout ([`TexelLayout`]: one N, or per-face resolutions), with the cross-face
+/// ring (see the module doc).
 #[derive(Clone, Debug)]
 pub struct MapLayout {
-    faces: usize,
-    n: usize,
-    /// 4n + 4 entries per domain (see [`ring_slot`]).
+    texels: Arc<TexelLayout>,
+    /// First ring slot of every domain (F + 1 entries): 2(nu + 2) + 2nv per domain (see
+    /// [`ring_slot`]).
+    ring_start: Vec<usize>,
     ring: Vec<Ring>,
 }
 
-/// Position of outside texel (x, y) ∈ [−1, n]² \ [0, n)² in a domain's ring: the row
-/// y = −1 (x = −1..=n), the row y = n, then the columns x = −1 and x = n (y = 0..n).
+/// Position of outside texel (x, y) ∈ [−1, nu] × [−1, nv] \ [0, nu) × [0, nv) in a domain's
+/// ring: the row y = −1 (x = −1..=nu), the row y = nv, then the columns x = −1 and x = nu
+/// (y = 0..nv).
 #[inline]
-fn ring_slot(n: usize, x: i64, y: i64) -> usize {
-    let n = n as i64;
+fn ring_slot(nu: usize, nv: usize, x: i64, y: i64) -> usize {
+    let (nu, nv) = (nu as i64, nv as i64);
     (if y < 0 {
         x + 1
-    } else if y >= n {
-        n + 2 + x + 1
+    } else if y >= nv {
+        nu + 2 + x + 1
     } else if x < 0 {
-        2 * (n + 2) + y
+        2 * (nu + 2) + y
     } else {
-        2 * (n + 2) + n + y
+        2 * (nu + 2) + nv + y
     }) as usize
 }
 
 /// Clamped bilinear taps of a point of domain `d` (texel centres outside are clamped to the
 /// border row/column: used for ring texels, whose points lie within half a texel of an
 /// edge of their own domain).
-fn clamped_taps(n: usize, d: usize, u: f64, v: f64) -> Ring {
-    let base = (d * n * n) as u32;
-    let axis = |t: f64| -> (usize, usize, f64) {
+fn clamped_taps(layout: &TexelLayout, d: usize, u: f64, v: f64) -> Ring {
+    let (nu, nv) = layout.dims(d);
+    let base = layout.start(d) as u32;
+    let axis = |t: f64, n: usize| -> (usize, usize, f64) {
         let f = (t * n as f64 - 0.5).clamp(0.0, (n - 1) as f64);
         let i0 = (f.floor() as usize).min(n.saturating_sub(2));
         let i1 = (i0 + 1).min(n - 1);
         (i0, i1, (f - i0 as f64).clamp(0.0, 1.0))
     };
-    let (x0, x1, ax) = axis(u);
-    let (y0, y1, ay) = axis(v);
-    let at = |x: usize, y: usize| base + (y * n + x) as u32;
+    let (x0, x1, ax) = axis(u, nu);
+    let (y0, y1, ay) = axis(v, nv);
+    let at = |x: usize, y: usize| base + (y * nu + x) as u32;
     Ring {
         idx: [at(x0, y0), at(x1, y0), at(x0, y1), at(x1, y1)],
         w: [
@@ -104,94 +110,128 @@ fn clamped_taps(n: usize, d: usize, u: f64, v: f64) -> Ring {
 }
 
 impl MapLayout {
-    /// Builds the layout and ring for `n`×`n` maps on every domain of `surface` (parallel;
-    /// the result does not depend on the thread count).
+    /// Builds the layout and ring for `n`×`n` maps on every domain of `surface`.
     pub fn new(surface: &Surface, n: usize) -> Self {
         assert!(n >= 1, "map resolution must be at least 1");
+        Self::with_layout(
+            surface,
+            Arc::new(TexelLayout::uniform(surface.num_domains(), n)),
+        )
+    }
+
+    /// Builds the ring for the maps of `texels` on every domain of `surface` (parallel;
+    /// the result does not depend on the thread count). Neighbours may have any
+    /// resolution: a ring texel is a point reached by a walk of one of *this* domain's
+    /// texels, and it is looked up bilinearly in the neighbour's own grid.
+    pub fn with_layout(surface: &Surface, texels: Arc<TexelLayout>) -> Self {
         let faces = surface.num_domains();
-        let per = 4 * n + 4;
+        assert_eq!(faces, texels.faces());
+        let mut ring_start = Vec::with_capacity(faces + 1);
+        ring_start.push(0);
+        for d in 0..faces {
+            let (nu, nv) = texels.dims(d);
+            ring_start.push(ring_start[d] + 2 * (nu + 2) + 2 * nv);
+        }
         let mut ring = vec![
             Ring {
                 idx: [0; 4],
                 w: [0.0; 4],
             };
-            faces * per
+            ring_start[faces]
         ];
-        ring.par_chunks_mut(per).enumerate().for_each(|(d, slots)| {
-            let inv = 1.0 / n as f64;
-            let ni = n as i64;
+        let mut chunks: Vec<&mut [Ring]> = Vec::with_capacity(faces);
+        let mut rest = ring.as_mut_slice();
+        for d in 0..faces {
+            let (a, b) = std::mem::take(&mut rest).split_at_mut(ring_start[d + 1] - ring_start[d]);
+            chunks.push(a);
+            rest = b;
+        }
+        let layout = &texels;
+        chunks.into_par_iter().enumerate().for_each(|(d, slots)| {
+            let (nu, nv) = layout.dims(d);
+            let (iu, iv) = (1.0 / nu as f64, 1.0 / nv as f64);
+            let (niu, niv) = (nu as i64, nv as i64);
+            let base = layout.start(d) as u32;
             let mut fill = |x: i64, y: i64| {
-                let cx = x.clamp(0, ni - 1);
-                let cy = y.clamp(0, ni - 1);
+                let cx = x.clamp(0, niu - 1);
+                let cy = y.clamp(0, niv - 1);
                 let start = DomainLocation {
                     domain: DomainId::from_idx(d),
-                    u: (cx as f64 + 0.5) * inv,
-                    v: (cy as f64 + 0.5) * inv,
+                    u: (cx as f64 + 0.5) * iu,
+                    v: (cy as f64 + 0.5) * iv,
                 };
-                let du = (x - cx) as f64 * inv;
-                let dv = (y - cy) as f64 * inv;
-                slots[ring_slot(n, x, y)] = match surface.walk(start, du, dv) {
-                    Some(l) => clamped_taps(n, l.domain.idx(), l.u, l.v),
+                let du = (x - cx) as f64 * iu;
+                let dv = (y - cy) as f64 * iv;
+                slots[ring_slot(nu, nv, x, y)] = match surface.walk(start, du, dv) {
+                    Some(l) => clamped_taps(layout, l.domain.idx(), l.u, l.v),
                     None => Ring {
-                        idx: [(d * n * n) as u32 + (cy * ni + cx) as u32, 0, 0, 0],
+                        idx: [base + (cy * niu + cx) as u32, 0, 0, 0],
                         w: [1.0, 0.0, 0.0, 0.0],
                     },
                 };
             };
-            for x in -1..=ni {
+            for x in -1..=niu {
                 fill(x, -1);
-                fill(x, ni);
+                fill(x, niv);
             }
-            for y in 0..ni {
+            for y in 0..niv {
                 fill(-1, y);
-                fill(ni, y);
+                fill(niu, y);
             }
         });
-        MapLayout { faces, n, ring }
+        MapLayout {
+            texels,
+            ring_start,
+            ring,
+        }
     }
 
-    /// Texels per side.
-    pub fn n(&self) -> usize {
-        self.n
+    /// The texel layout.
+    pub fn texels_layout(&self) -> &Arc<TexelLayout> {
+        &self.texels
+    }
+
+    /// Texels per side when every domain has the same N (`--resolution`).
+    pub fn uniform_n(&self) -> Option<usize> {
+        self.texels.uniform_n()
+    }
+
+    /// (texels along u, along v) of domain `d`.
+    pub fn dims(&self, d: usize) -> (usize, usize) {
+        self.texels.dims(d)
     }
 
     /// Number of face domains.
     pub fn faces(&self) -> usize {
-        self.faces
+        self.texels.faces()
     }
 
-    /// F·N·N.
+    /// Total number of texels.
     pub fn texels(&self) -> usize {
-        self.faces * self.n * self.n
+        self.texels.len()
     }
 
     /// Global index of texel (x, y) of domain `d`.
     #[inline]
     pub fn texel_index(&self, d: DomainId, x: usize, y: usize) -> usize {
-        (d.idx() * self.n + y) * self.n + x
+        self.texels.index(d.idx(), x, y)
     }
 
     /// Domain and texel-centre location of a global texel index.
     #[inline]
     pub fn texel_location(&self, i: usize) -> DomainLocation {
-        let n = self.n;
-        let (d, r) = (i / (n * n), i % (n * n));
-        DomainLocation {
-            domain: DomainId::from_idx(d),
-            u: ((r % n) as f64 + 0.5) / n as f64,
-            v: ((r / n) as f64 + 0.5) / n as f64,
-        }
+        self.texels.location(i)
     }
 
     /// Bilinear taps at a domain point: the four texel centres around (u, v), those outside
     /// the domain taken from the neighbours through the ring. (u, v) is clamped to [0, 1]².
     #[inline]
     pub fn taps(&self, loc: DomainLocation) -> Taps {
-        let n = self.n;
-        let ni = n as i64;
         let d = loc.domain.idx();
-        let fx = loc.u.clamp(0.0, 1.0) * n as f64 - 0.5;
-        let fy = loc.v.clamp(0.0, 1.0) * n as f64 - 0.5;
+        let (nu, nv) = self.texels.dims(d);
+        let (niu, niv) = (nu as i64, nv as i64);
+        let fx = loc.u.clamp(0.0, 1.0) * nu as f64 - 0.5;
+        let fy = loc.v.clamp(0.0, 1.0) * nv as f64 - 0.5;
         let (x0, y0) = (fx.floor() as i64, fy.floor() as i64);
         let (ax, ay) = ((fx - x0 as f64) as f32, (fy - y0 as f64) as f32);
         let mut t = Taps {
@@ -199,8 +239,8 @@ impl MapLayout {
             w: [0.0; 16],
             len: 0,
         };
-        let base = (d * n * n) as u32;
-        let ring = &self.ring[d * (4 * n + 4)..(d + 1) * (4 * n + 4)];
+        let base = self.texels.start(d) as u32;
+        let ring = &self.ring[self.ring_start[d]..self.ring_start[d + 1]];
         for (dy, wy) in [(0, 1.0 - ay), (1, ay)] {
             for (dx, wx) in [(0, 1.0 - ax), (1, ax)] {
                 let w = wx * wy;
@@ -208,10 +248,10 @@ impl MapLayout {
                     continue;
                 }
                 let (x, y) = (x0 + dx, y0 + dy);
-                if (0..ni).contains(&x) && (0..ni).contains(&y) {
-                    t.push(base + (y * ni + x) as u32, w);
+                if (0..niu).contains(&x) && (0..niv).contains(&y) {
+                    t.push(base + (y * niu + x) as u32, w);
                 } else {
-                    let r = &ring[ring_slot(n, x, y)];
+                    let r = &ring[ring_slot(nu, nv, x, y)];
                     for k in 0..4 {
                         t.push(r.idx[k], w * r.w[k]);
                     }
@@ -222,7 +262,7 @@ impl MapLayout {
     }
 }
 
-/// F domains × N×N texels × C channels of f32 (layout in the module doc).
+/// All domains' texels × C channels of f32 (layout in the module doc).
 #[derive(Clone, Debug)]
 pub struct FaceMaps {
     layout: Arc<MapLayout>,

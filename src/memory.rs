@@ -25,7 +25,11 @@
 //!   the per-thread scratch: the maps are streamed, never held whole.
 //!
 //! The check runs after the control mesh is parsed and before the surface is built, so
-//! nothing large has been allocated yet when it refuses.
+//! nothing large has been allocated yet when it refuses. With `--texel-size` the texel
+//! count depends on the limit surface, so there are two checks: before the surface, an
+//! upper estimate from the control faces' area ([`texel_size_estimate`]: refuses absurd
+//! sizes before anything is built), and after it, before any texel is allocated, the real
+//! total of the per-face layout ([`check_layout`]).
 
 use crate::error::{Error, Result};
 use crate::synth::Method;
@@ -385,12 +389,62 @@ pub fn field_faces(base_quads: usize) -> u64 {
     at(l)
 }
 
+/// How many texels a run has: F·N² at one resolution N, or the sum of the per-face
+/// resolutions under a texel size.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TexelCount {
+    /// All texels.
+    pub total: u64,
+    /// Texels next to a domain border (their neighbour lists are stored).
+    pub border: u64,
+    /// The largest side: the patch depth, the tessellation level and `bake`'s tiles follow it.
+    pub side: usize,
+    /// "64² texels" or "4 to 4096 texels".
+    pub shape: String,
+}
+
+impl TexelCount {
+    /// `domains` x `n`².
+    pub fn uniform(domains: usize, n: usize) -> Self {
+        let n64 = n as u64;
+        Self {
+            total: (domains as u64).saturating_mul(n64.saturating_mul(n64)),
+            border: (domains as u64).saturating_mul(4 * n64),
+            side: n,
+            shape: format!("{n}² texels"),
+        }
+    }
+
+    /// The texels of a per-face layout.
+    pub fn of_layout(layout: &crate::layout::TexelLayout) -> Self {
+        let (a, b) = layout.max_dims();
+        let border = (0..layout.faces())
+            .map(|d| {
+                let (u, v) = layout.dims(d);
+                2 * (u + v) as u64
+            })
+            .sum();
+        Self {
+            total: layout.len() as u64,
+            border,
+            side: a.max(b),
+            shape: format!("{} texels ({})", layout.len(), layout.describe()),
+        }
+    }
+}
+
 /// Peak-memory estimate of `job` on a mesh of `size` at resolution `n`.
 pub fn estimate(size: &MeshSize, n: usize, job: &Job) -> Estimate {
+    estimate_texels(size, &TexelCount::uniform(size.domains, n), job)
+}
+
+/// Peak-memory estimate of `job` on a mesh of `size` with `count` texels.
+pub fn estimate_texels(size: &MeshSize, count: &TexelCount, job: &Job) -> Estimate {
     let sat = |a: u64, b: u64| a.saturating_mul(b);
+    let n = count.side;
     let n64 = n as u64;
     let domains = size.domains as u64;
-    let texels = sat(domains, sat(n64, n64));
+    let texels = count.total;
     let depth = crate::bake::patch_depth_for(n) as u64;
     let irregular = size.irregular_base_quads as u64;
     let semi = size.semi_sharp_base_quads as u64;
@@ -419,10 +473,7 @@ pub fn estimate(size: &MeshSize, n: usize, job: &Job) -> Estimate {
                 sat(field_faces(size.base_quads), FIELD_FACE),
             ));
             parts.push(("texel maps", sat(texels, SYNTH_TEXEL + 4 * channels as u64)));
-            parts.push((
-                "neighbour lists",
-                sat(sat(domains, 4 * n64), SYNTH_BORDER_TEXEL),
-            ));
+            parts.push(("neighbour lists", sat(count.border, SYNTH_BORDER_TEXEL)));
             parts.push(("example", sat(example_pixels as u64, EXAMPLE_PIXEL)));
             match method {
                 Method::Coherent => {}
@@ -486,8 +537,8 @@ pub fn estimate(size: &MeshSize, n: usize, job: &Job) -> Estimate {
         bytes,
         parts,
         shape: format!(
-            "{} domains x {n}² texels x {channels} channels",
-            size.domains
+            "{} domains x {} x {channels} channels",
+            size.domains, count.shape
         ),
     }
 }
@@ -542,6 +593,123 @@ pub fn load_control_checked(path: impl AsRef<Path>, n: usize, job: &Job) -> Resu
     let e = estimate(&MeshSize::of(&control), n, job);
     check(&path.display().to_string(), n, job, &e)?;
     Ok(control)
+}
+
+/// The largest side any face can get at texel size `l` (for the patch depth): the longest
+/// control edge over `l` (a domain's side on the limit surface is at most about its
+/// control edge), as a power of two, clamped to 1..=[`crate::layout::MAX_SIDE`].
+pub fn texel_size_side(control: &ControlMesh, l: f64) -> usize {
+    let m = &control.mesh;
+    let mut longest = 0.0f64;
+    for f in 0..m.num_faces() {
+        let vs = m.face_vertices(FaceId::from_idx(f));
+        for i in 0..vs.len() {
+            let a = m.positions[vs[i] as usize];
+            let b = m.positions[vs[(i + 1) % vs.len()] as usize];
+            longest = longest.max(a.distance(b));
+        }
+    }
+    let k = (longest / l).max(1.0);
+    if k.is_finite() {
+        (k.min(crate::layout::MAX_SIDE as f64) as usize)
+            .next_power_of_two()
+            .min(crate::layout::MAX_SIDE)
+    } else {
+        crate::layout::MAX_SIDE
+    }
+}
+
+/// An upper estimate of the texels a texel size `l` gives `control`, before its surface is
+/// built: twice the control faces' area over l² (rounding each side to the nearest power
+/// of two makes a face at most 2x its ideal texel count; the limit surface is no larger
+/// than the control polygons), plus 2x2 per domain (the smallest face).
+pub fn texel_size_estimate(control: &ControlMesh, l: f64) -> TexelCount {
+    let m = &control.mesh;
+    let mut area = 0.0f64;
+    for f in 0..m.num_faces() {
+        let vs = m.face_vertices(FaceId::from_idx(f));
+        let c = vs
+            .iter()
+            .map(|&v| m.positions[v as usize])
+            .sum::<glam::DVec3>()
+            / vs.len() as f64;
+        for i in 0..vs.len() {
+            let a = m.positions[vs[i] as usize] - c;
+            let b = m.positions[vs[(i + 1) % vs.len()] as usize] - c;
+            area += 0.5 * a.cross(b).length();
+        }
+    }
+    let domains = control.num_domains() as f64;
+    let total = 2.0 * area / (l * l) + 4.0 * domains;
+    let total = if total.is_finite() {
+        total.min(u64::MAX as f64) as u64
+    } else {
+        u64::MAX
+    };
+    let side = texel_size_side(control, l);
+    TexelCount {
+        total,
+        // Border texels: 4 sides of sqrt(texels per domain) each.
+        border: (4.0 * (total as f64 * domains).sqrt()) as u64,
+        side,
+        shape: format!("about {total} texels"),
+    }
+}
+
+/// Reads the control mesh at `path` and checks the estimate of `job` at texel size `l`
+/// (from [`texel_size_estimate`]) against the limit: an absurd texel size is refused here,
+/// before the surface is built.
+pub fn load_control_checked_texel_size(
+    path: impl AsRef<Path>,
+    l: f64,
+    job: &Job,
+) -> Result<ControlMesh> {
+    let path = path.as_ref();
+    let control = ControlMesh::load_obj_limited(path, limit().bytes / 4)?;
+    check_coordinate_range(&path.display().to_string(), &control)?;
+    check_texel_size_estimate(&path.display().to_string(), &control, l, job)?;
+    Ok(control)
+}
+
+/// [`load_control_checked_texel_size`]'s check for a surface that is already built.
+pub fn check_surface_texel_size(surface: &Surface, l: f64, job: &Job) -> Result<()> {
+    let what = surface
+        .control
+        .path
+        .as_ref()
+        .map(|p| p.display().to_string())
+        .unwrap_or_else(|| "<in-memory mesh>".into());
+    check_texel_size_estimate(&what, &surface.control, l, job)
+}
+
+fn check_texel_size_estimate(what: &str, control: &ControlMesh, l: f64, job: &Job) -> Result<()> {
+    let count = texel_size_estimate(control, l);
+    let e = estimate_texels(&MeshSize::of(control), &count, job);
+    refuse(
+        &limit(),
+        &format!("{what}: {} at --texel-size {l}", job.name()),
+        "",
+        &e,
+        "raise --texel-size or --max-memory",
+    )
+}
+
+/// The guard with the real texel total of `layout` (after the surface is built, before any
+/// texel is allocated).
+pub fn check_layout(
+    what: &str,
+    control: &ControlMesh,
+    layout: &crate::layout::TexelLayout,
+    job: &Job,
+) -> Result<()> {
+    let e = estimate_texels(&MeshSize::of(control), &TexelCount::of_layout(layout), job);
+    refuse(
+        &limit(),
+        &format!("{what}: {} at this --texel-size", job.name()),
+        "",
+        &e,
+        "raise --texel-size or --max-memory",
+    )
 }
 
 /// The largest coordinate magnitude the outputs can hold: they store positions as 32-bit

@@ -84,7 +84,7 @@ fn parse_orientation(s: &str) -> Orientation {
 /// `geometry` has them, else the field computed from `orientation`.
 pub fn tangents(
     surface: &Surface,
-    n: usize,
+    layout: &crate::layout::TexelLayout,
     geometry: Option<&FaceMaps>,
     orientation: &Orientation,
 ) -> Result<Vec<DVec3>> {
@@ -101,10 +101,9 @@ pub fn tangents(
     }
     let field = OrientationField::compute(surface, orientation)
         .map_err(|e| Error::invalid(format!("orientation field: {e:#}")))?;
-    Ok(field
-        .texel_frames(surface, n)
+    Ok(crate::synth::layout_frames(&field, surface, layout)
         .into_iter()
-        .map(|f| f.v1)
+        .map(|f| f[0].as_dvec3())
         .collect())
 }
 
@@ -132,7 +131,7 @@ pub fn lit_texels(
     path: &Path,
 ) -> Result<Vec<[f32; 3]>> {
     let Lighting { light, view, tiles } = *lighting;
-    let texels = maps.faces * maps.texels_per_face();
+    let texels = maps.layout.len();
     let ch = |name: &str| {
         maps.channel(name)
             .ok_or_else(|| Error::file(path, format!("has no '{name}' channel")))

@@ -155,7 +155,7 @@ fn texel_maps(surface: &Surface, maps: &FaceMaps, path: &Path) -> Result<(TexelM
     let alpha = maps.channel("A");
     let height = maps.channel("height");
     let k = 5;
-    let texels = maps.faces * maps.texels_per_face();
+    let texels = maps.layout.len();
     let mut data = vec![0f32; texels * k];
     data.par_chunks_mut(k).enumerate().for_each(|(i, t)| {
         t[0] = chans[0][i];
@@ -164,7 +164,7 @@ fn texel_maps(surface: &Surface, maps: &FaceMaps, path: &Path) -> Result<(TexelM
         t[3] = alpha.map_or(1.0, |a| a[i]);
         t[4] = height.map_or(0.5, |h| h[i]);
     });
-    let layout = Arc::new(MapLayout::new(surface, maps.resolution));
+    let layout = Arc::new(MapLayout::with_layout(surface, maps.layout.clone()));
     Ok((TexelMaps::from_data(layout, k, data), height.is_some()))
 }
 
@@ -628,15 +628,15 @@ fn lit_maps(
     use crate::relight;
     let info = relight::RunInfo::read(dir)?;
     let sample = relight::load_btf(&info)?;
-    let n = maps.resolution;
     let geometry_path = dir.join("geometry.exr");
     let geometry = read_face_maps(&geometry_path).ok();
-    let normals: Vec<DVec3> = crate::texels::TexelGeometry::compute(surface, n)
-        .normal
-        .iter()
-        .map(|v| v.as_dvec3())
-        .collect();
-    let tangents = relight::tangents(surface, n, geometry.as_ref(), &info.orientation)?;
+    let normals: Vec<DVec3> =
+        crate::texels::TexelGeometry::compute_layout(surface, maps.layout.clone())
+            .normal
+            .iter()
+            .map(|v| v.as_dvec3())
+            .collect();
+    let tangents = relight::tangents(surface, &maps.layout, geometry.as_ref(), &info.orientation)?;
     let yaw = opts.yaw.unwrap_or(30.0).to_radians();
     let pitch = opts.pitch.unwrap_or(20.0).to_radians();
     let view = DVec3::new(
@@ -717,15 +717,16 @@ pub fn render_dir(dir: &Path, opts: &RenderOptions) -> Result<(Picture, RenderSt
     let maps = read_face_maps(&maps_path)?;
     let mesh_path = find_mesh(dir, opts.mesh.as_deref())?;
     // Patch trees only as deep as the maps need (exact either way; see bake).
-    let surface = crate::bake::load_surface_for(&mesh_path, maps.resolution)?;
-    if surface.num_domains() != maps.faces {
+    let side = maps.layout.largest_side();
+    let surface = crate::bake::load_surface_for(&mesh_path, side)?;
+    if surface.num_domains() != maps.faces() {
         return Err(Error::file(
             &mesh_path,
             format!(
                 "has {} face domains but {} has {}: not the mesh of this result",
                 surface.num_domains(),
                 maps_path.display(),
-                maps.faces
+                maps.faces()
             ),
         ));
     }
@@ -755,7 +756,7 @@ pub fn render_dir(dir: &Path, opts: &RenderOptions) -> Result<(Picture, RenderSt
     let level = match opts.displace {
         // One vertex per texel on quad domains: 2^level >= N.
         Some(_) => {
-            let n = texels.layout().n();
+            let n = side;
             let mut l = 2;
             while (1usize << l) < n {
                 l += 1;

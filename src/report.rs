@@ -90,6 +90,10 @@ pub struct Report {
     /// h: median distance between adjacent texel centres (BRIEF), for reference.
     pub texel_spacing: f64,
     pub resolution: usize,
+    /// `--texel-size` (then `resolution` is the largest face side and the faces' own
+    /// resolutions are in facemaps.exr's header).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub texel_size: Option<f64>,
     pub orientation: String,
     /// What `--orient straight` chose and every candidate's score (absent otherwise).
     #[serde(skip_serializing_if = "Option::is_none")]

@@ -280,6 +280,7 @@ pub struct Synthesizer {
     normal_convention: NormalConvention,
     settings: Settings,
     resolution: usize,
+    texel_size: Option<f64>,
     scale: Option<f64>,
     orientation: Orientation,
     seed: u64,
@@ -347,6 +348,7 @@ impl Synthesizer {
             normal_convention: NormalConvention::default(),
             settings: Settings::default(),
             resolution: 32,
+            texel_size: None,
             scale: None,
             orientation: Orientation::Auto,
             seed: 1,
@@ -385,6 +387,13 @@ impl Synthesizer {
     /// Texels per side of every face map (>= 1).
     pub fn resolution(mut self, n: usize) -> Self {
         self.resolution = n;
+        self
+    }
+    /// Per-face resolutions for a texel spacing of about `l` surface units
+    /// (`--texel-size`, [`crate::layout::TexelLayout::for_texel_size`]) instead of one
+    /// [`Synthesizer::resolution`] for all faces; `None` = the resolution.
+    pub fn texel_size(mut self, l: impl Into<Option<f64>>) -> Self {
+        self.texel_size = l.into();
         self
     }
     /// Surface length covered by one example pixel; `None` = median texel spacing.
@@ -515,8 +524,14 @@ impl Synthesizer {
 
     /// Checks parameters that need no file (cheap; `run` calls it first).
     pub fn validate(&self) -> Result<()> {
+        if self.texel_size.is_some()
+            && matches!(self.settings.method, Method::Multiscale | Method::Textons)
+        {
+            return Err(Error::invalid(MULTISCALE_TEXEL_SIZE));
+        }
         MeshSettings {
             resolution: self.resolution,
+            texel_size: self.texel_size,
             scale: self.scale,
             orientation: Orientation::Auto,
         }
@@ -725,11 +740,27 @@ impl Synthesizer {
             )?;
         }
         let control = match self.mesh {
-            MeshSource::Path(ref p) => Some(crate::memory::load_control_checked(p, n, &job)?),
+            MeshSource::Path(ref p) => Some(match self.texel_size {
+                None => crate::memory::load_control_checked(p, n, &job)?,
+                Some(l) => crate::memory::load_control_checked_texel_size(p, l, &job)?,
+            }),
             MeshSource::Surface(ref s) => {
-                crate::memory::check_surface(s, n, &job)?;
+                match self.texel_size {
+                    None => crate::memory::check_surface(s, n, &job)?,
+                    Some(l) => crate::memory::check_surface_texel_size(s, l, &job)?,
+                }
                 None
             }
+        };
+        // The patch depth follows the finest texels (with a texel size: the longest control
+        // edge over the texel size, an upper bound of any face's side).
+        let n_depth = match (self.texel_size, &control, &self.mesh) {
+            (None, _, _) => n,
+            (Some(l), Some(c), _) => crate::memory::texel_size_side(c, l),
+            (Some(l), None, MeshSource::Surface(s)) => {
+                crate::memory::texel_size_side(&s.control, l)
+            }
+            (Some(_), None, MeshSource::Path(_)) => unreachable!("a path mesh is read above"),
         };
         // Both fit: decode the example, then build the surface.
         let example = match (pending, &self.example) {
@@ -751,8 +782,11 @@ impl Synthesizer {
             };
             crate::memory::check_displace(&mesh_label, a, crate::memory::extent(control))?;
         }
-        let (surface, user_control) = session::working_surface(user_control, unit, self.mesh, n);
-        check_size(surface.num_domains(), n)?;
+        let (surface, user_control) =
+            session::working_surface(user_control, unit, self.mesh, n_depth);
+        // The texel layout: one N, or per-face resolutions from the texel size (in the
+        // surface's working units), checked against the guard with its real texel total.
+        let layout = session::texel_layout(&surface, n, self.texel_size, unit, &mesh_label, &job)?;
         // Inputs are good: check --out and open it (nothing appears in it until the end).
         let txn = match out_dir {
             Some(dir) => Some(OutputTxn::begin(dir, crate::io::txn::SYNTH_OUTPUTS)?),
@@ -769,6 +803,7 @@ impl Synthesizer {
             .unwrap_or_else(|| std::sync::Arc::new(Analyses::new(&self.cache)));
         let mesh_settings = MeshSettings {
             resolution: n,
+            texel_size: self.texel_size,
             scale: self.scale,
             orientation: self.orientation.clone(),
         };
@@ -777,6 +812,8 @@ impl Synthesizer {
             surface,
             user_control,
             unit,
+            layout,
+            n_depth,
             load_seconds: load,
         };
         let session =
@@ -832,6 +869,23 @@ fn orientation_label(o: &Orientation) -> String {
         Orientation::Axis(a) => format!("axis ({}, {}, {})", a.x, a.y, a.z),
         Orientation::Constraints(p) => p.display().to_string(),
     }
+}
+
+/// Why the multiscale method refuses per-face resolutions.
+pub(crate) const MULTISCALE_TEXEL_SIZE: &str =
+    "the multiscale and textons methods need one resolution for all faces: use --resolution, not --texel-size";
+
+/// [`check_size`] for a per-face layout.
+fn check_texels(what: &str, layout: &crate::layout::TexelLayout) -> Result<()> {
+    if layout.len() as u128 >= u32::MAX as u128 {
+        return Err(Error::invalid(format!(
+            "{what}: {} face domains at this texel size are {} texels; at most {} are supported: raise --texel-size",
+            layout.faces(),
+            layout.len(),
+            u32::MAX - 1
+        )));
+    }
+    Ok(())
 }
 
 /// Refuses sizes whose maps would not fit an EXR image or u32 texel indices.
@@ -981,26 +1035,25 @@ impl SynthResult {
                     // `geometry_maps()`, without a second copy of the maps).
                     let p = dir.join(GEOMETRY_FILE);
                     let g = &self.geometry;
-                    let nn = g.resolution * g.resolution;
                     let mut names = crate::bake::GEOMETRY_CHANNELS.to_vec();
                     names.extend(TANGENT_CHANNELS);
                     crate::io::exr::write_tiles_with_attributes(
                         &p,
-                        crate::io::exr::TileLayout::new(g.faces, g.resolution),
+                        crate::io::exr::TileLayout::of(g.layout.clone()),
                         &names,
-                        crate::io::exr::DEFAULT_COMPRESSION,
+                        crate::io::exr::compression_for(&g.layout),
                         &[(TANGENT_HANDEDNESS, self.handedness.bitangent_sign())],
                         |f, tile| {
-                            for (c, out) in tile.chunks_exact_mut(nn).enumerate() {
-                                let range = f * nn..(f + 1) * nn;
+                            let r = g.layout.range(f);
+                            for (c, out) in tile.chunks_exact_mut(r.len()).enumerate() {
                                 if c >= 6 {
-                                    for (o, t) in out.iter_mut().zip(&self.tangents[range]) {
+                                    for (o, t) in out.iter_mut().zip(&self.tangents[r.clone()]) {
                                         *o = t[c % 3];
                                     }
                                     continue;
                                 }
                                 let src = if c < 3 { &g.pos } else { &g.normal };
-                                for (o, v) in out.iter_mut().zip(&src[range]) {
+                                for (o, v) in out.iter_mut().zip(&src[r.clone()]) {
                                     *o = v[c % 3];
                                 }
                             }
@@ -1073,6 +1126,8 @@ pub struct SynthCommand {
     pub normal_convention: NormalConvention,
     pub method: Method,
     pub resolution: usize,
+    /// `--texel-size L` (per-face resolutions instead of `resolution`).
+    pub texel_size: Option<f64>,
     pub scale: Option<f64>,
     pub orientation: Orientation,
     pub seed: u64,
@@ -1104,6 +1159,7 @@ impl SynthCommand {
         let mut s = Synthesizer::new(&self.mesh, example)
             .method(self.method)
             .resolution(self.resolution)
+            .texel_size(self.texel_size)
             .scale(self.scale)
             .orientation(self.orientation.clone())
             .seed(self.seed)
@@ -1151,10 +1207,8 @@ pub fn run_command(c: &SynthCommand) -> Result<Report> {
             // meanwhile (the same f32 values, rebuilt exactly), so both are not held at
             // the run's peak (the pf point cloud; 24 B per texel less).
             let geometry_maps = r.geometry_maps();
-            let (faces, resolution) = (r.geometry.faces, r.geometry.resolution);
             r.geometry = Arc::new(TexelGeometry {
-                faces,
-                resolution,
+                layout: r.geometry.layout.clone(),
                 pos: Vec::new(),
                 normal: Vec::new(),
             });
@@ -1184,8 +1238,7 @@ fn geometry_from_maps(m: &FaceMaps) -> TexelGeometry {
             .collect()
     };
     TexelGeometry {
-        faces: m.faces,
-        resolution: m.resolution,
+        layout: m.layout.clone(),
         pos: xyz(0),
         normal: xyz(3),
     }
@@ -1199,8 +1252,12 @@ pub fn summary_line(r: &Report, out: &Path) -> String {
         let f = |v: Option<f64>| v.map_or("n/a".to_string(), |v| format!("{v:.3}"));
         format!("; pf1 {} pf4 {} pf8 {}", f(p.pf1), f(p.pf4), f(p.pf8))
     });
+    let each = match r.texel_size {
+        None => format!("{n}x{n} each", n = r.resolution),
+        Some(l) => format!("texel size {l}, up to {n}x{n}", n = r.resolution),
+    };
     format!(
-        "synth: {} domains, {} texels ({n}x{n} each) in {:.2} s ({} texels/s; synthesis {:.2} s, {} texels/s){pf} -> {}",
+        "synth: {} domains, {} texels ({each}) in {:.2} s ({} texels/s; synthesis {:.2} s, {} texels/s){pf} -> {}",
         r.faces,
         r.texels,
         r.seconds.total,
@@ -1208,7 +1265,6 @@ pub fn summary_line(r: &Report, out: &Path) -> String {
         r.seconds.synthesis,
         si(r.synthesis_texels_per_second),
         out.display(),
-        n = r.resolution
     )
 }
 

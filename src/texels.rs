@@ -1,8 +1,9 @@
 //! Texel geometry and the texel neighbourhood graph.
 //!
-//! Every face domain carries an `N x N` map; texel (x, y) of domain d sits at the domain
-//! point ((x+0.5)/N, (y+0.5)/N) and has the global index `(d*N + y)*N + x` (the
-//! [`crate::io::exr::FaceMaps`] order). [`TexelGeometry`] holds the exact limit position and
+//! Every face domain carries an `nu x nv` map ([`crate::layout::TexelLayout`]: one N for
+//! all faces, or per-face powers of two under `--texel-size`); texel (x, y) of domain d
+//! sits at the domain point ((x+0.5)/nu, (y+0.5)/nv) and has the global index
+//! `start(d) + y*nu + x` (the [`crate::io::exr::FaceMaps`] order). [`TexelGeometry`] holds the exact limit position and
 //! normal of every texel centre.
 //!
 //! [`TexelGraph`] answers step 1 of coherent synthesis (Ying et al. 2001, §5): "collect all
@@ -22,7 +23,10 @@
 //!   so its texels are half as long along that edge as the quad's — a quad texel reaches
 //!   every other sub-face texel and a sub-face texel may reach the same quad texel twice
 //!   (deduplicated). Both are "texels within 2 of *my* samples", which is what matching
-//!   needs: displacements are measured in 3D afterwards, not assumed.
+//!   needs: displacements are measured in 3D afterwards, not assumed. Domains of
+//!   different resolution (`--texel-size`) meet the same way at any ratio: the walk is a
+//!   step of the starting domain's texels, and lands on the nearest texel of the other
+//!   domain's own grid.
 //!   Walks that leave through an open boundary simply yield nothing.
 //! - **Corners**: straight walks around an extraordinary vertex (valence k != 4) reach only
 //!   some of the k domains, because the parameter plane covers 4 right angles. So a texel
@@ -38,8 +42,10 @@
 //! in parallel and concatenated in domain order, so the graph does not depend on the number
 //! of threads.
 
+use crate::layout::TexelLayout;
 use glam::Vec3;
 use rayon::prelude::*;
+use std::sync::Arc;
 use subdiv::{BaseQuadId, DomainId, DomainLocation, FaceId, LimitSample, Surface, VertexId};
 
 /// Limit position and unit normal of every texel centre, f32 (the precision of
@@ -47,10 +53,8 @@ use subdiv::{BaseQuadId, DomainId, DomainLocation, FaceId, LimitSample, Surface,
 /// significant digits, far more than matching needs).
 #[derive(Clone, Debug, PartialEq)]
 pub struct TexelGeometry {
-    /// Number of face domains F.
-    pub faces: usize,
-    /// Texels per side N.
-    pub resolution: usize,
+    /// Where every texel is (per-face resolutions, global order).
+    pub layout: Arc<TexelLayout>,
     /// Limit position per texel (global texel order).
     pub pos: Vec<Vec3>,
     /// Unit limit normal per texel.
@@ -58,35 +62,59 @@ pub struct TexelGeometry {
 }
 
 impl TexelGeometry {
-    /// Evaluates all texel centres of `surface` at resolution `n` (in parallel, per domain).
+    /// Evaluates all texel centres of `surface` at resolution `n` (uniform layout).
     pub fn compute(surface: &Surface, n: usize) -> Self {
         assert!(n >= 1, "resolution must be at least 1");
-        let faces = surface.num_domains();
-        let nn = n * n;
-        let mut pos = vec![Vec3::ZERO; faces * nn];
-        let mut normal = vec![Vec3::ZERO; faces * nn];
-        pos.par_chunks_mut(nn)
-            .zip(normal.par_chunks_mut(nn))
+        Self::compute_layout(
+            surface,
+            Arc::new(TexelLayout::uniform(surface.num_domains(), n)),
+        )
+    }
+
+    /// Evaluates all texel centres of `surface` in `layout` (in parallel, per domain).
+    pub fn compute_layout(surface: &Surface, layout: Arc<TexelLayout>) -> Self {
+        assert_eq!(layout.faces(), surface.num_domains());
+        let total = layout.len();
+        let mut pos = vec![Vec3::ZERO; total];
+        let mut normal = vec![Vec3::ZERO; total];
+        layout
+            .split_mut(&mut pos, 1)
+            .into_par_iter()
+            .zip(layout.split_mut(&mut normal, 1))
             .enumerate()
-            .for_each_init(
-                || vec![LimitSample::default(); nn],
-                |buf, (d, (p, nrm))| {
-                    surface.eval_texels(DomainId::from_idx(d), n, buf);
-                    for (i, s) in buf.iter().enumerate() {
-                        p[i] = s.p.as_vec3();
-                        nrm[i] = s.n.as_vec3();
+            .for_each_init(Vec::new, |buf: &mut Vec<LimitSample>, (d, (p, nrm))| {
+                let (nu, nv) = layout.dims(d);
+                let id = DomainId::from_idx(d);
+                if nu == nv {
+                    buf.resize(nu * nu, LimitSample::default());
+                    surface.eval_texels(id, nu, buf);
+                } else {
+                    buf.clear();
+                    for y in 0..nv {
+                        let v = (y as f64 + 0.5) / nv as f64;
+                        for x in 0..nu {
+                            buf.push(surface.eval(id, (x as f64 + 0.5) / nu as f64, v));
+                        }
                     }
-                },
-            );
+                }
+                for (i, s) in buf.iter().enumerate() {
+                    p[i] = s.p.as_vec3();
+                    nrm[i] = s.n.as_vec3();
+                }
+            });
         Self {
-            faces,
-            resolution: n,
+            layout,
             pos,
             normal,
         }
     }
 
-    /// Total number of texels F·N².
+    /// Number of face domains F.
+    pub fn faces(&self) -> usize {
+        self.layout.faces()
+    }
+
+    /// Total number of texels.
     pub fn len(&self) -> usize {
         self.pos.len()
     }
@@ -99,7 +127,27 @@ impl TexelGeometry {
     /// Domain of a global texel index.
     #[inline]
     pub fn domain_of(&self, t: usize) -> usize {
-        t / (self.resolution * self.resolution)
+        self.layout.domain_of(t)
+    }
+
+    /// Every domain's adjacent in-domain texel distances (horizontal and vertical pairs),
+    /// in domain order; empty for a domain of one texel.
+    pub fn domain_spacings(&self, d: usize) -> Vec<f64> {
+        let (nu, nv) = self.layout.dims(d);
+        let p = &self.pos[self.layout.range(d)];
+        let mut v = Vec::with_capacity(2 * nu * nv);
+        for y in 0..nv {
+            for x in 0..nu {
+                let i = y * nu + x;
+                if x + 1 < nu {
+                    v.push(p[i].distance(p[i + 1]) as f64);
+                }
+                if y + 1 < nv {
+                    v.push(p[i].distance(p[i + nu]) as f64);
+                }
+            }
+        }
+        v
     }
 
     /// h: the median distance between centres of horizontally or vertically adjacent
@@ -108,37 +156,19 @@ impl TexelGeometry {
     /// pairs; then the median over domains of |∂P/∂u|/N and |∂P/∂v|/N at the centre (the
     /// same quantity to first order) is used.
     pub fn median_spacing(&self, surface: &Surface) -> f64 {
-        let n = self.resolution;
-        let mut d: Vec<f64> = if n >= 2 {
-            let nn = n * n;
-            (0..self.faces)
-                .into_par_iter()
-                .flat_map_iter(|f| {
-                    let p = &self.pos[f * nn..(f + 1) * nn];
-                    let mut v = Vec::with_capacity(2 * n * (n - 1));
-                    for y in 0..n {
-                        for x in 0..n {
-                            let i = y * n + x;
-                            if x + 1 < n {
-                                v.push(p[i].distance(p[i + 1]) as f64);
-                            }
-                            if y + 1 < n {
-                                v.push(p[i].distance(p[i + n]) as f64);
-                            }
-                        }
-                    }
-                    v
-                })
-                .collect()
-        } else {
-            (0..self.faces)
+        let mut d: Vec<f64> = (0..self.faces())
+            .into_par_iter()
+            .flat_map_iter(|f| self.domain_spacings(f))
+            .collect();
+        if d.is_empty() {
+            d = (0..self.faces())
                 .into_par_iter()
                 .flat_map_iter(|f| {
                     let s = surface.eval(DomainId::from_idx(f), 0.5, 0.5);
                     [s.du.length(), s.dv.length()]
                 })
-                .collect()
-        };
+                .collect();
+        }
         median(&mut d)
     }
 }
@@ -201,11 +231,9 @@ const CORNER_UV: [(f64, f64); 4] = [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.
 /// The neighbourhood graph over all texels (see the module docs).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct TexelGraph {
-    /// Number of face domains F.
-    pub faces: usize,
-    /// Texels per side N.
-    pub resolution: usize,
-    /// CSR starts, F·N²+1 entries; interior texels have empty ranges.
+    /// Where every texel is.
+    pub layout: Arc<TexelLayout>,
+    /// CSR starts, one per texel + 1; interior texels have empty ranges.
     start: Vec<u32>,
     /// Concatenated neighbour lists of the border texels.
     list: Vec<u32>,
@@ -215,8 +243,8 @@ impl TexelGraph {
     /// Builds the graph (in parallel per domain; the result does not depend on the number
     /// of threads).
     pub fn build(surface: &Surface, geom: &TexelGeometry) -> Self {
-        let n = geom.resolution;
-        let faces = geom.faces;
+        let layout = geom.layout.clone();
+        let faces = layout.faces();
         assert_eq!(faces, surface.num_domains());
         let per_domain: Vec<(Vec<u32>, Vec<u32>)> = (0..faces)
             .into_par_iter()
@@ -227,7 +255,7 @@ impl TexelGraph {
             total < u32::MAX as usize,
             "texel graph larger than 2^32 entries"
         );
-        let mut start = Vec::with_capacity(faces * n * n + 1);
+        let mut start = Vec::with_capacity(layout.len() + 1);
         let mut list = Vec::with_capacity(total);
         start.push(0u32);
         for (counts, l) in per_domain {
@@ -238,8 +266,7 @@ impl TexelGraph {
             list.extend_from_slice(&l);
         }
         Self {
-            faces,
-            resolution: n,
+            layout,
             start,
             list,
         }
@@ -255,30 +282,31 @@ impl TexelGraph {
         self.len() == 0
     }
 
-    /// Whether texel (x, y) is at least 2 texels away from every border of its domain (its
-    /// neighbourhood is the plain 5x5 block).
+    /// Whether texel (x, y) of a domain of `nu`×`nv` texels is at least 2 texels away from
+    /// every border of its domain (its neighbourhood is the plain 5x5 block).
     #[inline]
-    pub fn is_interior(&self, x: usize, y: usize) -> bool {
-        let n = self.resolution;
-        x >= 2 && y >= 2 && x + 2 < n && y + 2 < n
+    pub fn is_interior(nu: usize, nv: usize, x: usize, y: usize) -> bool {
+        x >= 2 && y >= 2 && x + 2 < nu && y + 2 < nv
     }
 
     /// Appends the neighbours of texel `t` to `out`, nearest first.
     #[inline]
     pub fn neighbours(&self, t: usize, out: &mut Vec<u32>) {
-        let n = self.resolution;
-        let x = t % n;
-        let y = (t / n) % n;
-        if self.is_interior(x, y) {
-            let t = t as i64;
-            let n = n as i64;
-            out.extend(
-                BLOCK
-                    .iter()
-                    .map(|&(a, b)| (t + a as i64 + b as i64 * n) as u32),
-            );
+        let (s, e) = (self.start[t] as usize, self.start[t + 1] as usize);
+        if s == e {
+            // Interior (border texels always have neighbours: at least their own block's).
+            let (d, x, y) = self.layout.coords(t);
+            let (nu, nv) = self.layout.dims(d);
+            if Self::is_interior(nu, nv, x, y) {
+                let t = t as i64;
+                let nu = nu as i64;
+                out.extend(
+                    BLOCK
+                        .iter()
+                        .map(|&(a, b)| (t + a as i64 + b as i64 * nu) as u32),
+                );
+            }
         } else {
-            let (s, e) = (self.start[t] as usize, self.start[t + 1] as usize);
             out.extend_from_slice(&self.list[s..e]);
         }
     }
@@ -292,14 +320,15 @@ impl TexelGraph {
     /// have texels listing it (symmetric, sorted). Two domains not related here can be
     /// synthesized at the same time: neither reads the other's texels.
     pub fn domain_conflicts(&self) -> Vec<Vec<u32>> {
-        let nn = self.resolution * self.resolution;
-        let mut out: Vec<Vec<u32>> = (0..self.faces)
+        let l = &self.layout;
+        let mut out: Vec<Vec<u32>> = (0..l.faces())
             .into_par_iter()
             .map(|d| {
+                let r = l.range(d);
                 let mut v: Vec<u32> = self.list
-                    [self.start[d * nn] as usize..self.start[(d + 1) * nn] as usize]
+                    [self.start[r.start] as usize..self.start[r.end] as usize]
                     .iter()
-                    .map(|&t| (t as usize / nn) as u32)
+                    .map(|&t| l.domain_of(t as usize) as u32)
                     .filter(|&e| e as usize != d)
                     .collect();
                 v.sort_unstable();
@@ -330,13 +359,17 @@ impl TexelGraph {
 }
 
 /// The texels' *edge* neighbours: the 4-neighbourhood of the texel grid, continued across
-/// domain edges by the same straight walks as [`TexelGraph`] (so across T-junctions and
-/// around extraordinary corners too), symmetric, CSR, each list ascending.
+/// domain edges by the same straight walks as [`TexelGraph`] (so across T-junctions,
+/// around extraordinary corners and between domains of different resolution too),
+/// symmetric, CSR, each list ascending.
 ///
 /// Floods and seams run on it: a flood over nearest-first lists can jump diagonally, and
 /// a cut over them finds domain borders cheaper to cut along wherever the lists on the
 /// two sides of a border are not symmetric (measured on the double torus: 3x as many
-/// cut pairs on domain borders as inside, seam ratio 1.28).
+/// cut pairs on domain borders as inside, seam ratio 1.28). Between a coarse and a k
+/// times finer domain, the coarse texel's step lands on one fine texel, but every fine
+/// border texel's step lands on a coarse one, and symmetry adds the pair: each coarse
+/// border texel ends up joined to the k fine texels along it.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct EdgeGraph {
     start: Vec<u32>,
@@ -352,35 +385,37 @@ impl EdgeGraph {
     /// edges (it was 16 pairs of 8 B per texel, twice: 128 B per texel at the graph stage,
     /// issue 14 item 6); the lists are the same.
     pub fn build(surface: &Surface, geom: &TexelGeometry) -> Self {
-        let n = geom.resolution;
-        let nn = n * n;
+        let layout = &geom.layout;
+        let faces = layout.faces();
         let total = geom.len();
-        let inv = 1.0 / n as f64;
-        // Walked edges (t, u) from the border texels, both ways round.
-        let walked: Vec<Vec<(u32, u32)>> = (0..geom.faces)
+        // Walked edges (t, u) from the border texels, both ways round. With per-face
+        // resolutions u may be an interior texel of a finer neighbour; the lists below look
+        // the walked edges up for every texel.
+        let walked: Vec<Vec<(u32, u32)>> = (0..faces)
             .into_par_iter()
             .map(|d| {
-                let base = d * nn;
+                let (nu, nv) = layout.dims(d);
+                let (iu, iv) = (1.0 / nu as f64, 1.0 / nv as f64);
+                let base = layout.start(d);
                 let mut out = Vec::new();
-                for y in 0..n {
-                    for x in 0..n {
-                        if x > 0 && y > 0 && x + 1 < n && y + 1 < n {
+                for y in 0..nv {
+                    for x in 0..nu {
+                        if x > 0 && y > 0 && x + 1 < nu && y + 1 < nv {
                             continue;
                         }
-                        let t = (base + y * n + x) as u32;
+                        let t = (base + y * nu + x) as u32;
                         for (a, b) in [(1i64, 0i64), (-1, 0), (0, 1), (0, -1)] {
                             let (xa, yb) = (x as i64 + a, y as i64 + b);
-                            if (0..n as i64).contains(&xa) && (0..n as i64).contains(&yb) {
+                            if (0..nu as i64).contains(&xa) && (0..nv as i64).contains(&yb) {
                                 continue;
                             }
                             let from = DomainLocation {
                                 domain: DomainId::from_idx(d),
-                                u: (x as f64 + 0.5) * inv,
-                                v: (y as f64 + 0.5) * inv,
+                                u: (x as f64 + 0.5) * iu,
+                                v: (y as f64 + 0.5) * iv,
                             };
-                            if let Some(to) = surface.walk(from, a as f64 * inv, b as f64 * inv) {
-                                let (tx, ty) = (texel_coord(to.u, n), texel_coord(to.v, n));
-                                let u = (to.domain.idx() * nn + ty * n + tx) as u32;
+                            if let Some(to) = surface.walk(from, a as f64 * iu, b as f64 * iv) {
+                                let u = layout.texel_at(to.domain.idx(), to.u, to.v) as u32;
                                 if u != t {
                                     out.push((t, u));
                                     out.push((u, t));
@@ -395,16 +430,18 @@ impl EdgeGraph {
         let mut extra: Vec<(u32, u32)> = walked.into_iter().flatten().collect();
         extra.par_sort_unstable();
         extra.dedup();
-        // Texel t's list: its grid neighbours and its walked edges, ascending, unique.
-        let list_of = |t: usize, buf: &mut Vec<u32>| {
+        // Texel t = (d, x, y)'s list: its grid neighbours and its walked edges, ascending,
+        // unique.
+        let list_of = |d: usize, i: usize, buf: &mut Vec<u32>| {
             buf.clear();
-            let (d, i) = (t / nn, t % nn);
-            let (x, y) = (i % n, i / n);
-            let base = d * nn;
+            let (nu, nv) = layout.dims(d);
+            let base = layout.start(d);
+            let t = base + i;
+            let (x, y) = (i % nu, i / nu);
             for (a, b) in [(1i64, 0i64), (-1, 0), (0, 1), (0, -1)] {
                 let (xa, yb) = (x as i64 + a, y as i64 + b);
-                if (0..n as i64).contains(&xa) && (0..n as i64).contains(&yb) {
-                    buf.push((base + yb as usize * n + xa as usize) as u32);
+                if (0..nu as i64).contains(&xa) && (0..nv as i64).contains(&yb) {
+                    buf.push((base + yb as usize * nu + xa as usize) as u32);
                 }
             }
             let lo = extra.partition_point(|p| (p.0 as usize) < t);
@@ -419,13 +456,14 @@ impl EdgeGraph {
         };
         // Counts, then the lists written in place per domain.
         let mut start = vec![0u32; total + 1];
-        start[1..]
-            .par_chunks_mut(nn.max(1))
+        layout
+            .split_mut(&mut start[1..], 1)
+            .into_par_iter()
             .enumerate()
             .for_each(|(d, c)| {
                 let mut buf = Vec::with_capacity(16);
                 for (i, o) in c.iter_mut().enumerate() {
-                    list_of(d * nn + i, &mut buf);
+                    list_of(d, i, &mut buf);
                     *o = buf.len() as u32;
                 }
             });
@@ -434,18 +472,19 @@ impl EdgeGraph {
         }
         let mut list = vec![0u32; start[total] as usize];
         let mut rest: &mut [u32] = &mut list;
-        let mut chunks = Vec::with_capacity(geom.faces);
-        for d in 0..geom.faces {
-            let len = (start[(d + 1) * nn] - start[d * nn]) as usize;
-            let (head, tail) = rest.split_at_mut(len);
+        let mut chunks = Vec::with_capacity(faces);
+        for d in 0..faces {
+            let r = layout.range(d);
+            let len = (start[r.end] - start[r.start]) as usize;
+            let (head, tail) = std::mem::take(&mut rest).split_at_mut(len);
             chunks.push(head);
             rest = tail;
         }
         chunks.into_par_iter().enumerate().for_each(|(d, out)| {
             let mut buf = Vec::with_capacity(16);
             let mut k = 0;
-            for t in d * nn..(d + 1) * nn {
-                list_of(t, &mut buf);
+            for i in 0..layout.count(d) {
+                list_of(d, i, &mut buf);
                 out[k..k + buf.len()].copy_from_slice(&buf);
                 k += buf.len();
             }
@@ -467,53 +506,52 @@ impl EdgeGraph {
 
 /// Per-texel counts and the concatenated lists of domain `d` (interior texels: count 0).
 fn domain_lists(surface: &Surface, geom: &TexelGeometry, d: usize) -> (Vec<u32>, Vec<u32>) {
-    let n = geom.resolution;
-    let nn = n * n;
-    let base = d * nn;
-    let inv = 1.0 / n as f64;
+    let layout = &geom.layout;
+    let (nu, nv) = layout.dims(d);
+    let base = layout.start(d);
+    let (iu, iv) = (1.0 / nu as f64, 1.0 / nv as f64);
     let fans: [Vec<(usize, usize)>; 4] = std::array::from_fn(|c| corner_fan(surface, d, c));
-    let mut counts = vec![0u32; nn];
+    let mut counts = vec![0u32; nu * nv];
     let mut list = Vec::new();
     let mut buf: Vec<u32> = Vec::with_capacity(64);
-    for y in 0..n {
-        for x in 0..n {
-            if x >= 2 && y >= 2 && x + 2 < n && y + 2 < n {
+    for y in 0..nv {
+        for x in 0..nu {
+            if TexelGraph::is_interior(nu, nv, x, y) {
                 continue;
             }
-            let t = base + y * n + x;
+            let t = base + y * nu + x;
             buf.clear();
             for &(a, b) in &BLOCK {
                 let (xa, yb) = (x as i64 + a as i64, y as i64 + b as i64);
-                if (0..n as i64).contains(&xa) && (0..n as i64).contains(&yb) {
-                    buf.push((base + yb as usize * n + xa as usize) as u32);
+                if (0..nu as i64).contains(&xa) && (0..nv as i64).contains(&yb) {
+                    buf.push((base + yb as usize * nu + xa as usize) as u32);
                     continue;
                 }
                 let from = DomainLocation {
                     domain: DomainId::from_idx(d),
-                    u: (x as f64 + 0.5) * inv,
-                    v: (y as f64 + 0.5) * inv,
+                    u: (x as f64 + 0.5) * iu,
+                    v: (y as f64 + 0.5) * iv,
                 };
-                if let Some(to) = surface.walk(from, a as f64 * inv, b as f64 * inv) {
-                    let tx = texel_coord(to.u, n);
-                    let ty = texel_coord(to.v, n);
-                    buf.push((to.domain.idx() * nn + ty * n + tx) as u32);
+                if let Some(to) = surface.walk(from, a as f64 * iu, b as f64 * iv) {
+                    buf.push(layout.texel_at(to.domain.idx(), to.u, to.v) as u32);
                 }
             }
             // Corner fans: see the module docs.
             for (c, fan) in fans.iter().enumerate() {
-                let (ci, cj) = corner_offsets(c, x, y, n);
+                let (ci, cj) = corner_offsets(c, x, y, nu, nv);
                 if ci > 1 || cj > 1 {
                     continue;
                 }
                 let whole_block = ci == 0 && cj == 0;
                 for &(e, ec) in fan {
-                    for j in 0..2usize.min(n) {
-                        for i in 0..2usize.min(n) {
+                    let (eu, ev) = layout.dims(e);
+                    for j in 0..2usize.min(ev) {
+                        for i in 0..2usize.min(eu) {
                             if !whole_block && (i > 0 || j > 0) {
                                 continue;
                             }
-                            let (ex, ey) = corner_texel(ec, i, j, n);
-                            buf.push((e * nn + ey * n + ex) as u32);
+                            let (ex, ey) = corner_texel(ec, i, j, eu, ev);
+                            buf.push(layout.index(e, ex, ey) as u32);
                         }
                     }
                 }
@@ -527,34 +565,29 @@ fn domain_lists(surface: &Surface, geom: &TexelGeometry, d: usize) -> (Vec<u32>,
                 let db = p.distance_squared(geom.pos[b as usize]);
                 da.total_cmp(&db).then(a.cmp(&b))
             });
-            counts[y * n + x] = buf.len() as u32;
+            counts[y * nu + x] = buf.len() as u32;
             list.extend_from_slice(&buf);
         }
     }
     (counts, list)
 }
 
-/// Texel index along one axis for a domain parameter in [0, 1].
+/// Distances in texels (0 = the corner texel) of texel (x, y) from corner `c` of a
+/// domain of `nu`×`nv` texels.
 #[inline]
-fn texel_coord(u: f64, n: usize) -> usize {
-    ((u * n as f64).floor().max(0.0) as usize).min(n - 1)
-}
-
-/// Distances in texels (0 = the corner texel) of texel (x, y) from corner `c`.
-#[inline]
-fn corner_offsets(c: usize, x: usize, y: usize, n: usize) -> (usize, usize) {
-    let fx = if c == 1 || c == 2 { n - 1 - x } else { x };
-    let fy = if c >= 2 { n - 1 - y } else { y };
+fn corner_offsets(c: usize, x: usize, y: usize, nu: usize, nv: usize) -> (usize, usize) {
+    let fx = if c == 1 || c == 2 { nu - 1 - x } else { x };
+    let fy = if c >= 2 { nv - 1 - y } else { y };
     (fx, fy)
 }
 
-/// The texel (i, j) texels away from corner `c`.
+/// The texel (i, j) texels away from corner `c` of a domain of `nu`×`nv` texels.
 #[inline]
-fn corner_texel(c: usize, i: usize, j: usize, n: usize) -> (usize, usize) {
-    let i = i.min(n - 1);
-    let j = j.min(n - 1);
-    let x = if c == 1 || c == 2 { n - 1 - i } else { i };
-    let y = if c >= 2 { n - 1 - j } else { j };
+fn corner_texel(c: usize, i: usize, j: usize, nu: usize, nv: usize) -> (usize, usize) {
+    let i = i.min(nu - 1);
+    let j = j.min(nv - 1);
+    let x = if c == 1 || c == 2 { nu - 1 - i } else { i };
+    let y = if c >= 2 { nv - 1 - j } else { j };
     (x, y)
 }
 
@@ -671,29 +704,27 @@ mod tests {
     /// The edge graph as it was first built (every edge as two pairs, sorted): the
     /// in-place build must give the same lists.
     fn edge_graph_by_pairs(surface: &Surface, geom: &TexelGeometry) -> EdgeGraph {
-        let n = geom.resolution;
-        let nn = n * n;
-        let inv = 1.0 / n as f64;
+        let layout = &geom.layout;
         let mut all = Vec::new();
-        for d in 0..geom.faces {
-            for y in 0..n {
-                for x in 0..n {
-                    let t = (d * nn + y * n + x) as u32;
+        for d in 0..layout.faces() {
+            let (nu, nv) = layout.dims(d);
+            let (iu, iv) = (1.0 / nu as f64, 1.0 / nv as f64);
+            let base = layout.start(d);
+            for y in 0..nv {
+                for x in 0..nu {
+                    let t = (base + y * nu + x) as u32;
                     for (a, b) in [(1i64, 0i64), (-1, 0), (0, 1), (0, -1)] {
                         let (xa, yb) = (x as i64 + a, y as i64 + b);
-                        let u = if (0..n as i64).contains(&xa) && (0..n as i64).contains(&yb) {
-                            (d * nn + yb as usize * n + xa as usize) as u32
+                        let u = if (0..nu as i64).contains(&xa) && (0..nv as i64).contains(&yb) {
+                            (base + yb as usize * nu + xa as usize) as u32
                         } else {
                             let from = DomainLocation {
                                 domain: DomainId::from_idx(d),
-                                u: (x as f64 + 0.5) * inv,
-                                v: (y as f64 + 0.5) * inv,
+                                u: (x as f64 + 0.5) * iu,
+                                v: (y as f64 + 0.5) * iv,
                             };
-                            match surface.walk(from, a as f64 * inv, b as f64 * inv) {
-                                Some(to) => {
-                                    let (tx, ty) = (texel_coord(to.u, n), texel_coord(to.v, n));
-                                    (to.domain.idx() * nn + ty * n + tx) as u32
-                                }
+                            match surface.walk(from, a as f64 * iu, b as f64 * iv) {
+                                Some(to) => layout.texel_at(to.domain.idx(), to.u, to.v) as u32,
                                 None => continue,
                             }
                         };
@@ -742,6 +773,18 @@ mod tests {
                     "N = {n}"
                 );
             }
+            // Per-face resolutions (ratios up to 8:1, non-square domains).
+            let res = (0..s.num_domains())
+                .map(|d| {
+                    crate::layout::Resolution::new((d % 4) as u8, ((d / 2) % 4) as u8).unwrap()
+                })
+                .collect();
+            let g = TexelGeometry::compute_layout(&s, Arc::new(TexelLayout::per_face(res)));
+            assert_eq!(
+                EdgeGraph::build(&s, &g),
+                edge_graph_by_pairs(&s, &g),
+                "per-face"
+            );
         }
     }
 
@@ -817,14 +860,14 @@ mod tests {
         let nn = n * n;
         for d in 0..6 {
             for c in 0..4 {
-                let (x, y) = corner_texel(c, 0, 0, n);
+                let (x, y) = corner_texel(c, 0, 0, n, n);
                 let t = d * nn + y * n + x;
                 let mut v = Vec::new();
                 graph.neighbours(t, &mut v);
                 let fan = corner_fan(&s, d, c);
                 assert_eq!(fan.len(), 2, "valence 3");
                 for (e, ec) in fan {
-                    let (ex, ey) = corner_texel(ec, 0, 0, n);
+                    let (ex, ey) = corner_texel(ec, 0, 0, n, n);
                     assert!(v.contains(&((e * nn + ey * n + ex) as u32)));
                 }
                 let far = v
@@ -857,9 +900,9 @@ mod tests {
             let d = t / nn;
             let (x, y) = (t % n, (t / n) % n);
             for c in 0..4 {
-                if corner_offsets(c, x, y, n) == (0, 0) {
+                if corner_offsets(c, x, y, n, n) == (0, 0) {
                     for (e, ec) in corner_fan(&s, d, c) {
-                        let (ex, ey) = corner_texel(ec, 0, 0, n);
+                        let (ex, ey) = corner_texel(ec, 0, 0, n, n);
                         assert!(v.contains(&((e * nn + ey * n + ex) as u32)));
                     }
                 }
@@ -887,10 +930,55 @@ mod tests {
         // Conflicts are symmetric and include edge neighbours.
         let conf = graph.domain_conflicts();
         let adj = domain_edge_adjacency(&s);
-        for d in 0..g.faces {
+        for d in 0..g.faces() {
             for &e in &adj[d] {
                 assert!(conf[d].binary_search(&e).is_ok());
                 assert!(conf[e as usize].binary_search(&(d as u32)).is_ok());
+            }
+        }
+    }
+
+    #[test]
+    fn graphs_join_domains_of_any_resolution_ratio() {
+        // A flat 4x4 grid with sides 2 to 16 per domain and direction (ratios up to 8:1
+        // between neighbours): the edge graph is symmetric and connected, every border
+        // texel has a neighbour across each interior edge, and no neighbour is far away.
+        use crate::layout::Resolution;
+        let s = grid(4);
+        let res = (0..s.num_domains())
+            .map(|d| Resolution::new(1 + (d % 4) as u8, 1 + ((d / 3) % 4) as u8).unwrap())
+            .collect();
+        let layout = Arc::new(TexelLayout::per_face(res));
+        let g = TexelGeometry::compute_layout(&s, layout.clone());
+        let e = EdgeGraph::build(&s, &g);
+        let mut seen = vec![false; g.len()];
+        let mut stack = vec![0usize];
+        seen[0] = true;
+        while let Some(t) = stack.pop() {
+            for &u in e.of(t) {
+                assert!(e.of(u as usize).contains(&(t as u32)), "not symmetric");
+                if !seen[u as usize] {
+                    seen[u as usize] = true;
+                    stack.push(u as usize);
+                }
+            }
+        }
+        assert!(seen.iter().all(|&v| v), "edge graph not connected");
+        let graph = TexelGraph::build(&s, &g);
+        let mut v = Vec::new();
+        for t in 0..g.len() {
+            v.clear();
+            graph.neighbours(t, &mut v);
+            let d = layout.domain_of(t);
+            let step = |d: usize| {
+                let (nu, nv) = layout.dims(d);
+                1.0 / nu.min(nv) as f32
+            };
+            assert!(!v.is_empty());
+            for &j in &v {
+                let far = 3.5 * step(d).max(step(layout.domain_of(j as usize)));
+                let dist = g.pos[j as usize].distance(g.pos[t]);
+                assert!(dist < far, "{t} -> {j}: {dist} > {far}");
             }
         }
     }

@@ -1354,7 +1354,7 @@ fn h10_messages() {
         &out,
     ]));
     assert_eq!(o.status.code(), Some(2));
-    assert_clean_failure(&o, &out, "--search", &["multiscale only"]);
+    assert_clean_failure(&o, &out, "--search", &["multiscale and textons only"]);
     // /dev/zero as the example: not an image (was "image file is empty (0 bytes)").
     if Path::new("/dev/zero").exists() {
         synth_fails(

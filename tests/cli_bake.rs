@@ -77,7 +77,7 @@ fn check_against_reference(name: &str) {
     assert_eq!(summary.lines().count(), 1, "one-line summary: {summary}");
 
     let maps = read_face_maps(out.join("geometry.exr")).unwrap();
-    assert_eq!((maps.faces, maps.resolution), (faces, 8));
+    assert_eq!((maps.faces(), maps.uniform_n()), (faces, Some(8)));
     let ch = |c: &str| maps.channel(c).unwrap_or_else(|| panic!("channel {c}"));
     let (px, py, pz) = (ch("P.X"), ch("P.Y"), ch("P.Z"));
     let (nx, ny, nz) = (ch("N.X"), ch("N.Y"), ch("N.Z"));
@@ -232,7 +232,10 @@ fn creates_out_dir_and_leaves_only_the_result() {
     // Re-baking over an existing result replaces it.
     bake(&reference("catmark_cube.obj"), 3, &out, &[]);
     assert_eq!(
-        read_face_maps(out.join("geometry.exr")).unwrap().resolution,
+        read_face_maps(out.join("geometry.exr"))
+            .unwrap()
+            .uniform_n()
+            .unwrap(),
         3
     );
 }

@@ -403,7 +403,7 @@ fn texel_graph_reaches_across_creases() {
     }
     // Each face is 2x2 domains: two sides of every domain lie on creases, 15 of its 28
     // border texels.
-    let border = geom.faces * (4 * n - 4);
+    let border = geom.faces() * (4 * n - 4);
     println!("{on_crease} of {border} border texels have a neighbour across a crease");
     assert!(on_crease >= border / 2, "{on_crease} of {border}");
 }

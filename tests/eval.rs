@@ -73,7 +73,7 @@ fn colour_maps(
     geo: &FaceMaps,
     f: impl Fn(usize, usize, usize, DVec3) -> ([f32; 3], [f32; 2]),
 ) -> FaceMaps {
-    let n = geo.resolution;
+    let n = geo.uniform_n().unwrap();
     let mut m = FaceMaps::new(s.num_domains(), n, &["R", "G", "B", "source.u", "source.v"]);
     let (px, py, pz) = (
         geo.channel("P.X").unwrap().to_vec(),

@@ -84,14 +84,14 @@ fn colour_maps(
     geo: &FaceMaps,
     f: impl Fn(usize, usize, usize, DVec3) -> ([f32; 3], [f32; 2]),
 ) -> FaceMaps {
-    let n = geo.resolution;
-    let mut m = FaceMaps::new(geo.faces, n, &["R", "G", "B", "source.u", "source.v"]);
+    let n = geo.uniform_n().unwrap();
+    let mut m = FaceMaps::new(geo.faces(), n, &["R", "G", "B", "source.u", "source.v"]);
     let (px, py, pz) = (
         geo.channel("P.X").unwrap().to_vec(),
         geo.channel("P.Y").unwrap().to_vec(),
         geo.channel("P.Z").unwrap().to_vec(),
     );
-    for d in 0..geo.faces {
+    for d in 0..geo.faces() {
         for y in 0..n {
             for x in 0..n {
                 let i = m.index(d, x, y);

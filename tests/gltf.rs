@@ -21,13 +21,13 @@ fn domain_of(layout: &AtlasLayout, uv: &[f64]) -> (usize, f64, f64) {
         uv[0] * layout.width() as f64,
         uv[1] * layout.height() as f64,
     );
-    let t = layout.tile() as f64;
     // Texture coordinates of a tile lie on its interior, so the tile is unambiguous.
-    let (col, row) = ((x / t).floor() as usize, (y / t).floor() as usize);
-    let d = row * layout.columns + col;
+    let d = layout
+        .domain_at(x.floor() as usize, y.floor() as usize)
+        .expect("inside a tile");
     let (x0, y0) = layout.interior_origin(d);
-    let n = layout.resolution as f64;
-    (d, (x - x0 as f64) / n, (y - y0 as f64) / n)
+    let (nu, nv) = layout.texels.dims(d);
+    (d, (x - x0 as f64) / nu as f64, (y - y0 as f64) / nv as f64)
 }
 
 /// Geometry, texture coordinates and tangents of `dir/surface.glb` against the surface.

@@ -62,7 +62,7 @@ fn run(
         weights: &weights,
     };
     let out = multiscale::run(ex, &inputs, &params, &|_, _| {}).unwrap();
-    let maps = surfsynth::synth::face_maps(ex, &out.source, surface.num_domains(), n);
+    let maps = surfsynth::synth::face_maps(ex, &out.source, &geom.layout);
     let geometry = surfsynth::synth::geometry_maps(&geom);
     Run {
         maps,

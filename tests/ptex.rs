@@ -297,7 +297,7 @@ fn reduced(
 /// Everything the module doc lists, for one result.
 fn check_result(t: &Tools, dir: &Path, s: &Surface, maps: &FaceMaps) -> Vec<String> {
     let ptx = dir.join("facemaps.ptx");
-    let n = maps.resolution;
+    let n = maps.uniform_n().expect("uniform maps");
     let log2 = n.trailing_zeros() as u8;
     let (ok, info) = ptxinfo(t, &["-f", "-m"], &ptx);
     assert!(ok, "ptxinfo: {info}");
@@ -345,7 +345,7 @@ fn check_result(t: &Tools, dir: &Path, s: &Surface, maps: &FaceMaps) -> Vec<Stri
     let alpha = maps.channel("A");
     let alpha_k = names.iter().position(|&x| x == "A");
     let mut q = Vec::new();
-    for f in 0..maps.faces {
+    for f in 0..maps.faces() {
         q.push(format!("data {f} {log2} {log2}"));
         if log2 > 2 {
             q.push(format!("data {f} {} {}", log2 - 1, log2 - 1));
@@ -353,7 +353,7 @@ fn check_result(t: &Tools, dir: &Path, s: &Surface, maps: &FaceMaps) -> Vec<Stri
     }
     let answers = ptxcheck(t, &ptx, &q, false);
     let mut a = answers.iter();
-    for f in 0..maps.faces {
+    for f in 0..maps.faces() {
         let full = a.next().unwrap();
         for y in 0..n {
             for x in 0..n {
@@ -413,7 +413,7 @@ fn check_result(t: &Tools, dir: &Path, s: &Surface, maps: &FaceMaps) -> Vec<Stri
     }
     assert_eq!(
         checked,
-        maps.faces * n * n * c,
+        maps.faces() * n * n * c,
         "ptxinfo -d printed every texel"
     );
 
@@ -455,10 +455,10 @@ struct Jumps {
 }
 
 fn filter_jumps(t: &Tools, ptx: &Path, s: &Surface, maps: &FaceMaps, names: &[&str]) -> Jumps {
-    let n = maps.resolution as f64;
+    let n = maps.uniform_n().expect("uniform maps") as f64;
     let eps = 1e-3 / n;
     let mut pairs = Vec::new();
-    for f in 0..maps.faces {
+    for f in 0..maps.faces() {
         for e in 0..4 {
             let [p0, p1] = edge_ends(e);
             for along in [0.21, 0.37, 0.62, 0.83] {
@@ -788,4 +788,82 @@ fn a_resolution_that_is_not_a_power_of_two_is_resampled_to_the_next() {
         }
     }
     assert!(worst < 0.02, "resampled texels off by {worst}");
+}
+
+/// `--texel-size` (per-face resolutions, u and v separately): the reference reader sees
+/// every face at its own resolution (the log2 sides of facemaps.exr's header), the
+/// adjacency of the mesh, and level 0 bit for bit equal to facemaps.exr.
+#[test]
+fn texel_size_result_has_per_face_resolutions_in_the_reference_reader() {
+    let Some(t) = tools() else { return };
+    let mesh = common::data("meshes/spot_control_mesh.obj");
+    let example = common::data("textures/etr_gravel.png");
+    let dir = tempfile::tempdir().unwrap();
+    let s0 = Surface::load_obj(&mesh).unwrap();
+    let l = surfsynth::texels::TexelGeometry::compute(&s0, 8).median_spacing(&s0);
+    let r = surfsynth::synthesizer::Synthesizer::new(&mesh, &example)
+        .method(surfsynth::synthesizer::Method::Coherent)
+        .texel_size(l)
+        .seed(5)
+        .run()
+        .unwrap();
+    r.write(dir.path()).unwrap();
+    let (s, maps) = (
+        r.surface,
+        read_face_maps(dir.path().join("facemaps.exr")).unwrap(),
+    );
+    let res = maps.layout.resolutions().expect("per-face layout").to_vec();
+    let mut distinct: Vec<(u8, u8)> = res.iter().map(|r| (r.log2_u(), r.log2_v())).collect();
+    distinct.sort_unstable();
+    distinct.dedup();
+    assert!(distinct.len() >= 3, "{distinct:?}");
+    assert!(
+        distinct.iter().any(|(a, b)| a != b),
+        "some faces are not square"
+    );
+    let ptx = dir.path().join("facemaps.ptx");
+    let (ok, info) = ptxinfo(t, &["-f", "-m"], &ptx);
+    assert!(ok, "ptxinfo: {info}");
+    assert!(
+        info.contains(&format!("numFaces: {}", s.num_domains())),
+        "{info}"
+    );
+    let rows = face_rows(&info);
+    assert_eq!(rows.len(), s.num_domains());
+    for (f, row) in rows.iter().enumerate() {
+        assert_eq!(
+            (row.0, row.1),
+            (res[f].log2_u(), res[f].log2_v()),
+            "face {f}"
+        );
+    }
+    check_adjacency_against_mesh(&s, &rows);
+    let (ok, check) = ptxinfo(t, &["-c"], &ptx);
+    assert!(
+        ok && check.contains("Adjacency information appears consistent"),
+        "ptxinfo -c: {check}"
+    );
+    let line = info
+        .lines()
+        .find(|l| l.contains("surfsynth.channels type=string"))
+        .expect("channel names");
+    let names: Vec<&str> = line.split('"').nth(1).unwrap().split(',').collect();
+    let c = names.len();
+    let q: Vec<String> = (0..maps.faces())
+        .map(|f| format!("data {f} {} {}", res[f].log2_u(), res[f].log2_v()))
+        .collect();
+    let answers = ptxcheck(t, &ptx, &q, false);
+    for (f, full) in answers.iter().enumerate() {
+        let (nu, nv) = maps.layout.dims(f);
+        assert_eq!(full.len(), nu * nv * c, "face {f}");
+        for y in 0..nv {
+            for x in 0..nu {
+                for (k, name) in names.iter().enumerate() {
+                    let got = full[(y * nu + x) * c + k];
+                    let want = maps.channel(name).unwrap()[maps.index(f, x, y)];
+                    assert_eq!(got.to_bits(), want.to_bits(), "face {f} ({x},{y}) {name}");
+                }
+            }
+        }
+    }
 }

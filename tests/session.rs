@@ -236,3 +236,103 @@ fn a_mesh_far_from_unit_size_gives_the_one_shot_result_in_its_own_units() {
     assert_eq!(a.report.scale, b.report.scale);
     assert!(a.geometry.pos.iter().any(|p| p.x.abs() > 1e5), "user units");
 }
+
+/// Per-face resolutions (`--texel-size`) flow through the session: every method that
+/// takes them gives the one-shot run's maps and files bit for bit, in the user's units
+/// for a mesh far from unit size too; multiscale refuses them, as the one-shot builder.
+#[test]
+fn texel_size_sessions_equal_one_shot_runs() {
+    const L: f64 = 0.15;
+    let dir = tempfile::tempdir().unwrap();
+    let big = dir.path().join("big.obj");
+    let text: String = CUBE_FAN
+        .lines()
+        .map(|l| match l.strip_prefix("v ") {
+            Some(v) => {
+                let c: Vec<String> = v
+                    .split_whitespace()
+                    .map(|x| (x.parse::<f64>().unwrap() * 1048576.0).to_string())
+                    .collect();
+                format!("v {}\n", c.join(" "))
+            }
+            None => format!("{l}\n"),
+        })
+        .collect();
+    std::fs::write(&big, text).unwrap();
+    let example = example();
+    for (mesh, l) in [(mesh(), L), (big.clone(), L * 1048576.0)] {
+        let settings = MeshSettings {
+            texel_size: Some(l),
+            ..MeshSettings::default()
+        };
+        let s = Session::prepare(mesh.as_path(), &settings)
+            .unwrap()
+            .with_analyses(Arc::new(Analyses::new(&CacheDir::Off)));
+        assert!(s.layout().uniform_n().is_none(), "per-face resolutions");
+        for method in [
+            Method::Jump,
+            Method::Coherent,
+            Method::Patches,
+            Method::Optimise,
+        ] {
+            let params = SynthParams {
+                seed: 5,
+                ..SynthParams::new(method)
+            };
+            let a = s.synthesize(&example, &params).unwrap();
+            let b = Synthesizer::new(mesh.as_path(), example.clone())
+                .method(method)
+                .texel_size(l)
+                .seed(5)
+                .cache(CacheDir::Off)
+                .run()
+                .unwrap();
+            assert_eq!(a.report.texels, b.report.texels);
+            assert_eq!(a.report.texels, s.texels() as u64);
+            assert_eq!(a.report.texel_size, Some(l));
+            assert_eq!(a.report.scale, b.report.scale);
+            assert!(
+                bits(&a) == bits(&b),
+                "{} at texel size {l}: session maps differ from the one-shot run",
+                method.name()
+            );
+            assert_eq!(a.geometry.layout, b.geometry.layout);
+            assert_eq!(a.geometry.pos, b.geometry.pos);
+            assert_eq!(a.geometry.normal, b.geometry.normal);
+            if method == Method::Coherent {
+                let out = tempfile::tempdir().unwrap();
+                let (x, y) = (out.path().join("session"), out.path().join("one-shot"));
+                a.write(&x).unwrap();
+                b.write(&y).unwrap();
+                for f in [
+                    "facemaps.exr",
+                    "geometry.exr",
+                    "facemaps.ptx",
+                    "atlas.png",
+                    "surface.obj",
+                ] {
+                    assert!(
+                        std::fs::read(x.join(f)).unwrap() == std::fs::read(y.join(f)).unwrap(),
+                        "{f} differs between the session and the one-shot run"
+                    );
+                }
+            }
+        }
+        let e = s
+            .synthesize(&example, &SynthParams::new(Method::Multiscale))
+            .unwrap_err();
+        assert!(
+            e.to_string().contains("one resolution for all faces"),
+            "{e}"
+        );
+    }
+    let e = Session::prepare(
+        mesh(),
+        &MeshSettings {
+            texel_size: Some(-1.0),
+            ..MeshSettings::default()
+        },
+    )
+    .unwrap_err();
+    assert!(e.to_string().contains("texel size -1"), "{e}");
+}

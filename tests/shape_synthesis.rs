@@ -61,7 +61,6 @@ fn glb_vertices(
     );
     let pos = g.attribute("POSITION").unwrap();
     let uv = g.attribute("TEXCOORD_0").unwrap();
-    let t = layout.tile() as f64;
     let v = pos
         .iter()
         .zip(&uv)
@@ -70,7 +69,9 @@ fn glb_vertices(
                 uv[0] * layout.width() as f64,
                 uv[1] * layout.height() as f64,
             );
-            let d = (y / t).floor() as usize * layout.columns + (x / t).floor() as usize;
+            let d = layout
+                .domain_at(x.floor() as usize, y.floor() as usize)
+                .expect("inside a tile");
             let (x0, y0) = layout.interior_origin(d);
             let snap = |a: f64| (a * 1024.0).round() / 1024.0;
             let (u, w) = (
@@ -103,7 +104,7 @@ fn displaced_glb_moves_limit_points_along_the_normal_by_height() {
 
     let maps = surfsynth::io::exr::read_face_maps(out.join("facemaps.exr")).unwrap();
     let height = maps.channel("height").unwrap();
-    let n = maps.resolution;
+    let n = maps.uniform_n().unwrap();
     let surface = Surface::new(ControlMesh::load_obj(&mesh).unwrap());
     let (g, verts) = glb_vertices(&out.join("displaced.glb"), &surface, n);
     // All quads at N = 16: 16 segments per domain side, one vertex per texel corner and

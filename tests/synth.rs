@@ -58,7 +58,7 @@ fn flat_grid(k: usize) -> subdiv::Surface {
 /// The maps of a flat grid laid out as one picture (domain (x, y) of the grid at tile
 /// (x, k-1-y) so that +y is up), sRGB 8-bit.
 fn flat_picture(maps: &FaceMaps, k: usize) -> image::RgbImage {
-    let n = maps.resolution;
+    let n = maps.uniform_n().unwrap();
     let mut img = image::RgbImage::new((k * n) as u32, (k * n) as u32);
     let (r, g, b) = (
         maps.channel("R").unwrap(),
@@ -721,7 +721,7 @@ fn diagnose_seams() {
     let surface = &r.surface;
     let geom = &r.geometry;
     let nn = n * n;
-    let faces = geom.faces;
+    let faces = geom.faces();
     // The same coherent run again, for the per-texel kinds.
     let field = OrientationField::compute(surface, &Orientation::Auto).unwrap();
     let frames = surfsynth::synth::frames_f32(&field.texel_frames(surface, n));

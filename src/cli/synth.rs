@@ -136,6 +136,11 @@ pub struct SynthArgs {
     /// Texels per side of every face map.
     #[arg(long, value_name = "N", default_value_t = 32, value_parser = parse_resolution, allow_negative_numbers = true)]
     pub resolution: usize,
+    /// Surface length per texel: every face gets its own resolution (powers of two, u and v
+    /// separately, 2 to 8192 per side) so that texel spacing varies at most ~2x over the
+    /// surface; replaces --resolution.
+    #[arg(long, value_name = "L", value_parser = parse_positive, allow_negative_numbers = true, conflicts_with = "resolution")]
+    pub texel_size: Option<f64>,
     /// Surface length covered by one example pixel (default: median texel spacing).
     #[arg(long, value_name = "S", value_parser = parse_positive, allow_negative_numbers = true)]
     pub scale: Option<f64>,
@@ -283,6 +288,7 @@ pub fn run(mut a: SynthArgs) -> anyhow::Result<()> {
         },
         method,
         resolution: a.resolution,
+        texel_size: a.texel_size,
         scale: a.scale,
         orientation: a.orient,
         seed: a.seed,

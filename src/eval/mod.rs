@@ -128,10 +128,23 @@ pub struct Spread {
 pub struct Quality {
     /// Face domains F.
     pub faces: usize,
-    /// Texels per domain side N.
+    /// Texels per domain side N (with per-face resolutions: the largest side).
     pub resolution: usize,
-    /// F·N².
+    /// F·N² (with per-face resolutions: their sum).
     pub texels: usize,
+    /// Texel-density spread: the 95th over the 5th percentile ([`percentile`]) of the
+    /// faces' median adjacent-texel distances (`--texel-size` keeps it within 2; one N
+    /// gives 11x on Spot). `None` without two faces with adjacent texel pairs.
+    #[serde(default)]
+    pub spacing_spread: Option<f64>,
+    /// [`Quality::seam_ratio`] over only the seam pairs between faces of different
+    /// resolution (per-face resolutions), with the same interior mean. `None` without such
+    /// pairs.
+    #[serde(default)]
+    pub seam_ratio_mixed: Option<f64>,
+    /// Number of those pairs.
+    #[serde(default)]
+    pub seam_pairs_mixed: usize,
     /// Fraction of texels whose colour (R, G, B) and position are all finite. Must be 1.
     pub coverage: f64,
     /// h: median distance between centres of adjacent texels of one face (`None` when
@@ -219,16 +232,16 @@ pub fn evaluate_with(dir: &Path, opts: &EvalOptions) -> Result<Quality> {
     let geometry_path = dir.join(GEOMETRY_FILE);
     let colour = read_face_maps(&colour_path)?;
     let geometry = read_face_maps(&geometry_path)?;
-    if (colour.faces, colour.resolution) != (geometry.faces, geometry.resolution) {
+    if colour.layout != geometry.layout {
         return Err(Error::file(
             &geometry_path,
             format!(
-                "has {} faces at N = {}, but {} has {} faces at N = {}",
-                geometry.faces,
-                geometry.resolution,
+                "has {} faces at {}, but {} has {} faces at {}",
+                geometry.faces(),
+                geometry.layout.describe(),
                 colour_path.display(),
-                colour.faces,
-                colour.resolution
+                colour.faces(),
+                colour.layout.describe()
             ),
         ));
     }
@@ -396,8 +409,10 @@ pub fn evaluate_maps(
     scale: Option<f64>,
     example: Option<&Example>,
 ) -> std::result::Result<Quality, String> {
-    let (f, n) = (colour.faces, colour.resolution);
-    if (geometry.faces, geometry.resolution) != (f, n) {
+    let l = &*colour.layout;
+    let f = l.faces();
+    let n = l.largest_side();
+    if geometry.layout != colour.layout {
         return Err("colour and geometry maps differ in faces or resolution".into());
     }
     let ch = |m: &FaceMaps, name: &str| -> std::result::Result<Vec<f32>, String> {
@@ -420,8 +435,7 @@ pub fn evaluate_maps(
             return Err(format!("scale must be a positive number, got {s}"));
         }
     }
-    let nn = n * n;
-    let texels = f * nn;
+    let texels = l.len();
     let col = |i: usize| [r[i] as f64, g[i] as f64, b[i] as f64];
     let pos = |i: usize| [px[i] as f64, py[i] as f64, pz[i] as f64];
     let finite = |a: &[f64; 3]| a.iter().all(|c| c.is_finite());
@@ -434,15 +448,16 @@ pub fn evaluate_maps(
         .into_par_iter()
         .map(|d| {
             let mut p = FacePass::default();
-            let base = d * nn;
-            for i in base..base + nn {
+            let base = l.start(d);
+            let (nu, nv) = l.dims(d);
+            for i in l.range(d) {
                 if finite(&col(i)) && finite(&pos(i)) {
                     p.finite += 1;
                 }
             }
-            for y in 0..n {
-                for x in 0..n {
-                    let a = base + y * n + x;
+            for y in 0..nv {
+                for x in 0..nu {
+                    let a = base + y * nu + x;
                     let mut pair = |bi: usize| {
                         let (pa, pb) = (pos(a), pos(bi));
                         let dp = if finite(&pa) && finite(&pb) {
@@ -472,11 +487,11 @@ pub fn evaluate_maps(
                             }
                         }
                     };
-                    if x + 1 < n {
+                    if x + 1 < nu {
                         pair(a + 1);
                     }
-                    if y + 1 < n {
-                        pair(a + n);
+                    if y + 1 < nv {
+                        pair(a + nu);
                     }
                 }
             }
@@ -485,7 +500,19 @@ pub fn evaluate_maps(
         .collect();
 
     let finite_texels: usize = passes.iter().map(|p| p.finite).sum();
-    let mut distances: Vec<f64> = Vec::with_capacity(2 * f * n * n.saturating_sub(1));
+    let mut face_medians: Vec<f64> = passes
+        .iter()
+        .filter(|p| !p.distances.is_empty())
+        .map(|p| {
+            let mut d = p.distances.clone();
+            d.sort_by(f64::total_cmp);
+            percentile(&d, 0.5)
+        })
+        .collect();
+    face_medians.sort_by(f64::total_cmp);
+    let spacing_spread = (face_medians.len() >= 2)
+        .then(|| percentile(&face_medians, 0.95) / percentile(&face_medians, 0.05));
+    let mut distances: Vec<f64> = Vec::with_capacity(2 * texels);
     let (mut colour_sum, mut colour_pairs) = (0.0, 0usize);
     let mut ratios = Vec::new();
     let (mut source_pairs, mut coherent_pairs) = (0usize, 0usize);
@@ -503,10 +530,10 @@ pub fn evaluate_maps(
     drop(distances);
 
     // Seam pairs: border texels of different domains 0.5h..1.25h apart.
-    let (seam_sum, seam_pairs) = if h.is_finite() && h > 0.0 {
-        seam_pairs_sum(f, n, h, &pos, &col)
+    let ((seam_sum, seam_pairs), (mixed_sum, seam_pairs_mixed)) = if h.is_finite() && h > 0.0 {
+        seam_pairs_sum(l, h, &pos, &col)
     } else {
-        (0.0, 0)
+        ((0.0, 0), (0.0, 0))
     };
     let interior_mean_sq = if colour_pairs > 0 {
         colour_sum / colour_pairs as f64
@@ -528,6 +555,8 @@ pub fn evaluate_maps(
         None
     };
 
+    let seam_ratio_mixed = (seam_pairs_mixed > 0 && colour_pairs > 0 && interior_mean_sq > 0.0)
+        .then(|| mixed_sum / seam_pairs_mixed as f64 / interior_mean_sq);
     let pfs = example.map(|e| patch_fidelities(colour, geometry, e, scale));
     let patch_fidelity = example
         .filter(|_| is_flat(geometry))
@@ -536,6 +565,9 @@ pub fn evaluate_maps(
         faces: f,
         resolution: n,
         texels,
+        spacing_spread,
+        seam_ratio_mixed,
+        seam_pairs_mixed,
         coverage: finite_texels as f64 / texels.max(1) as f64,
         texel_spacing: h.is_finite().then_some(h),
         seam_ratio,
@@ -557,22 +589,23 @@ pub fn evaluate_maps(
     })
 }
 
-/// Sum of |C_a - C_b|² over seam pairs, and their number.
+/// Sum of |C_a - C_b|² over seam pairs, and their number; then the same over the pairs
+/// whose two faces differ in resolution.
 fn seam_pairs_sum(
-    f: usize,
-    n: usize,
+    l: &crate::layout::TexelLayout,
     h: f64,
     pos: &(impl Fn(usize) -> [f64; 3] + Sync),
     col: &(impl Fn(usize) -> [f64; 3] + Sync),
-) -> (f64, usize) {
+) -> ((f64, usize), (f64, usize)) {
     use kiddo::{ImmutableKdTree, SquaredEuclidean};
     // Border texels (each once) with finite positions.
     let mut border: Vec<usize> = Vec::new();
-    for d in 0..f {
-        for y in 0..n {
-            for x in 0..n {
-                if x == 0 || y == 0 || x + 1 == n || y + 1 == n {
-                    let i = (d * n + y) * n + x;
+    for d in 0..l.faces() {
+        let (nu, nv) = l.dims(d);
+        for y in 0..nv {
+            for x in 0..nu {
+                if x == 0 || y == 0 || x + 1 == nu || y + 1 == nv {
+                    let i = l.index(d, x, y);
                     if pos(i).iter().all(|c| c.is_finite()) {
                         border.push(i);
                     }
@@ -581,22 +614,22 @@ fn seam_pairs_sum(
         }
     }
     if border.is_empty() {
-        return (0.0, 0);
+        return ((0.0, 0), (0.0, 0));
     }
     let points: Vec<[f64; 3]> = border.iter().map(|&i| pos(i)).collect();
     let tree: ImmutableKdTree<f64, 3> =
         ImmutableKdTree::new_from_slice(&points).expect("finite border points build a tree");
     let (lo2, hi2) = ((0.5 * h).powi(2), (1.25 * h).powi(2));
-    let nn = n * n;
     // Per border texel: pairs with later border texels only (each pair once); results
     // collected in order and summed sequentially for thread-count independence.
-    let per: Vec<(f64, usize)> = (0..border.len())
+    let per: Vec<(f64, usize, f64, usize)> = (0..border.len())
         .into_par_iter()
         .map(|k| {
             let a = border[k];
             let ca = col(a);
             let mut sum = 0.0;
             let mut count = 0;
+            let (mut msum, mut mcount) = (0.0, 0);
             let hits = tree
                 .query(&points[k])
                 .within::<SquaredEuclidean<f64>>(hi2)
@@ -610,21 +643,29 @@ fn seam_pairs_sum(
                     continue;
                 }
                 let b = border[j];
-                if a / nn == b / nn {
+                let (da, db) = (l.domain_of(a), l.domain_of(b));
+                if da == db {
                     continue;
                 }
                 let cb = col(b);
                 if ca.iter().chain(cb.iter()).all(|c| c.is_finite()) {
-                    sum +=
+                    let e =
                         (ca[0] - cb[0]).powi(2) + (ca[1] - cb[1]).powi(2) + (ca[2] - cb[2]).powi(2);
+                    sum += e;
                     count += 1;
+                    if l.dims(da) != l.dims(db) {
+                        msum += e;
+                        mcount += 1;
+                    }
                 }
             }
-            (sum, count)
+            (sum, count, msum, mcount)
         })
         .collect();
-    per.iter()
-        .fold((0.0, 0), |(s, c), &(ps, pc)| (s + ps, c + pc))
+    per.iter().fold(
+        ((0.0, 0), (0.0, 0)),
+        |((s, c), (ms, mc)), &(ps, pc, pms, pmc)| ((s + ps, c + pc), (ms + pms, mc + pmc)),
+    )
 }
 
 /// Patch fidelity of a square 2D image (e.g. a [`crate::synth::synth2d`] result, the reference
@@ -646,9 +687,9 @@ pub fn image_patch_fidelity(image: &crate::pyramid::Image, ex: &Example) -> Opti
 /// Patch fidelity (see [`Quality::patch_fidelity`]); `None` when the maps have no 7x7
 /// window (N < 7) or the example is smaller than 7x7.
 fn patch_fidelity(colour: &FaceMaps, ex: &Example) -> Option<f64> {
-    let (f, n) = (colour.faces, colour.resolution);
+    let l = &*colour.layout;
     let (w, hgt) = (ex.width, ex.height);
-    if n < PATCH || w < PATCH || hgt < PATCH {
+    if w < PATCH || hgt < PATCH {
         return None;
     }
     let dims = PATCH * PATCH * 3;
@@ -657,10 +698,18 @@ fn patch_fidelity(colour: &FaceMaps, ex: &Example) -> Option<f64> {
     let b = colour.channel("B")?;
     // Output windows: every 7x7 window fully inside a domain, on a stride-7 grid, thinned
     // evenly to at most PATCH_SAMPLES.
-    let per_side = (n - PATCH) / PATCH + 1;
-    let all: Vec<(usize, usize, usize)> = (0..f)
+    let all: Vec<(usize, usize, usize)> = (0..l.faces())
         .flat_map(|d| {
-            (0..per_side).flat_map(move |j| (0..per_side).map(move |i| (d, i * PATCH, j * PATCH)))
+            let (nu, nv) = l.dims(d);
+            let per = |n: usize| {
+                if n < PATCH {
+                    0
+                } else {
+                    (n - PATCH) / PATCH + 1
+                }
+            };
+            let (pu, pv) = (per(nu), per(nv));
+            (0..pv).flat_map(move |j| (0..pu).map(move |i| (d, i * PATCH, j * PATCH)))
         })
         .collect();
     let step = all.len().div_ceil(PATCH_SAMPLES).max(1);

@@ -91,7 +91,7 @@ struct State {
 
 /// The texel point cloud of one result.
 pub(crate) struct Cloud<'a> {
-    n: usize,
+    layout: std::sync::Arc<crate::layout::TexelLayout>,
     pos: Vec<DVec3>,
     col: Vec<[f32; 3]>,
     nrm: Vec<DVec3>,
@@ -117,8 +117,8 @@ fn channel<'a>(m: &'a FaceMaps, name: &str) -> Option<&'a [f32]> {
 impl<'a> Cloud<'a> {
     /// `None` without R, G, B or P channels, mismatched maps, or no finite texel.
     pub fn build(colour: &'a FaceMaps, geometry: &FaceMaps, scale: Option<f64>) -> Option<Self> {
-        let (f, n) = (colour.faces, colour.resolution);
-        if (geometry.faces, geometry.resolution) != (f, n) {
+        let layout = colour.layout.clone();
+        if geometry.layout != colour.layout {
             return None;
         }
         let (r, g, b) = (
@@ -131,7 +131,7 @@ impl<'a> Cloud<'a> {
             channel(geometry, "P.Y")?,
             channel(geometry, "P.Z")?,
         );
-        let total = f * n * n;
+        let total = layout.len();
         let pos: Vec<DVec3> = (0..total)
             .map(|i| DVec3::new(px[i] as f64, py[i] as f64, pz[i] as f64))
             .collect();
@@ -153,7 +153,7 @@ impl<'a> Cloud<'a> {
                 let given = normals
                     .map(|(x, y, z)| DVec3::new(x[i] as f64, y[i] as f64, z[i] as f64))
                     .and_then(|v| v.try_normalize());
-                given.unwrap_or_else(|| grid_normal(&pos, &valid, n, i))
+                given.unwrap_or_else(|| grid_normal(&pos, &valid, &layout, i))
             })
             .collect();
         let src = match (colour.channel("source.u"), colour.channel("source.v")) {
@@ -166,10 +166,10 @@ impl<'a> Cloud<'a> {
         }
         let points: Vec<[f64; 3]> = items.iter().map(|&i| pos[i].to_array()).collect();
         let tree = ImmutableKdTree::new_from_slice(&points).ok()?;
-        let h = median_spacing(&pos, &valid, f, n)?;
+        let h = median_spacing(&pos, &valid, &layout)?;
         let scale = scale.filter(|s| s.is_finite() && *s > 0.0).unwrap_or(h);
         let mut cloud = Self {
-            n,
+            layout,
             pos,
             col,
             nrm,
@@ -190,26 +190,28 @@ impl<'a> Cloud<'a> {
         // that domain's nearest texel and its spacing — the nearest domain for an edge
         // texel, every domain for a corner texel.
         let own: Vec<f64> = (0..total).map(|i| cloud.local_spacing(i)).collect();
-        let nn = n * n;
+        let l = cloud.layout.clone();
         let cover: Vec<f32> = (0..total)
             .into_par_iter()
             .map(|i| {
-                let (x, y) = (i % n, (i / n) % n);
-                let (bx, by) = (x == 0 || x + 1 == n, y == 0 || y + 1 == n);
+                let (d, x, y) = l.coords(i);
+                let (nu, nv) = l.dims(d);
+                let (bx, by) = (x == 0 || x + 1 == nu, y == 0 || y + 1 == nv);
                 if !(bx || by) || !cloud.valid[i] {
                     return own[i] as f32;
                 }
                 // Nearest texel of each other domain: (domain, distance, texel).
                 let mut per: Vec<(usize, f64, usize)> = Vec::new();
                 for j in cloud.within(cloud.pos[i], 4.0 * own[i]) {
-                    if j / nn == i / nn {
+                    let dj = l.domain_of(j);
+                    if dj == d {
                         continue;
                     }
-                    let d = (cloud.pos[j] - cloud.pos[i]).length();
-                    match per.iter_mut().find(|e| e.0 == j / nn) {
-                        Some(e) if d < e.1 => *e = (j / nn, d, j),
+                    let dist = (cloud.pos[j] - cloud.pos[i]).length();
+                    match per.iter_mut().find(|e| e.0 == dj) {
+                        Some(e) if dist < e.1 => *e = (dj, dist, j),
                         Some(_) => {}
-                        None => per.push((j / nn, d, j)),
+                        None => per.push((dj, dist, j)),
                     }
                 }
                 let take = |e: &(usize, f64, usize)| e.1.max(own[e.2]);
@@ -257,8 +259,8 @@ impl<'a> Cloud<'a> {
 
     /// Largest distance to the texel's valid in-face 4-neighbours (h when it has none).
     fn local_spacing(&self, i: usize) -> f64 {
-        let n = self.n;
-        let (x, y) = (i % n, (i / n) % n);
+        let (d, x, y) = self.layout.coords(i);
+        let (n, nv) = self.layout.dims(d);
         let mut max = 0f64;
         let mut add = |j: usize| {
             if self.valid[j] {
@@ -274,7 +276,7 @@ impl<'a> Cloud<'a> {
         if y > 0 {
             add(i - n);
         }
-        if y + 1 < n {
+        if y + 1 < nv {
             add(i + n);
         }
         if max > 0.0 {
@@ -386,8 +388,8 @@ impl<'a> Cloud<'a> {
 
     /// The face's texel directions at t, scaled to one pixel (the scale).
     fn fallback_frame(&self, t: usize) -> Frame {
-        let n = self.n;
-        let (x, y) = (t % n, (t / n) % n);
+        let (d, x, y) = self.layout.coords(t);
+        let (n, nv) = self.layout.dims(d);
         let nt = self.nrm[t];
         let dir = |lo: Option<usize>, hi: Option<usize>| -> Option<DVec3> {
             let pick = |j: Option<usize>| j.filter(|&j| self.valid[j]).map(|j| self.pos[j]);
@@ -399,7 +401,7 @@ impl<'a> Cloud<'a> {
             (d - nt * d.dot(nt)).try_normalize()
         };
         let du = dir((x > 0).then(|| t - 1), (x + 1 < n).then_some(t + 1));
-        let dv = dir((y > 0).then(|| t - n), (y + 1 < n).then_some(t + n));
+        let dv = dir((y > 0).then(|| t - n), (y + 1 < nv).then_some(t + n));
         let (e1, e2) = nt.any_orthonormal_pair();
         let (a, b) = match (du, dv) {
             (Some(a), Some(b)) => (a, b),
@@ -541,28 +543,30 @@ fn transport(v: DVec3, n: DVec3, len: f64) -> DVec3 {
 }
 
 /// Normal from the texel's in-face neighbours (one-sided at the border).
-fn grid_normal(pos: &[DVec3], valid: &[bool], n: usize, i: usize) -> DVec3 {
-    let (x, y) = (i % n, (i / n) % n);
+fn grid_normal(pos: &[DVec3], valid: &[bool], l: &crate::layout::TexelLayout, i: usize) -> DVec3 {
+    let (d, x, y) = l.coords(i);
+    let (n, nv) = l.dims(d);
     let pick = |j: usize| if valid[j] { pos[j] } else { pos[i] };
     let du = pick(if x + 1 < n { i + 1 } else { i }) - pick(if x > 0 { i - 1 } else { i });
-    let dv = pick(if y + 1 < n { i + n } else { i }) - pick(if y > 0 { i - n } else { i });
+    let dv = pick(if y + 1 < nv { i + n } else { i }) - pick(if y > 0 { i - n } else { i });
     du.cross(dv).try_normalize().unwrap_or(DVec3::Z)
 }
 
 /// Median distance between horizontally or vertically adjacent valid texels of one face.
-fn median_spacing(pos: &[DVec3], valid: &[bool], f: usize, n: usize) -> Option<f64> {
-    let mut d: Vec<f64> = Vec::with_capacity(2 * f * n * n);
-    for face in 0..f {
-        for y in 0..n {
+fn median_spacing(pos: &[DVec3], valid: &[bool], l: &crate::layout::TexelLayout) -> Option<f64> {
+    let mut d: Vec<f64> = Vec::with_capacity(2 * l.len());
+    for face in 0..l.faces() {
+        let (n, nv) = l.dims(face);
+        for y in 0..nv {
             for x in 0..n {
-                let i = (face * n + y) * n + x;
+                let i = l.index(face, x, y);
                 if !valid[i] {
                     continue;
                 }
                 if x + 1 < n && valid[i + 1] {
                     d.push((pos[i + 1] - pos[i]).length());
                 }
-                if y + 1 < n && valid[i + n] {
+                if y + 1 < nv && valid[i + n] {
                     d.push((pos[i + n] - pos[i]).length());
                 }
             }
@@ -585,8 +589,10 @@ pub(crate) fn lattice_image(
     geometry: &FaceMaps,
     scale: Option<f64>,
 ) -> Option<Rgb> {
-    let (f, n) = (colour.faces, colour.resolution);
-    if n < 2 || (geometry.faces, geometry.resolution) != (f, n) {
+    // The lattice is one resolution's pixel grid: per-face resolutions have none.
+    let n = colour.uniform_n()?;
+    let f = colour.faces();
+    if n < 2 || geometry.layout != colour.layout {
         return None;
     }
     let (px, py, pz) = (
@@ -691,14 +697,15 @@ pub(crate) fn lattice_image(
 /// [Δu_x, Δv_x, Δu_y, Δv_y]; `None` without sources or coherent pairs.
 fn source_steps(colour: &FaceMaps) -> Option<[f64; 4]> {
     let (su, sv) = (colour.channel("source.u")?, colour.channel("source.v")?);
-    let (f, n) = (colour.faces, colour.resolution);
+    let l = &*colour.layout;
     let mut v: [Vec<f64>; 4] = Default::default();
-    for d in 0..f {
-        for y in 0..n {
+    for d in 0..l.faces() {
+        let (n, nv) = l.dims(d);
+        for y in 0..nv {
             for x in 0..n {
-                let i = (d * n + y) * n + x;
+                let i = l.index(d, x, y);
                 for (j, k) in [(i + 1, 0usize), (i + n, 2)] {
-                    if (k == 0 && x + 1 >= n) || (k == 2 && y + 1 >= n) {
+                    if (k == 0 && x + 1 >= n) || (k == 2 && y + 1 >= nv) {
                         continue;
                     }
                     let (du, dv) = ((su[j] - su[i]) as f64, (sv[j] - sv[i]) as f64);

@@ -29,9 +29,11 @@
 use crate::error::{Error, Result};
 use crate::io::atomic::AtomicFile;
 use crate::io::exr::FaceMaps;
+use crate::layout::TexelLayout;
 use rayon::prelude::*;
 use std::io::Write;
 use std::path::Path;
+use std::sync::Arc;
 use subdiv::{BaseQuadId, DomainId, DomainLocation, FaceId, LimitMesh, Surface, VertexId};
 
 /// Default gutter width in pixels. Bilinear filtering needs one; two keep the first
@@ -49,64 +51,126 @@ pub const GLB_NAME: &str = "surface.glb";
 /// Material name used in the MTL file.
 pub const MATERIAL: &str = "surfsynth";
 
-/// Where the tiles of F domains at resolution N with gutter g sit in the atlas.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// Where the tiles of F domains sit in the atlas: one tile of (nu + 2g) x (nv + 2g) pixels
+/// per domain. With one resolution N the tiles form the grid of `facemaps.exr` (C =
+/// ceil(sqrt(F)) columns, domain f at column f mod C, row f div C). With per-face
+/// resolutions (`--texel-size`) the tiles are packed in shelves: domains sorted by tile
+/// height (tallest first, then by index), placed left to right in rows as wide as the
+/// square root of the total tile area (at least the widest tile), each row as tall as its
+/// first tile — simple, deterministic, and within ~10% of the tiles' own area on the
+/// measured meshes (docs/outputs.md).
+#[derive(Clone, Debug, PartialEq, Eq)]
 pub struct AtlasLayout {
-    /// Number of face domains F.
-    pub faces: usize,
-    /// Texels per domain side N.
-    pub resolution: usize,
+    /// Per-domain resolutions.
+    pub texels: Arc<TexelLayout>,
     /// Gutter width g in pixels on each side of a tile.
     pub gutter: usize,
-    /// Tile columns C = ceil(sqrt(F)) (as in `facemaps.exr`).
-    pub columns: usize,
-    /// Tile rows ceil(F / C).
-    pub rows: usize,
+    /// Top-left pixel of every domain's tile (gutter included).
+    origin: Vec<(usize, usize)>,
+    width: usize,
+    height: usize,
 }
 
 impl AtlasLayout {
     /// Layout for `faces` domains of `resolution`² texels with `gutter` pixels around each.
     pub fn new(faces: usize, resolution: usize, gutter: usize) -> Self {
-        let t = crate::io::exr::TileLayout::new(faces, resolution);
-        Self {
-            faces,
-            resolution,
+        Self::of(
+            Arc::new(TexelLayout::uniform(faces, resolution.max(1))),
             gutter,
-            columns: t.columns,
-            rows: t.rows,
+        )
+    }
+
+    /// Layout for the domains of `texels` with `gutter` pixels around each.
+    pub fn of(texels: Arc<TexelLayout>, gutter: usize) -> Self {
+        let faces = texels.faces();
+        let tile = |d: usize| {
+            let (u, v) = texels.dims(d);
+            (u + 2 * gutter, v + 2 * gutter)
+        };
+        if let Some(n) = texels.uniform_n() {
+            let t = crate::io::exr::TileLayout::new(faces, n);
+            let side = n + 2 * gutter;
+            return Self {
+                origin: (0..faces)
+                    .map(|f| ((f % t.columns) * side, (f / t.columns) * side))
+                    .collect(),
+                width: t.columns * side,
+                height: t.rows * side,
+                texels,
+                gutter,
+            };
+        }
+        let area: usize = (0..faces).map(|d| tile(d).0 * tile(d).1).sum();
+        let widest = (0..faces).map(|d| tile(d).0).max().unwrap_or(1);
+        let width = ((area as f64).sqrt().ceil() as usize).max(widest);
+        let mut order: Vec<usize> = (0..faces).collect();
+        order.sort_by_key(|&d| (std::cmp::Reverse(tile(d).1), d));
+        let mut origin = vec![(0, 0); faces];
+        let (mut x, mut y, mut row_h, mut used_w) = (0usize, 0usize, 0usize, 0usize);
+        for d in order {
+            let (tw, th) = tile(d);
+            if x + tw > width {
+                y += row_h;
+                x = 0;
+                row_h = 0;
+            }
+            origin[d] = (x, y);
+            x += tw;
+            used_w = used_w.max(x);
+            row_h = row_h.max(th);
+        }
+        Self {
+            texels,
+            gutter,
+            origin,
+            width: used_w.max(1),
+            height: (y + row_h).max(1),
         }
     }
 
-    /// Tile side N + 2g.
-    pub fn tile(&self) -> usize {
-        self.resolution + 2 * self.gutter
+    /// Number of face domains F.
+    pub fn faces(&self) -> usize {
+        self.texels.faces()
+    }
+
+    /// Tile size (nu + 2g, nv + 2g) of domain `f`.
+    pub fn tile(&self, f: usize) -> (usize, usize) {
+        let (u, v) = self.texels.dims(f);
+        (u + 2 * self.gutter, v + 2 * self.gutter)
     }
 
     /// Atlas width in pixels.
     pub fn width(&self) -> usize {
-        self.columns * self.tile()
+        self.width
     }
 
     /// Atlas height in pixels.
     pub fn height(&self) -> usize {
-        self.rows * self.tile()
+        self.height
     }
 
     /// Pixel position of domain `f`'s texel (0, 0) (the top-left of its tile interior).
     pub fn interior_origin(&self, f: usize) -> (usize, usize) {
-        let t = self.tile();
-        (
-            (f % self.columns) * t + self.gutter,
-            (f / self.columns) * t + self.gutter,
-        )
+        let (x, y) = self.origin[f];
+        (x + self.gutter, y + self.gutter)
+    }
+
+    /// The domain whose tile holds atlas pixel (x, y), if any (a linear search: for tests
+    /// and tools).
+    pub fn domain_at(&self, x: usize, y: usize) -> Option<usize> {
+        (0..self.faces()).find(|&f| {
+            let (x0, y0) = self.origin[f];
+            let (tw, th) = self.tile(f);
+            (x0..x0 + tw).contains(&x) && (y0..y0 + th).contains(&y)
+        })
     }
 
     /// Continuous atlas pixel coordinates (x right, y down, pixel centres at +0.5) of
     /// domain point (u, v).
     pub fn pixel(&self, f: usize, u: f64, v: f64) -> (f64, f64) {
         let (x0, y0) = self.interior_origin(f);
-        let n = self.resolution as f64;
-        (x0 as f64 + u * n, y0 as f64 + v * n)
+        let (nu, nv) = self.texels.dims(f);
+        (x0 as f64 + u * nu as f64, y0 as f64 + v * nv as f64)
     }
 
     /// OBJ texture coordinates (origin at the image's bottom-left) of domain point (u, v).
@@ -144,19 +208,20 @@ fn colour_channels(maps: &FaceMaps) -> Result<Vec<&[f32]>> {
 
 /// Bilinear lookup of every channel of domain `d` at domain point (u, v), clamping to the
 /// domain's own border texels (the caller has already walked into the right domain).
-fn fetch_in_domain(chans: &[&[f32]], n: usize, d: usize, u: f64, v: f64, out: &mut [f32]) {
-    let nf = n as f64;
-    let px = (u * nf - 0.5).clamp(0.0, nf - 1.0);
-    let py = (v * nf - 0.5).clamp(0.0, nf - 1.0);
-    let x0 = (px.floor() as usize).min(n - 1);
-    let y0 = (py.floor() as usize).min(n - 1);
-    let x1 = (x0 + 1).min(n - 1);
-    let y1 = (y0 + 1).min(n - 1);
+fn fetch_in_domain(chans: &[&[f32]], l: &TexelLayout, d: usize, u: f64, v: f64, out: &mut [f32]) {
+    let (nu, nv) = l.dims(d);
+    let (fu, fv) = (nu as f64, nv as f64);
+    let px = (u * fu - 0.5).clamp(0.0, fu - 1.0);
+    let py = (v * fv - 0.5).clamp(0.0, fv - 1.0);
+    let x0 = (px.floor() as usize).min(nu - 1);
+    let y0 = (py.floor() as usize).min(nv - 1);
+    let x1 = (x0 + 1).min(nu - 1);
+    let y1 = (y0 + 1).min(nv - 1);
     let fx = (px - x0 as f64) as f32;
     let fy = (py - y0 as f64) as f32;
-    let base = d * n * n;
+    let base = l.start(d);
     for (c, ch) in chans.iter().enumerate() {
-        let t = |x: usize, y: usize| ch[base + y * n + x];
+        let t = |x: usize, y: usize| ch[base + y * nu + x];
         let top = t(x0, y0) + (t(x1, y0) - t(x0, y0)) * fx;
         let bot = t(x0, y1) + (t(x1, y1) - t(x0, y1)) * fx;
         out[c] = top + (bot - top) * fy;
@@ -164,27 +229,27 @@ fn fetch_in_domain(chans: &[&[f32]], n: usize, d: usize, u: f64, v: f64, out: &m
 }
 
 /// Where the gutter texel at tile-interior position (x, y) (outside 0..N on at least one
-/// axis) lies on the surface: the domain point reached by walking from the nearest texel
-/// centre of domain `d` by the texel offset. When the straight walk leaves the surface
+/// axis, for a domain of nu x nv texels) lies on the surface: the domain point reached by
+/// walking from the nearest texel centre of domain `d` by the texel offset (in `d`'s own
+/// texels: a neighbour of another resolution is sampled wherever the walk lands). When the straight walk leaves the surface
 /// (open boundary), the offset is tried one axis at a time, which amounts to clamping
 /// along the boundary; when that fails too, the nearest texel of `d` itself is used.
 pub fn gutter_location(
     surface: &Surface,
-    n: usize,
+    (nu, nv): (usize, usize),
     d: usize,
     x: isize,
     y: isize,
 ) -> DomainLocation {
-    let last = n as isize - 1;
-    let (xc, yc) = (x.clamp(0, last), y.clamp(0, last));
-    let nf = n as f64;
+    let (xc, yc) = (x.clamp(0, nu as isize - 1), y.clamp(0, nv as isize - 1));
+    let (fu, fv) = (nu as f64, nv as f64);
     let start = DomainLocation {
         domain: DomainId::from_idx(d),
-        u: (xc as f64 + 0.5) / nf,
-        v: (yc as f64 + 0.5) / nf,
+        u: (xc as f64 + 0.5) / fu,
+        v: (yc as f64 + 0.5) / fv,
     };
-    let du = (x - xc) as f64 / nf;
-    let dv = (y - yc) as f64 / nf;
+    let du = (x - xc) as f64 / fu;
+    let dv = (y - yc) as f64 / fv;
     surface
         .walk(start, du, dv)
         .or_else(|| {
@@ -234,16 +299,16 @@ fn corner_ring(surface: &Surface, d: usize, corner: usize) -> Option<Vec<(usize,
 
 /// Tile-interior coordinates of the corner texel of corner (u, v) (u, v in {0, 1}) and of
 /// the gutter texels beside it along x, along y and diagonally.
-fn corner_texels(n: usize, u: f64, v: f64) -> [(isize, isize); 4] {
+fn corner_texels((nu, nv): (usize, usize), u: f64, v: f64) -> [(isize, isize); 4] {
     let (x, sx) = if u == 0.0 {
         (0, -1)
     } else {
-        (n as isize - 1, 1)
+        (nu as isize - 1, 1)
     };
     let (y, sy) = if v == 0.0 {
         (0, -1)
     } else {
-        (n as isize - 1, 1)
+        (nv as isize - 1, 1)
     };
     [(x, y), (x + sx, y), (x, y + sy), (x + sx, y + sy)]
 }
@@ -267,7 +332,7 @@ fn corner_texels(n: usize, u: f64, v: f64) -> [(isize, isize); 4] {
 fn fix_corner_gutter(
     surface: &Surface,
     chans: &[&[f32]],
-    n: usize,
+    l: &TexelLayout,
     gutter: usize,
     d: usize,
     corner: usize,
@@ -277,22 +342,22 @@ fn fix_corner_gutter(
         return;
     };
     let k = chans.len();
-    let t = n + 2 * gutter;
+    let t = l.dims(d).0 + 2 * gutter;
     // Per ring member: its corner texel and C + G1 + G2, computed by the same walks and
     // fetches that filled the gutters, so each tile's own sum is bit-identical to its pixels.
     let mut corner_vals = vec![0f32; ring.len() * k];
     let mut sums = vec![0f32; ring.len() * k];
     let mut tmp = [0f32; 4];
     for (r, &(dr, u, v)) in ring.iter().enumerate() {
-        let [c, g1, g2, _] = corner_texels(n, u, v);
-        let i = dr * n * n + c.1 as usize * n + c.0 as usize;
+        let [c, g1, g2, _] = corner_texels(l.dims(dr), u, v);
+        let i = l.index(dr, c.0 as usize, c.1 as usize);
         for (ch, data) in chans.iter().enumerate() {
             corner_vals[r * k + ch] = data[i];
             sums[r * k + ch] = data[i];
         }
         for g in [g1, g2] {
-            let loc = gutter_location(surface, n, dr, g.0, g.1);
-            fetch_in_domain(chans, n, loc.domain.idx(), loc.u, loc.v, &mut tmp[..k]);
+            let loc = gutter_location(surface, l.dims(dr), dr, g.0, g.1);
+            fetch_in_domain(chans, l, loc.domain.idx(), loc.u, loc.v, &mut tmp[..k]);
             for ch in 0..k {
                 sums[r * k + ch] += tmp[ch];
             }
@@ -302,7 +367,7 @@ fn fix_corner_gutter(
         .iter()
         .position(|&(dr, u, v)| dr == d && (u, v) == CORNERS[corner])
         .expect("a domain is in the ring of its own corner");
-    let [_, _, _, x] = corner_texels(n, CORNERS[corner].0, CORNERS[corner].1);
+    let [_, _, _, x] = corner_texels(l.dims(d), CORNERS[corner].0, CORNERS[corner].1);
     let px = ((x.1 + gutter as isize) as usize * t + (x.0 + gutter as isize) as usize) * k;
     for ch in 0..k {
         let vals = (0..ring.len()).map(|r| corner_vals[r * k + ch]);
@@ -327,18 +392,15 @@ fn fix_corner_gutter(
 }
 /// The checks every writer of the atlas and its mesh makes first.
 fn check_maps(surface: &Surface, maps: &FaceMaps, gutter: usize) -> Result<()> {
-    if maps.faces != surface.num_domains() {
+    if maps.faces() != surface.num_domains() {
         return Err(Error::invalid(format!(
             "face maps have {} domains but the mesh has {}",
-            maps.faces,
+            maps.faces(),
             surface.num_domains()
         )));
     }
     if gutter == 0 {
         return Err(Error::invalid("atlas gutter must be at least 1 pixel"));
-    }
-    if maps.resolution == 0 {
-        return Err(Error::invalid("face maps have resolution 0"));
     }
     colour_channels(maps).map(|_| ())
 }
@@ -362,33 +424,35 @@ pub fn build_atlas_of(
         return Err(Error::invalid("an atlas has 1 to 4 channels"));
     }
     check_maps(surface, maps, gutter)?;
-    let n = maps.resolution;
+    let l = &*maps.layout;
     let k = chans.len();
-    let layout = AtlasLayout::new(maps.faces, n, gutter);
-    let (w, t) = (layout.width(), layout.tile());
+    let layout = AtlasLayout::of(maps.layout.clone(), gutter);
+    let w = layout.width();
     // Fill each tile into its own buffer, then copy rows into place.
-    let tiles: Vec<Vec<f32>> = (0..maps.faces)
+    let tiles: Vec<Vec<f32>> = (0..maps.faces())
         .into_par_iter()
         .map(|d| {
-            let mut tile = vec![0f32; t * t * k];
+            let (nu, nv) = l.dims(d);
+            let (tw, th) = layout.tile(d);
+            let mut tile = vec![0f32; tw * th * k];
             let g = gutter as isize;
-            for ty in 0..t {
-                for tx in 0..t {
+            for ty in 0..th {
+                for tx in 0..tw {
                     let (x, y) = (tx as isize - g, ty as isize - g);
-                    let px = &mut tile[(ty * t + tx) * k..(ty * t + tx + 1) * k];
-                    if (0..n as isize).contains(&x) && (0..n as isize).contains(&y) {
-                        let i = d * n * n + y as usize * n + x as usize;
+                    let px = &mut tile[(ty * tw + tx) * k..(ty * tw + tx + 1) * k];
+                    if (0..nu as isize).contains(&x) && (0..nv as isize).contains(&y) {
+                        let i = l.index(d, x as usize, y as usize);
                         for (c, ch) in chans.iter().enumerate() {
                             px[c] = ch[i];
                         }
                     } else {
-                        let loc = gutter_location(surface, n, d, x, y);
-                        fetch_in_domain(chans, n, loc.domain.idx(), loc.u, loc.v, px);
+                        let loc = gutter_location(surface, (nu, nv), d, x, y);
+                        fetch_in_domain(chans, l, loc.domain.idx(), loc.u, loc.v, px);
                     }
                 }
             }
             for corner in 0..4 {
-                fix_corner_gutter(surface, chans, n, gutter, d, corner, &mut tile);
+                fix_corner_gutter(surface, chans, l, gutter, d, corner, &mut tile);
             }
             tile
         })
@@ -397,9 +461,10 @@ pub fn build_atlas_of(
     for (d, tile) in tiles.iter().enumerate() {
         let (x0, y0) = layout.interior_origin(d);
         let (x0, y0) = (x0 - gutter, y0 - gutter);
-        for ty in 0..t {
+        let (tw, th) = layout.tile(d);
+        for ty in 0..th {
             let dst = ((y0 + ty) * w + x0) * k;
-            pixels[dst..dst + t * k].copy_from_slice(&tile[ty * t * k..(ty + 1) * t * k]);
+            pixels[dst..dst + tw * k].copy_from_slice(&tile[ty * tw * k..(ty + 1) * tw * k]);
         }
     }
     Ok(Atlas {
@@ -621,6 +686,16 @@ pub fn level_for_resolution(n: usize) -> u32 {
     level.clamp(2, 5)
 }
 
+/// The side [`level_for_resolution`] follows: N, or under a texel size the root mean
+/// square side (the tessellation is uniform over the surface and is about smooth shape,
+/// not texels: the largest face's side would refine every face for the few largest ones —
+/// 3x the file on the Spot fixture).
+pub fn side_for_level(l: &TexelLayout) -> usize {
+    l.uniform_n().unwrap_or_else(|| {
+        ((l.len() as f64 / l.faces().max(1) as f64).sqrt().round() as usize).max(1)
+    })
+}
+
 /// The domain of every face of a limit mesh and the domain (u, v) of its four corners (in
 /// the face's vertex order). A limit-mesh face lies inside one base quad and so inside one
 /// domain; its corners are dyadic, so the (u, v) are exact.
@@ -681,9 +756,9 @@ pub fn tessellate_limit_mesh(
         subdiv::Domain::Quad { .. } => 2 * per_base,
         subdiv::Domain::SubFace { .. } => per_base,
     };
-    let mut uv_start = Vec::with_capacity(layout.faces + 1);
+    let mut uv_start = Vec::with_capacity(layout.faces() + 1);
     let mut uvs = Vec::new();
-    for d in 0..layout.faces {
+    for d in 0..layout.faces() {
         uv_start.push(uvs.len() as u32);
         let m = segments(d);
         for j in 0..=m {
@@ -896,13 +971,13 @@ pub fn export_with_frames(
     check_maps(surface, maps, opts.gutter)?;
     let level = opts
         .level
-        .unwrap_or_else(|| level_for_resolution(maps.resolution));
-    let layout = AtlasLayout::new(maps.faces, maps.resolution, opts.gutter);
+        .unwrap_or_else(|| level_for_resolution(side_for_level(&maps.layout)));
+    let layout = AtlasLayout::of(maps.layout.clone(), opts.gutter);
     let (images, mesh) = match frames.filter(|_| maps.channel("normal.R").is_some()) {
         // The normal atlas needs the tessellation's triangles first.
         Some(f) => {
             let mesh = tessellate(surface, &layout, level);
-            let uv = crate::io::tangent::UvFrames::new(surface, &mesh, layout);
+            let uv = crate::io::tangent::UvFrames::new(surface, &mesh, layout.clone());
             let normal = crate::io::tangent::normal_atlas(surface, maps, f, &uv, opts.gutter)?;
             (
                 crate::io::materials::material_images(surface, maps, opts.gutter, normal.as_ref()),
@@ -1030,7 +1105,7 @@ mod tests {
     #[test]
     fn layout_maps_texel_centres_to_pixel_centres() {
         let l = AtlasLayout::new(7, 4, 2);
-        assert_eq!((l.columns, l.rows, l.tile()), (3, 3, 8));
+        assert_eq!(l.tile(0), (8, 8));
         assert_eq!((l.width(), l.height()), (24, 24));
         // Domain 4 is column 1, row 1: interior starts at (8+2, 8+2).
         assert_eq!(l.interior_origin(4), (10, 10));
@@ -1038,6 +1113,49 @@ mod tests {
         assert_eq!((x, y), (12.5, 10.5));
         let (s, t) = l.obj_uv(4, 0.0, 0.0);
         assert_eq!((s, t), (10.0 / 24.0, 1.0 - 10.0 / 24.0));
+        assert_eq!(l.domain_at(9, 9), Some(4));
+    }
+
+    #[test]
+    fn per_face_tiles_are_packed_without_overlap() {
+        let r = |a, b| crate::layout::Resolution::new(a, b).unwrap();
+        let texels = Arc::new(TexelLayout::per_face(vec![
+            r(3, 3),
+            r(1, 1),
+            r(4, 2),
+            r(2, 4),
+            r(1, 0),
+            r(5, 5),
+        ]));
+        let l = AtlasLayout::of(texels.clone(), 2);
+        let mut seen = vec![u8::MAX; l.width() * l.height()];
+        let mut area = 0;
+        for d in 0..texels.faces() {
+            let (x0, y0) = l.interior_origin(d);
+            let (x0, y0) = (x0 - 2, y0 - 2);
+            let (tw, th) = l.tile(d);
+            area += tw * th;
+            for y in y0..y0 + th {
+                for x in x0..x0 + tw {
+                    assert!(x < l.width() && y < l.height());
+                    assert_eq!(seen[y * l.width() + x], u8::MAX, "tiles overlap at {x} {y}");
+                    seen[y * l.width() + x] = d as u8;
+                }
+            }
+            let (px, py) = l.pixel(
+                d,
+                0.5 / texels.dims(d).0 as f64,
+                0.5 / texels.dims(d).1 as f64,
+            );
+            assert_eq!((px, py), (x0 as f64 + 2.5, y0 as f64 + 2.5));
+        }
+        // Shelves waste some room, not most of it.
+        assert!(
+            area * 2 > l.width() * l.height(),
+            "{area} of {}x{}",
+            l.width(),
+            l.height()
+        );
     }
 
     #[test]

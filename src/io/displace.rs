@@ -68,11 +68,11 @@ pub fn displaced_mesh(surface: &Surface, facemaps: &FaceMaps, amount: f64) -> Re
             "displacement amount {amount} is not a finite number"
         )));
     }
-    let n = facemaps.resolution;
-    let layout = Arc::new(MapLayout::new(surface, n));
+    let n = facemaps.layout.largest_side();
+    let layout = Arc::new(MapLayout::with_layout(surface, facemaps.layout.clone()));
     let hmap = maps::FaceMaps::from_data(layout, 1, height.to_vec());
     let level = level_for_texels(surface, n);
-    let atlas = AtlasLayout::new(facemaps.faces, n, DEFAULT_GUTTER);
+    let atlas = AtlasLayout::of(facemaps.layout.clone(), DEFAULT_GUTTER);
     // One limit mesh: the tessellation's vertices, and where each of them is.
     let lm = surface.limit_mesh(level);
     let mut mesh = tessellate_limit_mesh(surface, &atlas, &lm);

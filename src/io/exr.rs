@@ -6,6 +6,11 @@
 //! The header carries the ints `surfsynth.faces` (F) and `surfsynth.resolution` (N). Inside a
 //! tile, texel (x, y) (x from the left, y from the top) is (u, v) = ((x+0.5)/N, (y+0.5)/N).
 //!
+//! With per-face resolutions (`--texel-size`, [`crate::layout`]) the tile is as large as
+//! the largest domain along u and along v, each domain's nu x nv texels sit at its tile's
+//! top-left (the rest is zero), and the header holds [`ATTR_RESOLUTIONS`] instead of
+//! [`ATTR_RESOLUTION`]; OIIO and OpenEXR read it as an ordinary tiled image.
+//!
 //! Why tiles: one tile per domain makes each domain one contiguous, independently compressed
 //! block, so a domain can be produced (or read) alone. [`write_tiles`] exploits that: it
 //! asks a callback for one domain at a time, in parallel batches, and streams compressed
@@ -21,6 +26,7 @@
 
 use crate::error::{Error, Result};
 use crate::io::atomic::write_atomic;
+use crate::layout::{Resolution, TexelLayout};
 use exr::block::chunk::Chunk;
 use exr::block::reader::ChunksReader;
 use exr::block::writer::ChunksWriter;
@@ -36,13 +42,19 @@ use rayon::prelude::*;
 use std::fs::File;
 use std::io::BufReader;
 use std::path::Path;
+use std::sync::Arc;
 
 pub use exr::compression::Compression;
 
 /// Header attribute holding the number of face domains F.
 pub const ATTR_FACES: &str = "surfsynth.faces";
-/// Header attribute holding the tile resolution N.
+/// Header attribute holding the tile resolution N (uniform layouts).
 pub const ATTR_RESOLUTION: &str = "surfsynth.resolution";
+/// Header attribute holding the per-face resolutions of a `--texel-size` layout, in place of
+/// [`ATTR_RESOLUTION`]: a string of two hexadecimal digits per domain, log2 of its texels
+/// along u then along v ("5443" = domain 0 32x16, domain 1 16x8). A string because OpenEXR
+/// has no integer-array attribute, and every reader (OIIO, Blender) passes strings through.
+pub const ATTR_RESOLUTIONS: &str = "surfsynth.resolutions";
 
 /// Compression used unless a caller asks for another one: none. Measured (docs/formats.md):
 /// on float maps RLE and PIZ shrink nothing, and ZIP saves 25% (geometry) to 37% (colour
@@ -51,17 +63,31 @@ pub const ATTR_RESOLUTION: &str = "surfsynth.resolution";
 /// `--compression zip`; every reader handles all of them.
 pub const DEFAULT_COMPRESSION: Compression = Compression::Uncompressed;
 
+/// The compression [`write_face_maps`] and the synthesizer use for maps of `layout`:
+/// [`DEFAULT_COMPRESSION`] with one N; RLE with per-face resolutions, whose tiles are as
+/// large as the largest face and zero beyond each face's texels — RLE stores those runs
+/// almost for free at about the speed of no compression (Spot, texel size 0.004, 393k
+/// texels: geometry.exr 25.2 MB uncompressed, 9.9 MB RLE, 9.3 MB ZIP at 4.5x the time).
+pub fn compression_for(layout: &TexelLayout) -> Compression {
+    match layout.uniform_n() {
+        Some(_) => DEFAULT_COMPRESSION,
+        None => Compression::RLE,
+    }
+}
+
 /// Largest supported resolution (texels per tile side). Far beyond any practical use
 /// (8192² texels per face is 256 MiB per channel per face); a guard against typos.
 pub const MAX_RESOLUTION: usize = 8192;
 
-/// Where the tiles of F domains at resolution N sit in the image.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// Where the tiles of F domains sit in the image: one tile per domain, the tile as large
+/// as the largest domain along u and along v (N x N with `--resolution N`), each domain's
+/// texels at its tile's top-left corner.
+#[derive(Clone, Debug, PartialEq, Eq)]
 pub struct TileLayout {
-    /// Number of face domains F.
-    pub faces: usize,
-    /// Texels per tile side N.
-    pub resolution: usize,
+    /// Per-domain resolutions.
+    pub texels: Arc<TexelLayout>,
+    /// Tile width and height in pixels.
+    pub tile: (usize, usize),
     /// Tile columns C = ceil(sqrt(F)).
     pub columns: usize,
     /// Tile rows ceil(F / C).
@@ -69,25 +95,36 @@ pub struct TileLayout {
 }
 
 impl TileLayout {
-    /// The layout for `faces` domains at `resolution` (both must be at least 1).
+    /// The layout for `faces` domains of `resolution`² texels (both must be at least 1).
     pub fn new(faces: usize, resolution: usize) -> Self {
+        Self::of(Arc::new(TexelLayout::uniform(faces, resolution.max(1))))
+    }
+
+    /// The layout for the domains of `texels`.
+    pub fn of(texels: Arc<TexelLayout>) -> Self {
+        let faces = texels.faces();
         let columns = ceil_sqrt(faces).max(1);
         Self {
-            faces,
-            resolution,
+            tile: texels.max_dims(),
+            texels,
             columns,
             rows: faces.div_ceil(columns).max(1),
         }
     }
 
-    /// Data window width in pixels, C*N.
-    pub fn width(&self) -> usize {
-        self.columns * self.resolution
+    /// Number of face domains F.
+    pub fn faces(&self) -> usize {
+        self.texels.faces()
     }
 
-    /// Data window height in pixels, ceil(F/C)*N.
+    /// Data window width in pixels, C * tile width.
+    pub fn width(&self) -> usize {
+        self.columns * self.tile.0
+    }
+
+    /// Data window height in pixels, ceil(F/C) * tile height.
     pub fn height(&self) -> usize {
-        self.rows * self.resolution
+        self.rows * self.tile.1
     }
 
     /// (column, row) of domain `f`'s tile.
@@ -98,17 +135,12 @@ impl TileLayout {
     /// Pixel position of the top-left texel of domain `f`'s tile.
     pub fn tile_origin(&self, f: usize) -> (usize, usize) {
         let (c, r) = self.tile_of(f);
-        (c * self.resolution, r * self.resolution)
+        (c * self.tile.0, r * self.tile.1)
     }
 
     /// Total tiles, including the unused ones at the end of the last row.
     pub fn tile_count(&self) -> usize {
         self.columns * self.rows
-    }
-
-    /// Texels per domain, N².
-    pub fn texels_per_face(&self) -> usize {
-        self.resolution * self.resolution
     }
 }
 
@@ -127,21 +159,26 @@ fn ceil_sqrt(n: usize) -> usize {
 /// Named f32 maps over all face domains (see the module docs for the memory layout).
 #[derive(Clone, Debug, PartialEq)]
 pub struct FaceMaps {
-    /// Number of face domains F.
-    pub faces: usize,
-    /// Texels per side N.
-    pub resolution: usize,
-    /// (name, F*N*N values), domain-major, row-major inside a domain.
+    /// Where every texel is (per-face resolutions, global order).
+    pub layout: Arc<TexelLayout>,
+    /// (name, one value per texel), domain-major, row-major inside a domain.
     pub channels: Vec<(String, Vec<f32>)>,
 }
 
 impl FaceMaps {
-    /// Zero-filled maps with the given channel names.
+    /// Zero-filled `resolution`² maps per domain with the given channel names.
     pub fn new(faces: usize, resolution: usize, names: &[&str]) -> Self {
-        let len = faces * resolution * resolution;
+        Self::with_layout(
+            Arc::new(TexelLayout::uniform(faces, resolution.max(1))),
+            names,
+        )
+    }
+
+    /// Zero-filled maps in `layout` with the given channel names.
+    pub fn with_layout(layout: Arc<TexelLayout>, names: &[&str]) -> Self {
+        let len = layout.len();
         Self {
-            faces,
-            resolution,
+            layout,
             channels: names
                 .iter()
                 .map(|n| (n.to_string(), vec![0.0; len]))
@@ -149,20 +186,25 @@ impl FaceMaps {
         }
     }
 
-    /// The tile layout these maps are written with.
-    pub fn layout(&self) -> TileLayout {
-        TileLayout::new(self.faces, self.resolution)
+    /// Number of face domains F.
+    pub fn faces(&self) -> usize {
+        self.layout.faces()
     }
 
-    /// N².
-    pub fn texels_per_face(&self) -> usize {
-        self.resolution * self.resolution
+    /// N when every domain has N x N texels (`--resolution`).
+    pub fn uniform_n(&self) -> Option<usize> {
+        self.layout.uniform_n()
+    }
+
+    /// The tile layout these maps are written with.
+    pub fn tiles(&self) -> TileLayout {
+        TileLayout::of(self.layout.clone())
     }
 
     /// Index of texel (x, y) of domain `face` in every channel's data.
     #[inline]
     pub fn index(&self, face: usize, x: usize, y: usize) -> usize {
-        (face * self.resolution + y) * self.resolution + x
+        self.layout.index(face, x, y)
     }
 
     /// A channel's data by name.
@@ -188,15 +230,15 @@ impl FaceMaps {
 
     /// Checks sizes and names; `write_face_maps` calls it.
     pub fn validate(&self) -> Result<()> {
-        check_shape(self.faces, self.resolution)?;
-        let len = self.faces * self.texels_per_face();
+        check_shape(&self.tiles())?;
+        let len = self.layout.len();
         for (name, data) in &self.channels {
             if data.len() != len {
                 return Err(Error::invalid(format!(
-                    "face map channel '{name}' has {} values, expected {len} ({} faces x {}²)",
+                    "face map channel '{name}' has {} values, expected {len} ({} faces at {})",
                     data.len(),
-                    self.faces,
-                    self.resolution
+                    self.faces(),
+                    self.layout.describe()
                 )));
             }
         }
@@ -204,19 +246,21 @@ impl FaceMaps {
     }
 }
 
-fn check_shape(faces: usize, resolution: usize) -> Result<()> {
+fn check_shape(layout: &TileLayout) -> Result<()> {
+    let faces = layout.faces();
     if faces == 0 {
         return Err(Error::invalid("face maps need at least one face domain"));
     }
-    if resolution == 0 || resolution > MAX_RESOLUTION {
+    let (tw, th) = layout.tile;
+    if tw == 0 || th == 0 || tw > MAX_RESOLUTION || th > MAX_RESOLUTION {
         return Err(Error::invalid(format!(
-            "resolution {resolution} is out of range 1..={MAX_RESOLUTION}"
+            "resolution {tw}x{th} is out of range 1..={MAX_RESOLUTION}"
         )));
     }
-    let layout = TileLayout::new(faces, resolution);
     if layout.width() > i32::MAX as usize / 2 || layout.height() > i32::MAX as usize / 2 {
         return Err(Error::invalid(format!(
-            "{faces} faces at resolution {resolution} exceed the size an EXR image can have"
+            "{faces} faces at {} exceed the size an EXR image can have",
+            layout.texels.describe()
         )));
     }
     Ok(())
@@ -243,15 +287,16 @@ fn check_names(names: &[&str]) -> Result<()> {
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct FaceMapsInfo {
     pub faces: usize,
-    pub resolution: usize,
+    /// N of a uniform layout; `None` for per-face resolutions.
+    pub resolution: Option<usize>,
     /// Channel names in file (sorted) order.
     pub channels: Vec<String>,
     pub compression: String,
 }
 
-/// Writes `maps` to `path` (atomically) with [`DEFAULT_COMPRESSION`].
+/// Writes `maps` to `path` (atomically) with [`compression_for`] its layout.
 pub fn write_face_maps(path: impl AsRef<Path>, maps: &FaceMaps) -> Result<()> {
-    write_face_maps_with(path, maps, DEFAULT_COMPRESSION)
+    write_face_maps_with(path, maps, compression_for(&maps.layout))
 }
 
 /// Writes `maps` to `path` (atomically) with the given compression. Only lossless
@@ -263,15 +308,16 @@ pub fn write_face_maps_with(
 ) -> Result<()> {
     maps.validate()?;
     let names = maps.names();
-    let nn = maps.texels_per_face();
     write_tiles(
         path,
-        maps.layout(),
+        maps.tiles(),
         &names,
         compression,
         |f, tile| {
+            let r = maps.layout.range(f);
+            let nn = r.len();
             for (k, (_, data)) in maps.channels.iter().enumerate() {
-                tile[k * nn..(k + 1) * nn].copy_from_slice(&data[f * nn..(f + 1) * nn]);
+                tile[k * nn..(k + 1) * nn].copy_from_slice(&data[r.clone()]);
             }
         },
         &|_| {},
@@ -279,9 +325,10 @@ pub fn write_face_maps_with(
 }
 
 /// Streams a face-map file: `fill(f, tile)` is called once per domain f (in parallel on
-/// the current rayon pool) and must write the domain's N² texels of every channel into
-/// `tile` (zeroed, length `names.len()*N²`, channel-major in the order of `names`, each
-/// channel row-major). `progress(done)` gets the number of domains written so far.
+/// the current rayon pool) and must write the domain's nu·nv texels of every channel into
+/// `tile` (zeroed, length `names.len()·nu·nv`, channel-major in the order of `names`, each
+/// channel row-major, nu wide). The writer places them at the top-left of the domain's
+/// tile and zero-fills the rest of it. `progress(done)` gets the number of domains written so far.
 ///
 /// Memory stays bounded by two batches of tiles (about 32 MiB each, at least one tile per
 /// thread), and output bytes do not depend on the number of threads: tiles are filled
@@ -339,15 +386,14 @@ where
     F: Fn(usize, &mut [f32]) + Sync,
 {
     let path = path.as_ref();
-    check_shape(layout.faces, layout.resolution)?;
+    check_shape(&layout)?;
     check_names(names)?;
     if compression.may_loose_data() {
         return Err(Error::invalid(format!(
             "compression {compression} is lossy; face maps need a lossless one"
         )));
     }
-    let n = layout.resolution;
-    let nn = n * n;
+    let (tw, th) = layout.tile;
 
     // OpenEXR requires channels sorted by name (byte order).
     let mut order: Vec<usize> = (0..names.len()).collect();
@@ -365,7 +411,7 @@ where
     .with_encoding(
         compression,
         BlockDescription::Tiles(TileDescription {
-            tile_size: Vec2(n, n),
+            tile_size: Vec2(tw, th),
             level_mode: LevelMode::Singular,
             rounding_mode: RoundingMode::Down,
         }),
@@ -381,7 +427,7 @@ where
     // ordinary header attributes.
     let mut own = vec![(
         Text::from(ATTR_FACES),
-        AttributeValue::I32(layout.faces as i32),
+        AttributeValue::I32(layout.faces() as i32),
     )];
     own.extend(
         attributes
@@ -389,13 +435,21 @@ where
             .map(|(k, v)| (Text::from(*k), AttributeValue::I32(*v))),
     );
     header.own_attributes.other = name_ordered(own);
-    header.shared_attributes.other.insert(
-        Text::from(ATTR_RESOLUTION),
-        AttributeValue::I32(layout.resolution as i32),
-    );
+    let (key, value) = match (layout.texels.uniform_n(), layout.texels.resolutions()) {
+        (Some(n), _) => (ATTR_RESOLUTION, AttributeValue::I32(n as i32)),
+        (None, Some(r)) => (
+            ATTR_RESOLUTIONS,
+            AttributeValue::Text(Text::from(encode_resolutions(r).as_str())),
+        ),
+        (None, None) => unreachable!("a layout is uniform or per face"),
+    };
+    header
+        .shared_attributes
+        .other
+        .insert(Text::from(key), value);
     let headers: exr::meta::Headers = SmallVec::from_elem(header, 1);
 
-    let tile_bytes = names.len() * nn * 4;
+    let tile_bytes = names.len() * tw * th * 4;
     let threads = rayon::current_num_threads().max(1);
     // Two batches are in flight (one being written, one being computed): ~32 MiB each.
     let batch = ((32usize << 20) / tile_bytes.max(1))
@@ -411,15 +465,21 @@ where
                 let chunks = (start..end)
                     .into_par_iter()
                     .map_init(
-                        || vec![0f32; names.len() * nn],
+                        || vec![0f32; names.len() * tw * th],
                         |buf, t| {
+                            let dims = if t < layout.faces() {
+                                layout.texels.dims(t)
+                            } else {
+                                (0, 0)
+                            };
+                            let buf = &mut buf[..names.len() * dims.0 * dims.1];
                             buf.fill(0.0);
-                            if t < layout.faces {
+                            if t < layout.faces() {
                                 fill(t, buf);
                             }
                             let block = UncompressedBlock {
                                 index: block_index(&layout, t),
-                                data: interleave_rows(buf, &order, n),
+                                data: interleave_rows(buf, &order, dims, layout.tile),
                             };
                             block.compress_to_chunk(&meta.headers)
                         },
@@ -443,7 +503,7 @@ where
                     || (next < total).then(|| compute(next)),
                 );
                 written?;
-                progress((start + count).min(layout.faces));
+                progress((start + count).min(layout.faces()));
                 pending = following;
                 next += batch;
             }
@@ -454,28 +514,79 @@ where
 }
 
 fn block_index(layout: &TileLayout, t: usize) -> BlockIndex {
-    let n = layout.resolution;
+    let (tw, th) = layout.tile;
     BlockIndex {
         layer: 0,
-        pixel_position: Vec2((t % layout.columns) * n, (t / layout.columns) * n),
-        pixel_size: Vec2(n, n),
+        pixel_position: Vec2((t % layout.columns) * tw, (t / layout.columns) * th),
+        pixel_size: Vec2(tw, th),
         level: Vec2(0, 0),
     }
 }
 
-/// EXR block byte order: for each row, each channel (sorted) contributes its N samples,
-/// native-endian (the exr crate converts to little-endian while compressing).
-fn interleave_rows(buf: &[f32], order: &[usize], n: usize) -> Vec<u8> {
-    let nn = n * n;
-    let mut out = Vec::with_capacity(buf.len() * 4);
-    for y in 0..n {
+/// EXR block byte order: for each of the tile's rows, each channel (sorted) contributes
+/// its tile-width samples, native-endian (the exr crate converts to little-endian while
+/// compressing). `buf` holds the domain's `(nu, nv)` texels per channel; the rest of the
+/// tile is zero.
+fn interleave_rows(
+    buf: &[f32],
+    order: &[usize],
+    (nu, nv): (usize, usize),
+    (tw, th): (usize, usize),
+) -> Vec<u8> {
+    let nn = nu * nv;
+    let mut out = Vec::with_capacity(order.len() * tw * th * 4);
+    for y in 0..th {
         for &k in order {
-            for v in &buf[k * nn + y * n..k * nn + (y + 1) * n] {
-                out.extend_from_slice(&v.to_ne_bytes());
+            if y < nv {
+                for v in &buf[k * nn + y * nu..k * nn + (y + 1) * nu] {
+                    out.extend_from_slice(&v.to_ne_bytes());
+                }
             }
+            let pad = if y < nv { tw - nu } else { tw };
+            out.resize(out.len() + 4 * pad, 0);
         }
     }
     out
+}
+
+/// The [`ATTR_RESOLUTIONS`] string of per-face resolutions.
+pub fn encode_resolutions(r: &[Resolution]) -> String {
+    const HEX: &[u8; 16] = b"0123456789abcdef";
+    let mut s = String::with_capacity(2 * r.len());
+    for r in r {
+        s.push(HEX[r.log2_u() as usize] as char);
+        s.push(HEX[r.log2_v() as usize] as char);
+    }
+    s
+}
+
+/// Parses an [`ATTR_RESOLUTIONS`] string of `faces` domains.
+pub fn decode_resolutions(s: &str, faces: usize) -> std::result::Result<Vec<Resolution>, String> {
+    let b = s.as_bytes();
+    if b.len() != 2 * faces {
+        return Err(format!(
+            "{ATTR_RESOLUTIONS} has {} digits, expected 2 per face ({})",
+            b.len(),
+            2 * faces
+        ));
+    }
+    b.chunks_exact(2)
+        .map(|p| {
+            let digit = |c: u8| (c as char).to_digit(16).map(|d| d as u8);
+            match (digit(p[0]), digit(p[1])) {
+                (Some(a), Some(b)) => Resolution::new(a, b),
+                _ => None,
+            }
+            .ok_or_else(|| {
+                format!(
+                    "{ATTR_RESOLUTIONS} has '{}{}', not two log2 sides up to 2^{}",
+                    p[0] as char,
+                    p[1] as char,
+                    crate::layout::MAX_LOG2
+                )
+            })
+        })
+        .collect()
 }
 
 fn open(path: &Path) -> Result<exr::block::reader::Reader<BufReader<File>>> {
@@ -505,28 +616,40 @@ fn face_maps_header(path: &Path, headers: &[Header]) -> Result<(TileLayout, Face
         }
     };
     let faces = get_int(ATTR_FACES)?;
-    let resolution = get_int(ATTR_RESOLUTION)?;
-    if resolution > MAX_RESOLUTION {
-        return Err(bad(format!("resolution {resolution} is too large")));
-    }
-    let layout = TileLayout::new(faces, resolution);
+    let per_face = h
+        .own_attributes
+        .other
+        .get(&Text::from(ATTR_RESOLUTIONS))
+        .or_else(|| h.shared_attributes.other.get(&Text::from(ATTR_RESOLUTIONS)));
+    let texels = match per_face {
+        Some(AttributeValue::Text(t)) => {
+            TexelLayout::per_face(decode_resolutions(&t.to_string(), faces).map_err(bad)?)
+        }
+        Some(v) => return Err(bad(format!("header attribute {ATTR_RESOLUTIONS} is {v:?}"))),
+        None => {
+            let resolution = get_int(ATTR_RESOLUTION)?;
+            if resolution > MAX_RESOLUTION {
+                return Err(bad(format!("resolution {resolution} is too large")));
+            }
+            TexelLayout::uniform(faces, resolution)
+        }
+    };
+    let resolution = texels.uniform_n();
+    let layout = TileLayout::of(Arc::new(texels));
+    let (tw, th) = layout.tile;
     match h.blocks {
         BlockDescription::Tiles(t)
-            if t.tile_size == Vec2(resolution, resolution)
-                && t.level_mode == LevelMode::Singular => {}
-        _ => {
-            return Err(bad(format!(
-                "expected single-level tiles of {resolution}x{resolution}"
-            )))
-        }
+            if t.tile_size == Vec2(tw, th) && t.level_mode == LevelMode::Singular => {}
+        _ => return Err(bad(format!("expected single-level tiles of {tw}x{th}"))),
     }
     if h.layer_size != Vec2(layout.width(), layout.height()) || h.deep {
         return Err(bad(format!(
-            "data window is {}x{}, expected {}x{} for {faces} faces at N = {resolution}",
+            "data window is {}x{}, expected {}x{} for {faces} faces at {}",
             h.layer_size.0,
             h.layer_size.1,
             layout.width(),
-            layout.height()
+            layout.height(),
+            layout.texels.describe()
         )));
     }
     let info = FaceMapsInfo {
@@ -557,10 +680,9 @@ pub fn read_face_maps(path: impl AsRef<Path>) -> Result<FaceMaps> {
     let meta: MetaData = chunks.meta_data().clone();
     let header = &meta.headers[0];
     let names: Vec<&str> = info.channels.iter().map(|s| s.as_str()).collect();
-    let mut maps = FaceMaps::new(layout.faces, layout.resolution, &names);
-    let n = layout.resolution;
-    let nn = n * n;
-    let batch = (((64usize << 20) / (names.len() * nn * 4).max(1))
+    let mut maps = FaceMaps::with_layout(layout.texels.clone(), &names);
+    let (tw, th) = layout.tile;
+    let batch = (((64usize << 20) / (names.len() * tw * th * 4).max(1))
         .max(rayon::current_num_threads()))
     .max(1);
     let mut seen = vec![false; layout.tile_count()];
@@ -579,21 +701,32 @@ pub fn read_face_maps(path: impl AsRef<Path>) -> Result<FaceMaps> {
         for block in blocks {
             let block = block.map_err(exr_err)?;
             let Vec2(px, py) = block.index.pixel_position;
-            if block.index.pixel_size != Vec2(n, n) || px % n != 0 || py % n != 0 {
+            if block.index.pixel_size != Vec2(tw, th) || px % tw != 0 || py % th != 0 {
                 return Err(Error::file(path, "tile does not match the face-map layout"));
             }
-            let t = (py / n) * layout.columns + px / n;
+            let t = (py / th) * layout.columns + px / tw;
             if t >= seen.len() || seen[t] {
                 return Err(Error::file(path, "duplicate or misplaced tile"));
             }
             seen[t] = true;
-            if t >= layout.faces {
+            if t >= layout.faces() {
                 continue;
             }
+            let (nu, nv) = layout.texels.dims(t);
+            let start = layout.texels.start(t);
+            let mut row = vec![0f32; tw];
             for line in block.lines(&header.channels) {
                 let k = line.location.channel;
                 let y = line.location.position.1 - py;
-                let dst = &mut maps.channels[k].1[t * nn + y * n..t * nn + (y + 1) * n];
+                if y >= nv {
+                    continue;
+                }
+                let whole = nu == tw;
+                let dst: &mut [f32] = if whole {
+                    &mut maps.channels[k].1[start + y * nu..start + (y + 1) * nu]
+                } else {
+                    &mut row
+                };
                 match header.channels.list[k].sample_type {
                     SampleType::F32 => line.read_samples_into_slice(dst).map_err(exr_err)?,
                     SampleType::F16 => {
@@ -606,6 +739,10 @@ pub fn read_face_maps(path: impl AsRef<Path>) -> Result<FaceMaps> {
                             *d = s.map_err(exr_err)? as f32;
                         }
                     }
+                }
+                if !whole {
+                    maps.channels[k].1[start + y * nu..start + (y + 1) * nu]
+                        .copy_from_slice(&row[..nu]);
                 }
             }
         }
@@ -626,6 +763,7 @@ mod tests {
     #[test]
     fn layout_follows_the_brief() {
         let l = TileLayout::new(6, 8);
+        assert_eq!(l.tile, (8, 8));
         assert_eq!((l.columns, l.rows, l.width(), l.height()), (3, 2, 24, 16));
         assert_eq!(l.tile_origin(4), (8, 8));
         let l = TileLayout::new(10, 4);
@@ -663,7 +801,7 @@ mod tests {
                 let p = d.path().join(format!("m{faces}_{n}_{c:?}.exr"));
                 write_face_maps_with(&p, &m, c).unwrap();
                 let r = read_face_maps(&p).unwrap();
-                assert_eq!((r.faces, r.resolution), (faces, n));
+                assert_eq!((r.faces(), r.uniform_n()), (faces, Some(n)));
                 assert_eq!(r.names(), vec!["A", "B", "G", "R", "height", "source.u"]);
                 for (name, data) in &m.channels {
                     let got = r.channel(name).unwrap();
@@ -675,7 +813,7 @@ mod tests {
                     );
                 }
                 let info = read_face_maps_info(&p).unwrap();
-                assert_eq!((info.faces, info.resolution), (faces, n));
+                assert_eq!((info.faces, info.resolution), (faces, Some(n)));
             }
         }
     }
@@ -731,6 +869,72 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn per_face_resolutions_round_trip_and_sit_at_their_tiles_top_left() {
+        use exr::prelude::*;
+        let r = |a, b| Resolution::new(a, b).unwrap();
+        let texels = Arc::new(TexelLayout::per_face(vec![
+            r(2, 1),
+            r(0, 0),
+            r(3, 3),
+            r(1, 3),
+        ]));
+        let mut m = FaceMaps::with_layout(texels.clone(), &["R", "source.u"]);
+        for (k, (_, d)) in m.channels.iter_mut().enumerate() {
+            for (i, v) in d.iter_mut().enumerate() {
+                *v = 1.0 + k as f32 * 100.0 + i as f32;
+            }
+        }
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("v.exr");
+        write_face_maps(&p, &m).unwrap();
+        let back = read_face_maps(&p).unwrap();
+        assert_eq!(back.layout, texels);
+        assert_eq!(back.channel("R"), m.channel("R"));
+        assert_eq!(back.channel("source.u"), m.channel("source.u"));
+        let info = read_face_maps_info(&p).unwrap();
+        assert_eq!((info.faces, info.resolution), (4, None));
+        // The generic reader: tiles of the largest face (8x8), 2x2 of them, each face's
+        // texels at the top-left, zero elsewhere, the resolutions in the header.
+        let img = read_all_flat_layers_from_file(&p).unwrap();
+        let layer = &img.layer_data[0];
+        assert_eq!(layer.size, Vec2(16, 16));
+        assert_eq!(layer.encoding.blocks, Blocks::Tiles(Vec2(8, 8)));
+        assert_eq!(
+            layer.attributes.other.get(&Text::from(ATTR_RESOLUTIONS)),
+            Some(&AttributeValue::Text(Text::from("21003313")))
+        );
+        let ch = layer
+            .channel_data
+            .list
+            .iter()
+            .find(|c| c.name.eq("R"))
+            .unwrap();
+        let FlatSamples::F32(flat) = &ch.sample_data else {
+            panic!("not f32")
+        };
+        let tiles = TileLayout::of(texels.clone());
+        for f in 0..4 {
+            let (x0, y0) = tiles.tile_origin(f);
+            let (nu, nv) = texels.dims(f);
+            for y in 0..8 {
+                for x in 0..8 {
+                    let got = flat[(y0 + y) * 16 + x0 + x];
+                    let want = if x < nu && y < nv {
+                        m.channel("R").unwrap()[texels.index(f, x, y)]
+                    } else {
+                        0.0
+                    };
+                    assert_eq!(got, want, "face {f} ({x}, {y})");
+                }
+            }
+        }
+        // A damaged resolution string is a one-line error, not a panic.
+        assert!(decode_resolutions("21z0", 2).is_err());
+        assert!(decode_resolutions("210", 2).is_err());
+        assert!(decode_resolutions("e0", 1).is_err());
     }
 
     #[test]

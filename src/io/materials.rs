@@ -98,7 +98,7 @@ pub fn material_images(
     gutter: usize,
     normal_uv: Option<&Atlas>,
 ) -> Result<MaterialImages> {
-    let layout = AtlasLayout::new(maps.faces, maps.resolution, gutter);
+    let layout = AtlasLayout::of(maps.layout.clone(), gutter);
     let png = |pixels: Vec<u8>, channels: usize| -> Result<Vec<u8>> {
         let mut out = Vec::new();
         encode_png(&pixels, &layout, channels, &mut out)
@@ -119,7 +119,7 @@ pub fn material_images(
         roughness: rough.is_some(),
         metallic: metal.is_some(),
     };
-    let len = maps.faces * maps.resolution * maps.resolution;
+    let len = maps.layout.len();
     // Independent atlases; PNG encoding is single-threaded, so they run side by side.
     let per_map = || -> Result<Vec<MapImage>> {
         map_channels(maps)

@@ -184,22 +184,41 @@ pub fn normal_atlas(
     let split: [Vec<f32>; 3] = std::array::from_fn(|c| world.iter().map(|w| w[c]).collect());
     let chans: Vec<&[f32]> = split.iter().map(|v| v.as_slice()).collect();
     let mut atlas = build_atlas_of(surface, &chans, maps, gutter)?;
-    let layout = atlas.layout;
-    let (w, tile, n) = (layout.width(), layout.tile(), layout.resolution as f64);
+    let layout = &atlas.layout;
+    let (w, h) = (layout.width(), layout.height());
+    // The domain of every atlas pixel (tiles of any size, shelf-packed for per-face
+    // resolutions); pixels outside every tile stay the flat normal.
+    let mut owner = vec![u32::MAX; w * h];
+    for d in 0..layout.faces() {
+        let (x0, y0) = layout.interior_origin(d);
+        let (tw, th) = layout.tile(d);
+        let (x0, y0) = (x0 - gutter, y0 - gutter);
+        for y in y0..y0 + th {
+            owner[y * w + x0..y * w + x0 + tw].fill(d as u32);
+        }
+    }
+    let texels = layout.texels.clone();
+    let origins: Vec<(usize, usize)> = (0..layout.faces())
+        .map(|d| layout.interior_origin(d))
+        .collect();
     atlas
         .pixels
         .par_chunks_mut(3 * w)
+        .zip(owner.par_chunks(w))
         .enumerate()
-        .for_each(|(py, row)| {
+        .for_each(|(py, (row, own))| {
             for (px, out) in row.chunks_exact_mut(3).enumerate() {
-                let d = (py / tile) * layout.columns + px / tile;
-                if d >= layout.faces {
+                let d = own[px];
+                if d == u32::MAX {
                     out.copy_from_slice(&[0.5, 0.5, 1.0]);
                     continue;
                 }
-                let tx = (px % tile) as f64 - gutter as f64 + 0.5;
-                let ty = (py % tile) as f64 - gutter as f64 + 0.5;
-                let [t, bt, nn] = uv.frame(d, tx / n, ty / n);
+                let d = d as usize;
+                let (x0, y0) = origins[d];
+                let (nu, nv) = texels.dims(d);
+                let tx = px as f64 - x0 as f64 + 0.5;
+                let ty = py as f64 - y0 as f64 + 0.5;
+                let [t, bt, nn] = uv.frame(d, tx / nu as f64, ty / nv as f64);
                 let wv = DVec3::new(out[0] as f64, out[1] as f64, out[2] as f64).normalize_or(nn);
                 let c = [wv.dot(t), wv.dot(bt), wv.dot(nn)];
                 for (o, c) in out.iter_mut().zip(c) {

@@ -193,7 +193,6 @@ struct Ctx<'a, const K: usize> {
     feat: &'a Features<K>,
     inp: Inputs<'a>,
     params: &'a CoherentParams,
-    n: usize,
     inv_scale: f32,
     /// Valid candidate centres: [lo, hi] per axis.
     lo: f32,
@@ -216,17 +215,15 @@ pub fn run<const K: usize>(
     params: &CoherentParams,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Output {
-    let n = inputs.geometry.resolution;
-    let nn = n * n;
-    let faces = inputs.geometry.faces;
-    let total = faces * nn;
+    let layout = inputs.geometry.layout.clone();
+    let faces = layout.faces();
+    let total = layout.len();
     assert_eq!(inputs.frames.len(), total);
     assert_eq!(inputs.graph.len(), total);
     let ctx = Ctx {
         feat: features,
         inp: inputs,
         params,
-        n,
         inv_scale: (1.0 / inputs.scale) as f32,
         lo: 0.5,
         hi_x: features.width as f32 - 0.5,
@@ -247,9 +244,9 @@ pub fn run<const K: usize>(
             .collect();
         for (&d, r) in wave.iter().zip(results) {
             let d = d as usize;
-            src[d * nn..(d + 1) * nn].copy_from_slice(&r.src);
-            kind[d * nn..(d + 1) * nn].copy_from_slice(&r.kind);
-            feat[d * nn..(d + 1) * nn].copy_from_slice(&r.feat);
+            src[layout.range(d)].copy_from_slice(&r.src);
+            kind[layout.range(d)].copy_from_slice(&r.kind);
+            feat[layout.range(d)].copy_from_slice(&r.feat);
             done[d] = true;
             stats.add(&r.stats);
         }
@@ -267,24 +264,10 @@ pub fn run<const K: usize>(
 /// centres (BRIEF's h, per domain), i.e. the domain's area per texel under uniform
 /// sampling; 0 for N = 1.
 pub fn domain_texel_areas(geom: &TexelGeometry) -> Vec<f64> {
-    let n = geom.resolution;
-    let nn = n * n;
-    (0..geom.faces)
+    (0..geom.faces())
         .into_par_iter()
         .map(|d| {
-            let p = &geom.pos[d * nn..(d + 1) * nn];
-            let mut v: Vec<f32> = Vec::with_capacity(2 * n * n);
-            for y in 0..n {
-                for x in 0..n {
-                    let i = y * n + x;
-                    if x + 1 < n {
-                        v.push(p[i].distance(p[i + 1]));
-                    }
-                    if y + 1 < n {
-                        v.push(p[i].distance(p[i + n]));
-                    }
-                }
-            }
+            let mut v: Vec<f32> = geom.domain_spacings(d).iter().map(|&x| x as f32).collect();
             if v.is_empty() {
                 return 0.0;
             }
@@ -320,30 +303,31 @@ pub fn area_schedule(geom: &TexelGeometry, graph: &TexelGraph) -> Schedule {
     Schedule::plan_weighted(&conflicts, &conflicts, &domain_texel_areas(geom))
 }
 
-/// The scan order of a domain: local texel indices (y*N + x) in synthesis order.
+/// The scan order of a domain: local texel indices (y*nu + x) in synthesis order.
 fn scan_order<const K: usize>(c: &Ctx<'_, K>, done_g: &[bool], d: usize) -> Vec<u32> {
-    let n = c.n;
-    let nn = n * n;
-    let base = d * nn;
+    let layout = &c.inp.geometry.layout;
+    let (nu, nv) = layout.dims(d);
+    let base = layout.start(d);
     // Score of each side: synthesized foreign neighbours of the texels on its outer line.
     let mut score = [0u32; 4];
     let mut buf = Vec::with_capacity(64);
     let side_texel = |s: usize, i: usize| -> usize {
         match s {
-            0 => i,               // row y = 0
-            1 => i * n + (n - 1), // column x = N-1
-            2 => (n - 1) * n + i, // row y = N-1
-            _ => i * n,           // column x = 0
+            0 => i,                 // row y = 0
+            1 => i * nu + (nu - 1), // column x = nu-1
+            2 => (nv - 1) * nu + i, // row y = nv-1
+            _ => i * nu,            // column x = 0
         }
     };
     for (s, sc) in score.iter_mut().enumerate() {
-        for i in 0..n {
+        let len = if s % 2 == 0 { nu } else { nv };
+        for i in 0..len {
             buf.clear();
             c.inp.graph.neighbours(base + side_texel(s, i), &mut buf);
             *sc += buf
                 .iter()
                 .filter(|&&j| {
-                    let e = j as usize / nn;
+                    let e = layout.domain_of(j as usize);
                     e != d && done_g[e]
                 })
                 .count() as u32;
@@ -356,17 +340,19 @@ fn scan_order<const K: usize>(c: &Ctx<'_, K>, done_g: &[bool], d: usize) -> Vec<
     } else {
         score[2] > score[0]
     };
-    let mut order = Vec::with_capacity(nn);
-    for line in 0..n {
-        for pos in 0..n {
-            let p = if reverse { n - 1 - pos } else { pos };
+    // Lines are rows (first side 0 or 2) or columns (1 or 3).
+    let (lines, along) = if first % 2 == 0 { (nv, nu) } else { (nu, nv) };
+    let mut order = Vec::with_capacity(nu * nv);
+    for line in 0..lines {
+        for pos in 0..along {
+            let p = if reverse { along - 1 - pos } else { pos };
             let (x, y) = match first {
                 0 => (p, line),
-                2 => (p, n - 1 - line),
+                2 => (p, nv - 1 - line),
                 3 => (line, p),
-                _ => (n - 1 - line, p),
+                _ => (nu - 1 - line, p),
             };
-            order.push((y * n + x) as u32);
+            order.push((y * nu + x) as u32);
         }
     }
     order
@@ -376,26 +362,27 @@ fn scan_order<const K: usize>(c: &Ctx<'_, K>, done_g: &[bool], d: usize) -> Vec<
 /// foreign neighbours, scan-line order within one distance; `None` when nothing around the
 /// domain is synthesized yet.
 fn front_order<const K: usize>(c: &Ctx<'_, K>, done_g: &[bool], d: usize) -> Option<Vec<u32>> {
-    let n = c.n;
-    let nn = n * n;
-    let base = d * nn;
+    let layout = &c.inp.geometry.layout;
+    let (nu, nv) = layout.dims(d);
+    let nn = nu * nv;
+    let base = layout.start(d);
     let mut dist = vec![u32::MAX; nn];
     let mut queue = std::collections::VecDeque::new();
     let mut buf = Vec::with_capacity(64);
-    for y in 0..n {
-        for x in 0..n {
-            if !(x == 0 || y == 0 || x + 1 == n || y + 1 == n) {
+    for y in 0..nv {
+        for x in 0..nu {
+            if !(x == 0 || y == 0 || x + 1 == nu || y + 1 == nv) {
                 continue;
             }
             buf.clear();
-            c.inp.graph.neighbours(base + y * n + x, &mut buf);
+            c.inp.graph.neighbours(base + y * nu + x, &mut buf);
             let touches = buf.iter().any(|&j| {
-                let e = j as usize / nn;
+                let e = layout.domain_of(j as usize);
                 e != d && done_g[e]
             });
             if touches {
-                dist[y * n + x] = 0;
-                queue.push_back(y * n + x);
+                dist[y * nu + x] = 0;
+                queue.push_back(y * nu + x);
             }
         }
     }
@@ -404,7 +391,7 @@ fn front_order<const K: usize>(c: &Ctx<'_, K>, done_g: &[bool], d: usize) -> Opt
     }
     let mut max = 0;
     while let Some(i) = queue.pop_front() {
-        let (x, y) = (i % n, i / n);
+        let (x, y) = (i % nu, i / nu);
         let dn = dist[i] + 1;
         let mut visit = |j: usize| {
             if dist[j] == u32::MAX {
@@ -416,14 +403,14 @@ fn front_order<const K: usize>(c: &Ctx<'_, K>, done_g: &[bool], d: usize) -> Opt
         if x > 0 {
             visit(i - 1);
         }
-        if x + 1 < n {
+        if x + 1 < nu {
             visit(i + 1);
         }
         if y > 0 {
-            visit(i - n);
+            visit(i - nu);
         }
-        if y + 1 < n {
-            visit(i + n);
+        if y + 1 < nv {
+            visit(i + nu);
         }
     }
     // Counting sort by distance keeps scan-line order inside a front.
@@ -449,10 +436,9 @@ fn synth_domain<const K: usize>(
     done_g: &[bool],
     d: usize,
 ) -> DomainOut<K> {
-    let n = c.n;
-    let nn = n * n;
-    let base = d * nn;
     let geom = c.inp.geometry;
+    let nn = geom.layout.count(d);
+    let base = geom.layout.start(d);
     let mut out = DomainOut {
         src: vec![[0.0f32; 2]; nn],
         kind: vec![0u8; nn],
@@ -493,7 +479,7 @@ fn synth_domain<const K: usize>(
                 }
                 (out.src[lj], &out.feat[lj])
             } else {
-                if !done_g[j / nn] {
+                if !done_g[geom.layout.domain_of(j)] {
                     continue;
                 }
                 (src_g[j], &feat_g[j])

@@ -33,11 +33,13 @@
 //! Footprints are computed once per level and reused by every iteration.
 
 use crate::field::OrientationField;
+use crate::layout::TexelLayout;
 use crate::texels::{EdgeGraph, TexelGeometry, TexelGraph};
 use glam::Vec3;
 use rayon::prelude::*;
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
+use std::sync::Arc;
 use subdiv::Surface;
 
 /// Local stretch beyond which a texel ends its patch: |Δl| / |ΔP| (in example pixels)
@@ -73,6 +75,19 @@ impl LevelTexels {
         Self::from_parts(surface, geometry, graph, frames, step)
     }
 
+    /// Evaluates everything for the maps of `layout` (per-face resolutions).
+    pub fn with_layout(
+        surface: &Surface,
+        field: &OrientationField,
+        layout: Arc<TexelLayout>,
+        step: f64,
+    ) -> Self {
+        let geometry = TexelGeometry::compute_layout(surface, layout);
+        let graph = TexelGraph::build(surface, &geometry);
+        let frames = super::layout_frames(field, surface, &geometry.layout);
+        Self::from_parts(surface, geometry, graph, frames, step)
+    }
+
     /// From parts already computed (the builder's output-resolution texels).
     pub fn from_parts(
         surface: &Surface,
@@ -96,9 +111,9 @@ impl LevelTexels {
         &self.edges
     }
 
-    /// Texels per domain side.
-    pub fn resolution(&self) -> usize {
-        self.geometry.resolution
+    /// Where the texels are.
+    pub fn layout(&self) -> &Arc<TexelLayout> {
+        &self.geometry.layout
     }
 
     /// Number of texels.

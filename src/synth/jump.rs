@@ -42,6 +42,7 @@
 use super::coherent::random2;
 use super::footprint::LevelTexels;
 use super::matching::jumpmap::JumpMap;
+use crate::layout::TexelLayout;
 use crate::texels::EdgeGraph;
 use glam::Vec3;
 use serde::Serialize;
@@ -100,9 +101,9 @@ pub struct Stats {
 /// Buckets by the proportion of synthesized neighbours (quantised to 1/64; degrees are 2
 /// to ~6, so distinct proportions stay distinct), first in first out inside a bucket, stale
 /// entries skipped: O(1) per texel and edge.
-pub fn growth_order(edges: &EdgeGraph, texels: usize, resolution: usize) -> Vec<u32> {
+pub fn growth_order(edges: &EdgeGraph, layout: &TexelLayout) -> Vec<u32> {
     const Q: usize = 64;
-    let nn = resolution * resolution;
+    let texels = layout.len();
     let mut count = vec![0u8; texels];
     let mut done = vec![false; texels];
     let mut buckets: Vec<VecDeque<u32>> = (0..=Q).map(|_| VecDeque::new()).collect();
@@ -132,8 +133,9 @@ pub fn growth_order(edges: &EdgeGraph, texels: usize, resolution: usize) -> Vec<
                 while done[next_root] {
                     next_root += 1;
                 }
-                let d = next_root / nn;
-                let c = d * nn + (resolution / 2) * resolution + resolution / 2;
+                let d = layout.domain_of(next_root);
+                let (nu, nv) = layout.dims(d);
+                let c = layout.index(d, nu / 2, nv / 2);
                 if !done[c] && count[c] == 0 {
                     c
                 } else {
@@ -330,7 +332,7 @@ mod tests {
         let n = 6;
         let g = crate::texels::TexelGeometry::compute(&s, n);
         let e = EdgeGraph::build(&s, &g);
-        let order = growth_order(&e, g.len(), n);
+        let order = growth_order(&e, &g.layout);
         let mut seen = vec![false; g.len()];
         for &t in &order {
             assert!(!seen[t as usize]);

@@ -164,7 +164,7 @@ impl Derived {
     /// The region-growing order of `texels`.
     pub fn growth(&self, texels: &LevelTexels) -> &[u32] {
         self.growth
-            .get_or_init(|| jump::growth_order(texels.edges(), texels.len(), texels.resolution()))
+            .get_or_init(|| jump::growth_order(texels.edges(), texels.layout()))
     }
 }
 
@@ -343,10 +343,15 @@ pub fn synthesize(
         }
         Method::Multiscale => {
             let weights = settings.weights.per_channel(example);
+            let Some(resolution) = target.texels.layout().uniform_n() else {
+                return Err(crate::Error::invalid(
+                    "the multiscale method needs one resolution for all faces: use --resolution, not --texel-size",
+                ));
+            };
             let inputs = multiscale::Inputs {
                 surface: target.surface,
                 field: target.field,
-                resolution: target.texels.resolution(),
+                resolution,
                 spacing: target.spacing,
                 scale: target.scale(),
                 seed: target.seed,
@@ -449,7 +454,7 @@ fn coherent_output<const K: usize>(
         scale: t.step,
         seed: target.seed,
     };
-    let faces = t.geometry.faces;
+    let faces = t.geometry.faces();
     let out = coherent::run(&features, inputs, params, &|d| progress(d, faces));
     Output {
         source: out.source,
@@ -618,6 +623,27 @@ impl Weights {
     }
 }
 
+/// The field's frames at every texel centre of `layout`, as the synthesizer stores them. A
+/// uniform layout takes [`texel_frames_f32`] (the same values as always); either way the
+/// frames are computed in f32 directly, without holding the f64 frames.
+pub fn layout_frames(
+    field: &OrientationField,
+    surface: &Surface,
+    layout: &crate::layout::TexelLayout,
+) -> Vec<[Vec3; 2]> {
+    if let Some(n) = layout.uniform_n() {
+        return texel_frames_f32(field, surface, n);
+    }
+    (0..layout.len())
+        .into_par_iter()
+        .map(|t| {
+            let l = layout.location(t);
+            let f = field.frame(surface, l.domain, l.u, l.v);
+            [f.v1.as_vec3(), f.v2.as_vec3()]
+        })
+        .collect()
+}
+
 /// The field's frames at every texel centre of `n`×`n` maps, as the synthesizer stores
 /// them: the same values as `frames_f32(&field.texel_frames(surface, n))` (same order,
 /// same rounding), without holding the f64 frames (48 B per texel) at the same time.
@@ -663,7 +689,11 @@ pub fn output_channels(example: &Example) -> Vec<String> {
 /// The `facemaps.exr` content: every channel looked up bilinearly in the (unweighted)
 /// example at the texel's source position — all channels of all maps from the same place
 /// — plus the source position itself.
-pub fn face_maps(example: &Example, source: &[[f32; 2]], faces: usize, n: usize) -> FaceMaps {
+pub fn face_maps(
+    example: &Example,
+    source: &[[f32; 2]],
+    layout: &std::sync::Arc<crate::layout::TexelLayout>,
+) -> FaceMaps {
     let names = output_channels(example);
     let k = example.num_channels();
     // The height alias: the channel of the height map, copied.
@@ -678,26 +708,30 @@ pub fn face_maps(example: &Example, source: &[[f32; 2]], faces: usize, n: usize)
         c
     });
     let kk = k + alias.is_some() as usize;
-    let nn = n * n;
-    assert_eq!(source.len(), faces * nn);
+    let faces = layout.faces();
+    assert_eq!(source.len(), layout.len());
     let name_refs: Vec<&str> = names.iter().map(|s| s.as_str()).collect();
-    let mut maps = FaceMaps::new(faces, n, &name_refs);
+    let mut maps = FaceMaps::with_layout(layout.clone(), &name_refs);
     // Written in place, one domain's slice of every channel per task (no second copy of
-    // the maps: issue 14, item 6).
+    // the maps: issue 14, item 6); a domain's slice is its layout range (per-face sizes).
     let mut per_face: Vec<Vec<&mut [f32]>> =
         (0..faces).map(|_| Vec::with_capacity(kk + 2)).collect();
     for (_, data) in maps.channels.iter_mut() {
-        for (f, chunk) in data.chunks_mut(nn.max(1)).enumerate().take(faces) {
-            per_face[f].push(chunk);
+        let mut rest: &mut [f32] = data.as_mut_slice();
+        for (f, slot) in per_face.iter_mut().enumerate() {
+            let (chunk, tail) = std::mem::take(&mut rest).split_at_mut(layout.range(f).len());
+            slot.push(chunk);
+            rest = tail;
         }
     }
     per_face
         .into_par_iter()
         .enumerate()
         .for_each(|(f, mut ch)| {
+            let r = layout.range(f);
             let mut v = vec![0.0f32; k];
-            for i in 0..nn {
-                let s = source[f * nn + i];
+            for i in 0..r.len() {
+                let s = source[r.start + i];
                 example.bilinear(s[0], s[1], &mut v);
                 for c in 0..k {
                     ch[c][i] = v[c];
@@ -715,7 +749,7 @@ pub fn face_maps(example: &Example, source: &[[f32; 2]], faces: usize, n: usize)
 /// The `geometry.exr` content (P.X P.Y P.Z N.X N.Y N.Z), from already evaluated texels.
 pub fn geometry_maps(geom: &TexelGeometry) -> FaceMaps {
     let names = crate::bake::GEOMETRY_CHANNELS;
-    let mut maps = FaceMaps::new(geom.faces, geom.resolution, &names);
+    let mut maps = FaceMaps::with_layout(geom.layout.clone(), &names);
     for (c, (_, data)) in maps.channels.iter_mut().enumerate() {
         let src = if c < 3 { &geom.pos } else { &geom.normal };
         let axis = c % 3;

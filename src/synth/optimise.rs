@@ -138,7 +138,15 @@ pub fn run<const K: usize>(
     params: &OptimiseParams,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> (Output, super::matching::appearance::AppearanceInfo) {
-    let n = target.texels.resolution();
+    let out_layout = target.texels.layout();
+    // The typical side: N, or (per-face resolutions) the root mean square side, which is
+    // what the level plan below halves.
+    let n = out_layout
+        .uniform_n()
+        .unwrap_or_else(|| {
+            ((out_layout.len() as f64 / out_layout.faces() as f64).sqrt()).round() as usize
+        })
+        .max(1);
     let scale = target.scale();
     // Example levels: j0 skips levels finer than the output texels (a texture scaled
     // down); then halve while the example and the maps stay large enough.
@@ -180,8 +188,19 @@ pub fn run<const K: usize>(
         }
         let step = scale * (1u64 << j) as f64;
         // The output level reuses the target's texels unless its pixels are coarser.
-        let owned =
-            (li > 0 || j > 0).then(|| LevelTexels::new(target.surface, target.field, r, step));
+        let owned = (li > 0 || j > 0).then(|| match out_layout.uniform_n() {
+            Some(_) => LevelTexels::new(target.surface, target.field, r, step),
+            None => {
+                // Per-face sides scaled like the typical one, in whole halvings.
+                let k = (n as f64 / r.max(1) as f64).log2().round().max(0.0) as u32;
+                LevelTexels::with_layout(
+                    target.surface,
+                    target.field,
+                    std::sync::Arc::new(out_layout.coarsened(k)),
+                    step,
+                )
+            }
+        });
         let level: &LevelTexels = owned.as_ref().unwrap_or(target.texels);
         // Start: patch sampling at the coarsest level, else the coarser level continued.
         let mut src = match prev.take() {
@@ -423,16 +442,16 @@ fn upsample<const K: usize>(
     fine: &LevelTexels,
     ex: &Exemplar<K>,
 ) -> Vec<[f32; 2]> {
-    let (rc, rf) = (coarse.resolution(), fine.resolution());
+    let (lc, lf) = (coarse.layout(), fine.layout());
     let (w, h) = (ex.width() as f32, ex.height() as f32);
     (0..fine.len())
         .into_par_iter()
         .map(|t| {
-            let d = t / (rf * rf);
-            let (x, y) = (t % rf, (t / rf) % rf);
-            let cx = ((x as f64 + 0.5) * rc as f64 / rf as f64) as usize;
-            let cy = ((y as f64 + 0.5) * rc as f64 / rf as f64) as usize;
-            let q = (d * rc + cy.min(rc - 1)) * rc + cx.min(rc - 1);
+            let (d, x, y) = lf.coords(t);
+            let ((cu, cv), (fu, fv)) = (lc.dims(d), lf.dims(d));
+            let cx = ((x as f64 + 0.5) * cu as f64 / fu as f64) as usize;
+            let cy = ((y as f64 + 0.5) * cv as f64 / fv as f64) as usize;
+            let q = lc.index(d, cx.min(cu - 1), cy.min(cv - 1));
             let dp = fine.geometry.pos[t] - coarse.geometry.pos[q];
             let [v1, v2] = coarse.frames[q];
             let k = (1.0 / coarse.step) as f32;

@@ -32,13 +32,14 @@
 //! rebuilt by every synthesis.
 
 use super::{
-    check_size, orientation_label, Handedness, MeshSource, NormalConvention, Progress, Stage,
-    SynthResult, WriteOptions,
+    check_size, check_texels, orientation_label, Handedness, MeshSource, NormalConvention,
+    Progress, Stage, SynthResult, WriteOptions,
 };
 use crate::error::{Error, Result};
 use crate::example::Example;
 use crate::field::{Orientation, OrientationField};
 use crate::io::exr::MAX_RESOLUTION;
+use crate::layout::TexelLayout;
 use crate::memory::{Job, MeshSize};
 use crate::report::{ExampleInfo, Inputs, Report, Seconds};
 use crate::synth::footprint::LevelTexels;
@@ -53,8 +54,13 @@ use subdiv::{ControlMesh, Surface};
 /// method or the seed.
 #[derive(Clone, Debug, PartialEq)]
 pub struct MeshSettings {
-    /// Texels per side of every face map (1 to [`MAX_RESOLUTION`]).
+    /// Texels per side of every face map (1 to [`MAX_RESOLUTION`]); unused when
+    /// `texel_size` is set.
     pub resolution: usize,
+    /// `--texel-size L`: every face gets its own power-of-two resolution, about `L`
+    /// surface units per texel ([`TexelLayout::for_texel_size`]), instead of one N for all
+    /// faces. `None` = `resolution` everywhere.
+    pub texel_size: Option<f64>,
     /// Surface length covered by one example pixel; `None` = median texel spacing.
     pub scale: Option<f64>,
     /// Orientation field (`--orient`).
@@ -67,6 +73,7 @@ impl Default for MeshSettings {
     fn default() -> Self {
         Self {
             resolution: 32,
+            texel_size: None,
             scale: None,
             orientation: Orientation::Auto,
         }
@@ -81,6 +88,13 @@ impl MeshSettings {
                 "resolution {} is out of range: use 1 to {MAX_RESOLUTION} texels per side",
                 self.resolution
             )));
+        }
+        if let Some(l) = self.texel_size {
+            if !(l.is_finite() && l > 0.0) {
+                return Err(Error::invalid(format!(
+                    "texel size {l} is not a positive surface length per texel"
+                )));
+            }
         }
         if let Some(s) = self.scale {
             if !(s.is_finite() && s > 0.0) {
@@ -158,6 +172,12 @@ impl PrepareSeconds {
 pub struct Session {
     mesh_label: String,
     resolution: usize,
+    /// Where every texel is: one N ([`MeshSettings::resolution`]) or per-face
+    /// resolutions ([`MeshSettings::texel_size`]).
+    layout: Arc<TexelLayout>,
+    texel_size: Option<f64>,
+    /// Subdivision depth the surfaces are built for (the finest face's side).
+    n_depth: usize,
     orientation: Orientation,
     /// The surface and texels in working units (the user's divided by `unit`).
     surface: Arc<Surface>,
@@ -187,7 +207,7 @@ impl std::fmt::Debug for Session {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Session")
             .field("mesh", &self.mesh_label)
-            .field("resolution", &self.resolution)
+            .field("layout", &self.layout.describe())
             .field("faces", &self.surface.num_domains())
             .finish_non_exhaustive()
     }
@@ -244,12 +264,50 @@ pub(super) fn working_surface(
     }
 }
 
+/// The texel layout of `surface` (working units; the user's divided by `unit`): `n`×`n`
+/// everywhere, or per-face resolutions for `texel_size` (in the user's units), checked
+/// against the memory guard for `job` with its real texel total.
+pub(super) fn texel_layout(
+    surface: &Surface,
+    n: usize,
+    texel_size: Option<f64>,
+    unit: f64,
+    label: &str,
+    job: &Job,
+) -> Result<Arc<TexelLayout>> {
+    let faces = surface.num_domains();
+    Ok(Arc::new(match texel_size {
+        None => {
+            check_size(faces, n)?;
+            TexelLayout::uniform(faces, n)
+        }
+        Some(l) => {
+            let layout = TexelLayout::for_texel_size(surface, l / unit);
+            check_texels(label, &layout)?;
+            crate::memory::check_layout(label, &surface.control, &layout, job)?;
+            layout
+        }
+    }))
+}
+
+/// The subdivision depth's resolution: `n`, or with a texel size the longest control edge
+/// over the texel size (an upper bound of any face's side).
+pub(super) fn depth_resolution(control: &ControlMesh, n: usize, texel_size: Option<f64>) -> usize {
+    match texel_size {
+        None => n,
+        Some(l) => crate::memory::texel_size_side(control, l),
+    }
+}
+
 /// The surface built so far by the load stage, handed to [`Session::from_loaded`].
 pub(super) struct Loaded {
     pub mesh_label: String,
     pub surface: Surface,
     pub user_control: Option<ControlMesh>,
     pub unit: f64,
+    /// The texel layout ([`texel_layout`]) and the depth the surfaces are built for.
+    pub layout: Arc<TexelLayout>,
+    pub n_depth: usize,
     pub load_seconds: f64,
 }
 
@@ -264,21 +322,38 @@ impl Session {
         let mesh = mesh.into();
         let n = settings.resolution;
         let label = super::mesh_source_label(&mesh);
-        let control = match &mesh {
-            MeshSource::Path(p) => Some(crate::memory::load_control_checked(p, n, &MESH_JOB)?),
-            MeshSource::Surface(s) => {
+        let texel_size = settings.texel_size;
+        let control = match (&mesh, texel_size) {
+            (MeshSource::Path(p), None) => {
+                Some(crate::memory::load_control_checked(p, n, &MESH_JOB)?)
+            }
+            (MeshSource::Path(p), Some(l)) => Some(crate::memory::load_control_checked_texel_size(
+                p, l, &MESH_JOB,
+            )?),
+            (MeshSource::Surface(s), None) => {
                 crate::memory::check_surface(s, n, &MESH_JOB)?;
                 None
             }
+            (MeshSource::Surface(s), Some(l)) => {
+                crate::memory::check_surface_texel_size(s, l, &MESH_JOB)?;
+                None
+            }
+        };
+        let n_depth = match (&control, &mesh) {
+            (Some(c), _) => depth_resolution(c, n, texel_size),
+            (None, MeshSource::Surface(s)) => depth_resolution(&s.control, n, texel_size),
+            (None, MeshSource::Path(_)) => unreachable!("a path mesh is read above"),
         };
         let (user_control, unit) = units(control, &mesh, &label)?;
-        let (surface, user_control) = working_surface(user_control, unit, mesh, n);
-        check_size(surface.num_domains(), n)?;
+        let (surface, user_control) = working_surface(user_control, unit, mesh, n_depth);
+        let layout = texel_layout(&surface, n, texel_size, unit, &label, &MESH_JOB)?;
         let loaded = Loaded {
             mesh_label: label,
             surface,
             user_control,
             unit,
+            layout,
+            n_depth,
             load_seconds: t0.elapsed().as_secs_f64(),
         };
         Self::from_loaded(
@@ -302,6 +377,8 @@ impl Session {
             surface,
             user_control,
             unit,
+            layout,
+            n_depth,
             load_seconds,
         } = loaded;
         let n = settings.resolution;
@@ -316,7 +393,7 @@ impl Session {
 
         report(Stage::Geometry, 0, faces);
         let t0 = Instant::now();
-        let geometry = TexelGeometry::compute(&surface, n);
+        let geometry = TexelGeometry::compute_layout(&surface, layout.clone());
         let geometry_s = t0.elapsed().as_secs_f64();
         report(Stage::Geometry, faces, faces);
 
@@ -341,7 +418,7 @@ impl Session {
         };
         let field = OrientationField::compute_with(&surface, &settings.orientation, &field_options)
             .map_err(|e| Error::invalid(format!("orientation field for {mesh_label}: {e:#}")))?;
-        let frames = crate::synth::texel_frames_f32(&field, &surface, n);
+        let frames = crate::synth::layout_frames(&field, &surface, &layout);
         let field_s = t0.elapsed().as_secs_f64();
         report(Stage::Field, 1, 1);
 
@@ -355,6 +432,9 @@ impl Session {
         Ok(Session {
             mesh_label,
             resolution: n,
+            layout,
+            texel_size: settings.texel_size,
+            n_depth,
             orientation: settings.orientation.clone(),
             surface: Arc::new(surface),
             field,
@@ -407,7 +487,12 @@ impl Session {
         self.surface.num_domains()
     }
 
-    /// Texels of every synthesis (domains × N²).
+    /// Where every texel is (one N, or per-face resolutions).
+    pub fn layout(&self) -> &Arc<TexelLayout> {
+        &self.layout
+    }
+
+    /// Texels of every synthesis (domains × N², or the per-face layout's total).
     pub fn texels(&self) -> usize {
         self.texels.len()
     }
@@ -508,6 +593,11 @@ impl Session {
         let settings = &params.settings;
         let n = self.resolution;
         let faces = self.faces();
+        if self.layout.uniform_n().is_none()
+            && matches!(settings.method, Method::Multiscale | Method::Textons)
+        {
+            return Err(Error::invalid(super::MULTISCALE_TEXEL_SIZE));
+        }
         settings.weights.check(example)?;
         let has_height = example.height_map().is_some();
         if params.displace.is_some() && !has_height {
@@ -532,12 +622,20 @@ impl Session {
             method: settings.method,
             displace: params.displace.is_some(),
         };
-        crate::memory::check(
-            &self.mesh_label,
-            n,
-            &job,
-            &crate::memory::estimate(&self.size, n, &job),
-        )?;
+        match self.texel_size {
+            None => crate::memory::check(
+                &self.mesh_label,
+                n,
+                &job,
+                &crate::memory::estimate(&self.size, n, &job),
+            )?,
+            Some(_) => crate::memory::check_layout(
+                &self.mesh_label,
+                &self.surface.control,
+                &self.layout,
+                &job,
+            )?,
+        }
 
         progress(Stage::Synthesis, 0, faces);
         let t0 = Instant::now();
@@ -609,16 +707,16 @@ impl Session {
             }
         };
         let settings = &params.settings;
-        let n = self.resolution;
         let faces = self.faces();
+        let layout = &self.layout;
         // Written in the user's units (positions, normals, displacement).
         let (surface, geometry) = if self.unit != 1.0 {
             let (s, g) = self.user.get_or_init(|| {
                 let s = match &self.user_control {
-                    Some(c) => crate::memory::build_surface(c.clone(), n),
+                    Some(c) => crate::memory::build_surface(c.clone(), self.n_depth),
                     None => unreachable!("kept when unit != 1"),
                 };
-                let g = TexelGeometry::compute(&s, n);
+                let g = TexelGeometry::compute_layout(&s, layout.clone());
                 (Arc::new(s), Arc::new(g))
             });
             (s.clone(), g.clone())
@@ -629,7 +727,7 @@ impl Session {
 
         progress(Stage::Maps, 0, 1);
         let t0 = Instant::now();
-        let mut maps = crate::synth::face_maps(&example, &s.source, faces, n);
+        let mut maps = crate::synth::face_maps(&example, &s.source, layout);
         drop(s.source);
         // facemaps.exr keeps the normal map in the field's frame (T, N x T, N): the file's
         // green axis is image up, which is +v2 when rows run along -v2 (outside) and -v2
@@ -683,7 +781,10 @@ impl Session {
             scale,
             scale_source: self.scale_source.into(),
             texel_spacing: spacing,
-            resolution: n,
+            resolution: layout
+                .uniform_n()
+                .unwrap_or(layout.max_dims().0.max(layout.max_dims().1)),
+            texel_size: self.texel_size,
             orientation: orientation_label(&self.orientation),
             orientation_choice: self
                 .field
@@ -695,7 +796,7 @@ impl Session {
                 }),
             faces,
             control_faces: surface.control.mesh.num_faces(),
-            texels: (faces * n * n) as u64,
+            texels: layout.len() as u64,
             example: ExampleInfo {
                 width: example.width,
                 height: example.height,

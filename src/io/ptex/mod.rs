@@ -81,28 +81,48 @@ pub fn write_face_maps_ptex(
 ) -> Result<PtexSummary> {
     let path = path.as_ref();
     maps.validate()?;
-    if maps.faces != surface.num_domains() {
+    if maps.faces() != surface.num_domains() {
         return Err(Error::invalid(format!(
             "face maps have {} domains but the mesh has {}",
-            maps.faces,
+            maps.faces(),
             surface.num_domains()
         )));
     }
-    let n = maps.resolution;
+    let names = maps.names();
+    let mut meta = vec![(
+        META_CHANNELS.to_string(),
+        MetaValue::String(names.join(",")),
+    )];
+    let Some(n) = maps.uniform_n() else {
+        // Per-face resolutions (`--texel-size`) are powers of two already: Ptex's own
+        // per-face resolution fields, texels copied as they are.
+        let res = maps
+            .layout
+            .resolutions()
+            .expect("a layout is uniform or per face");
+        let infos = face_infos(surface, |d| Res::new(res[d].log2_u(), res[d].log2_v()));
+        meta.extend(mesh_meta(surface));
+        let img = PtexImage {
+            faces: &infos,
+            channels: names.len(),
+            alpha: names.iter().position(|&c| c == "A"),
+            meta,
+        };
+        return write_ptex(path, &img, opts, |f, buf| {
+            let r = maps.layout.range(f);
+            let nn = r.len();
+            for (k, (_, data)) in maps.channels.iter().enumerate() {
+                buf[k * nn..(k + 1) * nn].copy_from_slice(&data[r.clone()]);
+            }
+        });
+    };
     let r = n.next_power_of_two();
     let log2 = r.trailing_zeros() as u8;
     let infos = face_infos(surface, |_| Res::square(log2));
-    let names = maps.names();
-    let mut meta = vec![
-        (
-            META_CHANNELS.to_string(),
-            MetaValue::String(names.join(",")),
-        ),
-        (
-            META_RESOLUTION.to_string(),
-            MetaValue::Int32(vec![n as i32]),
-        ),
-    ];
+    meta.push((
+        META_RESOLUTION.to_string(),
+        MetaValue::Int32(vec![n as i32]),
+    ));
     meta.extend(mesh_meta(surface));
     let img = PtexImage {
         faces: &infos,
@@ -120,7 +140,7 @@ pub fn write_face_maps_ptex(
     } else {
         // Resample with the cross-face bilinear fetch, so faces still meet continuously.
         let c = names.len();
-        let mut inter = vec![0f32; maps.faces * nn * c];
+        let mut inter = vec![0f32; maps.faces() * nn * c];
         for (k, (_, data)) in maps.channels.iter().enumerate() {
             for (i, v) in data.iter().enumerate() {
                 inter[i * c + k] = *v;

@@ -634,15 +634,15 @@ impl View<'_> {
     /// texels lie inside their domain (most of them) skip the cross-face ring lookup.
     #[inline]
     pub fn fetch_at(&self, layout: &MapLayout, loc: DomainLocation, out: &mut [f32]) -> bool {
-        let n = layout.n();
-        let fx = loc.u * n as f64 - 0.5;
-        let fy = loc.v * n as f64 - 0.5;
+        let (nu, nv) = layout.dims(loc.domain.idx());
+        let fx = loc.u * nu as f64 - 0.5;
+        let fy = loc.v * nv as f64 - 0.5;
         let (x0, y0) = (fx.floor(), fy.floor());
-        if x0 >= 0.0 && y0 >= 0.0 && x0 + 1.0 < n as f64 && y0 + 1.0 < n as f64 {
+        if x0 >= 0.0 && y0 >= 0.0 && x0 + 1.0 < nu as f64 && y0 + 1.0 < nv as f64 {
             let (x0, y0) = (x0 as usize, y0 as usize);
             let (ax, ay) = ((fx - x0 as f64) as f32, (fy - y0 as f64) as f32);
             let base = layout.texel_index(loc.domain, x0, y0);
-            let idx = [base, base + 1, base + n, base + n + 1];
+            let idx = [base, base + 1, base + nu, base + nu + 1];
             let w = [
                 (1.0 - ax) * (1.0 - ay),
                 ax * (1.0 - ay),

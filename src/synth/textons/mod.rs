@@ -78,7 +78,11 @@ pub fn run(
     let inputs = multiscale::Inputs {
         surface: target.surface,
         field: target.field,
-        resolution: target.texels.resolution(),
+        resolution: target
+            .texels
+            .layout()
+            .uniform_n()
+            .ok_or_else(|| crate::Error::invalid(crate::synthesizer::MULTISCALE_TEXEL_SIZE))?,
         spacing: target.spacing,
         scale: target.scale(),
         seed: target.seed,
