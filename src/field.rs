@@ -76,6 +76,11 @@ pub enum Orientation {
     Straight,
     /// Closest to a world axis projected on the tangent planes, then smoothed.
     Axis(DVec3),
+    /// The example's up (image rows towards row 0, +v2) along a world axis projected on the
+    /// tangent planes: the axis field turned a quarter, so v1 runs across the axis (`up`:
+    /// +y, the convention of OBJ exporters; `up+z` for Z-up meshes). A brick wall's courses
+    /// stay level, scales point down, whatever the mesh's shape.
+    Up(DVec3),
     /// Constraints from a file (see docs/field.md).
     Constraints(std::path::PathBuf),
 }
@@ -87,6 +92,12 @@ impl Orientation {
         match s.trim() {
             "auto" => Orientation::Auto,
             "straight" => Orientation::Straight,
+            "up" | "up+y" => Orientation::Up(DVec3::Y),
+            "up-y" => Orientation::Up(DVec3::NEG_Y),
+            "up+x" => Orientation::Up(DVec3::X),
+            "up-x" => Orientation::Up(DVec3::NEG_X),
+            "up+z" => Orientation::Up(DVec3::Z),
+            "up-z" => Orientation::Up(DVec3::NEG_Z),
             "+x" | "x" => axis(DVec3::X),
             "-x" => axis(DVec3::NEG_X),
             "+y" | "y" => axis(DVec3::Y),
@@ -117,6 +128,11 @@ impl Orientation {
                     .map(|(_, n)| n.to_string())
                     .unwrap_or_else(|| format!("axis({}, {}, {})", a.x, a.y, a.z))
             }
+            Orientation::Up(a) if *a == DVec3::Y => "up".into(),
+            Orientation::Up(a) => format!(
+                "up{}",
+                Orientation::Axis(*a).label().trim_start_matches("axis")
+            ),
             Orientation::Constraints(p) => p.display().to_string(),
         }
     }
@@ -240,6 +256,9 @@ pub struct Constraints {
     pub points: Vec<(DVec3, Option<f64>, f64)>,
     /// Global axis hints (direction, weight factor).
     pub axes: Vec<(DVec3, f64)>,
+    /// Global "up" hints (direction, weight factor): the target is the projected axis
+    /// turned a quarter (× n), so that v2 — the example's up — follows the axis.
+    pub ups: Vec<(DVec3, f64)>,
     /// The file's 1-based line of each entry of `vertices` (empty when not from a file),
     /// for messages about indices the mesh does not have.
     pub vertex_lines: Vec<usize>,
@@ -1423,7 +1442,7 @@ impl OrientationField {
     ) -> anyhow::Result<Self> {
         let constraints = match orientation {
             Orientation::Auto | Orientation::Straight => Constraints::default(),
-            Orientation::Axis(a) => {
+            Orientation::Axis(a) | Orientation::Up(a) => {
                 if a.length() < 1e-12 || !a.is_finite() {
                     bail!(
                         "orientation axis ({}, {}, {}) has no direction",
@@ -1432,9 +1451,16 @@ impl OrientationField {
                         a.z
                     );
                 }
-                Constraints {
-                    axes: vec![(a.normalize(), 1.0)],
-                    ..Default::default()
+                let hint = vec![(a.normalize(), 1.0)];
+                match orientation {
+                    Orientation::Up(_) => Constraints {
+                        ups: hint,
+                        ..Default::default()
+                    },
+                    _ => Constraints {
+                        axes: hint,
+                        ..Default::default()
+                    },
                 }
             }
             Orientation::Constraints(p) => {
@@ -1690,6 +1716,9 @@ fn set_targets(
         let mut a = DVec3::ZERO;
         for &(axis, w) in &c.axes {
             a += (axis - n * n.dot(axis)) * w;
+        }
+        for &(axis, w) in &c.ups {
+            a += (axis - n * n.dot(axis)).cross(n) * w;
         }
         for &(p, r, sign) in &c.points {
             let r = r.unwrap_or(0.25 * diag);

@@ -68,13 +68,18 @@ impl RunInfo {
 
 /// report.json's orientation label back into an [`Orientation`].
 fn parse_orientation(s: &str) -> Orientation {
-    if let Some(inner) = s.strip_prefix("axis (").and_then(|r| r.strip_suffix(')')) {
-        let v: Vec<f64> = inner
-            .split(',')
-            .filter_map(|x| x.trim().parse().ok())
-            .collect();
-        if let [x, y, z] = v[..] {
-            return Orientation::Axis(DVec3::new(x, y, z));
+    for (prefix, make) in [
+        ("axis (", Orientation::Axis as fn(DVec3) -> Orientation),
+        ("up (", Orientation::Up),
+    ] {
+        if let Some(inner) = s.strip_prefix(prefix).and_then(|r| r.strip_suffix(')')) {
+            let v: Vec<f64> = inner
+                .split(',')
+                .filter_map(|x| x.trim().parse().ok())
+                .collect();
+            if let [x, y, z] = v[..] {
+                return make(DVec3::new(x, y, z));
+            }
         }
     }
     Orientation::parse(s)

@@ -867,6 +867,7 @@ fn orientation_label(o: &Orientation) -> String {
         Orientation::Auto => "auto".into(),
         Orientation::Straight => "straight".into(),
         Orientation::Axis(a) => format!("axis ({}, {}, {})", a.x, a.y, a.z),
+        Orientation::Up(a) => format!("up ({}, {}, {})", a.x, a.y, a.z),
         Orientation::Constraints(p) => p.display().to_string(),
     }
 }
@@ -1035,6 +1036,26 @@ impl SynthResult {
                     // `geometry_maps()`, without a second copy of the maps).
                     let p = dir.join(GEOMETRY_FILE);
                     let g = &self.geometry;
+                    // Streamed below, so checked here (write_face_maps checks its own).
+                    use crate::io::exr::check_finite_by;
+                    check_finite_by(
+                        "texel position",
+                        g.pos.len(),
+                        |i| g.pos[i].is_finite(),
+                        &g.layout,
+                    )?;
+                    check_finite_by(
+                        "texel normal",
+                        g.normal.len(),
+                        |i| g.normal[i].is_finite(),
+                        &g.layout,
+                    )?;
+                    check_finite_by(
+                        "field tangent",
+                        self.tangents.len(),
+                        |i| self.tangents[i].iter().all(|v| v.is_finite()),
+                        &g.layout,
+                    )?;
                     let mut names = crate::bake::GEOMETRY_CHANNELS.to_vec();
                     names.extend(TANGENT_CHANNELS);
                     crate::io::exr::write_tiles_with_attributes(

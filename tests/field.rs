@@ -43,6 +43,34 @@ fn energy_falls_monotonically_on_every_level() {
     }
 }
 
+/// `up`: the example's up (v2) follows the projected axis to 2° wherever the projection
+/// is not small, so v1 runs level (across the axis): the axis field turned a quarter.
+#[test]
+fn up_field_on_tori_puts_v2_along_the_projected_axis_within_2_degrees() {
+    let s = load("meshes/torus.obj");
+    let f = OrientationField::compute(&s, &Orientation::parse("up")).unwrap();
+    assert_eq!(Orientation::parse("up"), Orientation::Up(DVec3::Y));
+    let mut worst: f64 = 0.0;
+    let mut n = 0;
+    for d in 0..s.num_domains() {
+        for (u, v) in [(0.13, 0.71), (0.5, 0.5), (0.9, 0.2)] {
+            let fr = f.frame(&s, DomainId(d as u32), u, v);
+            let p = DVec3::Y - fr.n * fr.n.dot(DVec3::Y);
+            if p.length() > 0.3 {
+                worst = worst.max(fr.v2.angle_between(p).to_degrees());
+                assert!(
+                    fr.v1.dot(DVec3::Y).abs() < 0.05,
+                    "v1 not level: {:?}",
+                    fr.v1
+                );
+                n += 1;
+            }
+        }
+    }
+    println!("up on the torus: worst {worst:.4}° over {n} points");
+    assert!(n > 100 && worst < 2.0, "{worst}°");
+}
+
 /// The projected axis of a torus (axis y) is the meridian direction: v1 must follow it to
 /// 2° wherever the projection is not small (it vanishes on the top and bottom circles).
 #[test]

@@ -227,6 +227,22 @@ pub fn parse_orient(s: &str) -> Result<surfsynth::field::Orientation, String> {
     if lower == "straight" {
         return Ok(Orientation::Straight);
     }
+    if let Some(up) = lower.strip_prefix("up") {
+        let (sign, rest) = match up.as_bytes().first() {
+            Some(b'+') => (1.0, &up[1..]),
+            Some(b'-') => (-1.0, &up[1..]),
+            _ => (1.0, up),
+        };
+        match axis(if rest.is_empty() { "y" } else { rest }) {
+            Some(a) => return Ok(Orientation::Up(a * sign)),
+            None if !std::path::Path::new(t).is_file() => {
+                return Err(format!(
+                    "'{s}' is not up, up+x, up-x, up+y, up-y, up+z or up-z"
+                ))
+            }
+            None => {}
+        }
+    }
     let (sign, rest) = match lower.as_bytes().first() {
         Some(b'+') => (1.0, &lower[1..]),
         Some(b'-') => (-1.0, &lower[1..]),
@@ -240,7 +256,7 @@ pub fn parse_orient(s: &str) -> Result<surfsynth::field::Orientation, String> {
         return Ok(Orientation::Constraints(p.to_path_buf()));
     }
     Err(format!(
-        "'{s}' is not auto, straight, +x, -x, +y, -y, +z, -z or an existing constraints file"
+        "'{s}' is not auto, straight, up[+-axis], +x, -x, +y, -y, +z, -z or an existing constraints file"
     ))
 }
 
@@ -328,5 +344,23 @@ mod tests {
             let args: Vec<&str> = line.split_whitespace().collect();
             assert!(Cli::try_parse_from(&args).is_err(), "{line}");
         }
+    }
+
+    #[test]
+    fn orient_values_parse_to_their_fields() {
+        use glam::DVec3;
+        use surfsynth::field::Orientation as O;
+        for (text, want) in [
+            ("up", O::Up(DVec3::Y)),
+            ("UP+Z", O::Up(DVec3::Z)),
+            ("up-x", O::Up(DVec3::NEG_X)),
+            ("-y", O::Axis(DVec3::NEG_Y)),
+            ("auto", O::Auto),
+            ("straight", O::Straight),
+        ] {
+            assert_eq!(parse_orient(text).unwrap(), want, "{text}");
+        }
+        let e = parse_orient("up+w").unwrap_err();
+        assert!(e.contains("up+x"), "{e}");
     }
 }

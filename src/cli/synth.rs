@@ -144,8 +144,10 @@ pub struct SynthArgs {
     /// Surface length covered by one example pixel (default: median texel spacing).
     #[arg(long, value_name = "S", value_parser = parse_positive, allow_negative_numbers = true)]
     pub scale: Option<f64>,
-    /// Orientation field: auto, +x|-x|+y|-y|+z|-z, or a constraints file.
-    #[arg(long, value_name = "auto|AXIS|FILE", default_value = "auto", value_parser = parse_orient, allow_hyphen_values = true)]
+    /// Orientation field: auto (the smoothest field), up[+-AXIS] (the example upright
+    /// along an axis, +y by default: level brick courses), straight, +x|-x|+y|-y|+z|-z (the
+    /// example's x along an axis), or a constraints file.
+    #[arg(long, value_name = "auto|up|AXIS|FILE", default_value = "auto", value_parser = parse_orient, allow_hyphen_values = true)]
     pub orient: Orientation,
     /// Random seed; the same seed gives the same files for any thread count.
     #[arg(

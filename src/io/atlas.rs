@@ -991,6 +991,26 @@ pub fn export_with_frames(
     };
     let images = images?;
     let alpha = images.alpha;
+    // The last guard before the meshes (issue 18): never a `v inf inf inf`.
+    if let Some(k) = mesh
+        .positions
+        .iter()
+        .chain(&mesh.normals)
+        .position(|p| !p.iter().all(|v| v.is_finite()))
+    {
+        return Err(Error::file(
+            dir.join(OBJ_NAME),
+            format!(
+                "surface {} {} is not finite; nothing was written",
+                if k < mesh.positions.len() {
+                    "point"
+                } else {
+                    "normal"
+                },
+                k % mesh.positions.len().max(1)
+            ),
+        ));
+    }
 
     let mut map_files = Vec::with_capacity(images.maps.len());
     let mut map_list = Vec::with_capacity(images.maps.len());

@@ -307,6 +307,9 @@ pub fn write_face_maps_with(
     compression: Compression,
 ) -> Result<()> {
     maps.validate()?;
+    for (name, data) in &maps.channels {
+        check_finite(&format!("face map channel '{name}'"), data, &maps.layout)?;
+    }
     let names = maps.names();
     write_tiles(
         path,
@@ -322,6 +325,32 @@ pub fn write_face_maps_with(
         },
         &|_| {},
     )
+}
+
+/// Refuses a non-finite value in per-texel `data` (global texel order of `layout`), naming
+/// the first one's face and texel. The last guard before a file: whatever went wrong
+/// upstream (an extreme input the checks missed, a bug), NaN or ±inf must never reach a
+/// renderer (issue 18), and an error that says where beats a file that looks fine.
+pub fn check_finite(what: &str, data: &[f32], layout: &TexelLayout) -> Result<()> {
+    check_finite_by(what, data.len(), |i| data[i].is_finite(), layout)
+}
+
+/// [`check_finite`] for per-texel values of any type (`finite(i)` says whether texel `i`'s
+/// value is finite).
+pub fn check_finite_by(
+    what: &str,
+    len: usize,
+    finite: impl Fn(usize) -> bool + Sync,
+    layout: &TexelLayout,
+) -> Result<()> {
+    use rayon::prelude::*;
+    let Some(i) = (0..len).into_par_iter().position_first(|i| !finite(i)) else {
+        return Ok(());
+    };
+    let (d, x, y) = layout.coords(i);
+    Err(Error::invalid(format!(
+        "{what} is not finite at face domain {d}, texel ({x}, {y}); nothing was written"
+    )))
 }
 
 /// Streams a face-map file: `fill(f, tile)` is called once per domain f (in parallel on
@@ -759,6 +788,27 @@ pub fn read_face_maps(path: impl AsRef<Path>) -> Result<FaceMaps> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_non_finite_value_is_refused_naming_its_texel_and_nothing_is_written() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("m.exr");
+        for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+            let mut m = FaceMaps::new(3, 4, &["R", "G"]);
+            m.channel_mut("G").unwrap()[2 * 16 + 4 + 3] = bad;
+            let e = write_face_maps(&path, &m).unwrap_err().to_string();
+            assert!(
+                e.contains("'G'") && e.contains("domain 2") && e.contains("(3, 1)"),
+                "{e}"
+            );
+            assert!(!path.exists());
+            assert_eq!(
+                std::fs::read_dir(dir.path()).unwrap().count(),
+                0,
+                "no temporary left"
+            );
+        }
+    }
 
     #[test]
     fn layout_follows_the_brief() {
