@@ -39,8 +39,8 @@ fn bricks() -> Example {
     Example::from_linear(side, side, rgb)
 }
 
-/// Spot from one end to the other: factor 1 at every control vertex behind z = −0.45, 3 at
-/// every one in front of z = 0.85 (the head), interpolated in between.
+/// Spot from one end to the other: factor 1 at every control vertex below z = −0.45 (the
+/// head and snout), 3 at every one above z = 0.85 (the rump), interpolated in between.
 fn spot_ramp() -> ScaleMap {
     let text = std::fs::read_to_string(spot()).unwrap();
     let mut map = String::new();
