@@ -554,16 +554,16 @@ fn components(lm: &LimitMesh) -> Vec<usize> {
     }
     let mut id = vec![usize::MAX; nv];
     let mut next = 0;
-    let mut out = vec![0usize; nv];
-    for i in 0..nv {
-        let r = find(&mut parent, i);
-        if id[r] == usize::MAX {
-            id[r] = next;
-            next += 1;
-        }
-        out[i] = id[r];
-    }
-    out
+    (0..nv)
+        .map(|i| {
+            let r = find(&mut parent, i);
+            if id[r] == usize::MAX {
+                id[r] = next;
+                next += 1;
+            }
+            id[r]
+        })
+        .collect()
 }
 
 /// Bilinear blend of per-vertex values over the level face holding a base point.

@@ -281,7 +281,7 @@ fn outputs_and_eval() {
     let r = run(Method::Jump, 8, Some(spot_ramp()), None);
     r.write(&with).unwrap();
     run(Method::Jump, 8, None, None).write(&without).unwrap();
-    let g = surfsynth::io::exr::read_face_maps(&with.join("geometry.exr")).unwrap();
+    let g = surfsynth::io::exr::read_face_maps(with.join("geometry.exr")).unwrap();
     let ch = g
         .channel("scale")
         .expect("geometry.exr has 'scale' with a scale map");
@@ -290,7 +290,7 @@ fn outputs_and_eval() {
         .iter()
         .all(|&v| v >= (s * 0.999) as f32 && v <= (s * 3.001) as f32));
     assert!(ch.iter().any(|&v| v < (s * 1.2) as f32) && ch.iter().any(|&v| v > (s * 2.5) as f32));
-    let g0 = surfsynth::io::exr::read_face_maps(&without.join("geometry.exr")).unwrap();
+    let g0 = surfsynth::io::exr::read_face_maps(without.join("geometry.exr")).unwrap();
     assert!(g0.channel("scale").is_none());
     let rep = surfsynth::report::read(&with).unwrap();
     let m = &rep["scale_map"];
