@@ -49,6 +49,7 @@ pub fn command(out: &Path) -> SynthCommand {
         resolution: RESOLUTION,
         texel_size: None,
         scale: None,
+        scale_map: None,
         orientation: Orientation::Auto,
         seed: SEED,
         search: None,

@@ -26,6 +26,7 @@ pub mod relight;
 pub mod render;
 pub mod report;
 pub mod sampling;
+pub mod scale_field;
 pub mod synth;
 pub mod synthesizer;
 pub mod texels;

@@ -87,6 +87,9 @@ pub struct Report {
     pub scale: f64,
     /// "median texel spacing" (the default) or "given".
     pub scale_source: String,
+    /// `--scale-map`: the file, its constraints and the range of factors (absent without).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub scale_map: Option<crate::scale_field::ScaleMapInfo>,
     /// h: median distance between adjacent texel centres (BRIEF), for reference.
     pub texel_spacing: f64,
     pub resolution: usize,

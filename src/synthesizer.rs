@@ -134,6 +134,9 @@ impl Handedness {
 pub const TANGENT_CHANNELS: [&str; 3] = ["T.X", "T.Y", "T.Z"];
 /// geometry.exr header attribute: [`Handedness::bitangent_sign`].
 pub const TANGENT_HANDEDNESS: &str = "tangentHandedness";
+/// geometry.exr channel of a `--scale-map` run: the requested local scale at each texel
+/// (surface length per example pixel, the global scale × the map's factor, user units).
+pub const LOCAL_SCALE_CHANNEL: &str = crate::scale_field::CHANNEL;
 
 /// Neighbourhood search of the multiscale method (`--search`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -271,6 +274,13 @@ impl Stage {
 /// done = total when it ends; the synthesis stage also reports every wave.
 pub type Progress = dyn Fn(Stage, usize, usize) + Send + Sync;
 
+/// Where a scale map comes from ([`Synthesizer::scale_map`]).
+#[derive(Clone, Debug)]
+enum ScaleMapInput {
+    Path(PathBuf),
+    Map(crate::scale_field::ScaleMap),
+}
+
 /// Builder for one synthesis run (see the module docs).
 pub struct Synthesizer {
     mesh: MeshSource,
@@ -282,6 +292,8 @@ pub struct Synthesizer {
     resolution: usize,
     texel_size: Option<f64>,
     scale: Option<f64>,
+    /// `--scale-map`: a file, read in the load stage, or constraints given in memory.
+    scale_map: Option<ScaleMapInput>,
     orientation: Orientation,
     seed: u64,
     threads: Option<usize>,
@@ -317,6 +329,10 @@ pub struct SynthResult {
     /// The orientation field's unit v1 per texel (geometry.exr `T.X T.Y T.Z`): with the
     /// normal N, the frame (T, N x T, N) that facemaps.exr's `normal.*` is expressed in.
     pub tangents: Vec<[f32; 3]>,
+    /// With a scale map, the requested local scale per texel (geometry.exr `scale`:
+    /// surface length per example pixel, user units) — what `eval`'s scale fidelity
+    /// divides by. `None` without one (geometry.exr then has no `scale` channel).
+    pub local_scale: Option<Vec<f32>>,
     /// Which way the example's rows run (geometry.exr `tangentHandedness`).
     pub handedness: Handedness,
     /// The surface (for exporters that need topology, e.g. the atlas); shared with the
@@ -350,6 +366,7 @@ impl Synthesizer {
             resolution: 32,
             texel_size: None,
             scale: None,
+            scale_map: None,
             orientation: Orientation::Auto,
             seed: 1,
             threads: None,
@@ -399,6 +416,20 @@ impl Synthesizer {
     /// Surface length covered by one example pixel; `None` = median texel spacing.
     pub fn scale(mut self, s: impl Into<Option<f64>>) -> Self {
         self.scale = s.into();
+        self
+    }
+    /// Spatially varying scale (`--scale-map FILE`, docs/formats.md): factors at control
+    /// vertices or surface points, interpolated smoothly over the surface
+    /// ([`crate::scale_field`]), multiply the scale locally. Read in the load stage;
+    /// errors name the file and line.
+    pub fn scale_map(mut self, path: impl Into<PathBuf>) -> Self {
+        self.scale_map = Some(ScaleMapInput::Path(path.into()));
+        self
+    }
+    /// [`Synthesizer::scale_map`] with constraints made in memory
+    /// ([`crate::scale_field::ScaleMap::parse`] or built directly).
+    pub fn scale_map_constraints(mut self, map: crate::scale_field::ScaleMap) -> Self {
+        self.scale_map = Some(ScaleMapInput::Map(map));
         self
     }
     /// Orientation field (`--orient`).
@@ -534,6 +565,7 @@ impl Synthesizer {
             texel_size: self.texel_size,
             scale: self.scale,
             orientation: Orientation::Auto,
+            scale_map: None,
         }
         .validate()?;
         if self.threads == Some(0) {
@@ -782,6 +814,23 @@ impl Synthesizer {
             };
             crate::memory::check_displace(&mesh_label, a, crate::memory::extent(control))?;
         }
+        // The scale map: read and checked against the control mesh before --out is opened.
+        let scale_map = match &self.scale_map {
+            None => None,
+            Some(input) => {
+                let m = match input {
+                    ScaleMapInput::Path(p) => crate::scale_field::ScaleMap::load(p)?,
+                    ScaleMapInput::Map(m) => m.clone(),
+                };
+                let control = match (&user_control, &self.mesh) {
+                    (Some(c), _) => c,
+                    (None, MeshSource::Surface(s)) => &s.control,
+                    (None, MeshSource::Path(_)) => unreachable!("a path mesh is read above"),
+                };
+                m.check(control.mesh.num_vertices())?;
+                Some(m)
+            }
+        };
         let (surface, user_control) =
             session::working_surface(user_control, unit, self.mesh, n_depth);
         // The texel layout: one N, or per-face resolutions from the texel size (in the
@@ -806,6 +855,7 @@ impl Synthesizer {
             texel_size: self.texel_size,
             scale: self.scale,
             orientation: self.orientation.clone(),
+            scale_map,
         };
         let loaded = session::Loaded {
             mesh_label,
@@ -904,7 +954,11 @@ fn check_size(faces: usize, n: usize) -> Result<()> {
 impl SynthResult {
     /// The geometry maps (geometry.exr content).
     pub fn geometry_maps(&self) -> FaceMaps {
-        crate::synth::geometry_maps(&self.geometry)
+        let mut m = crate::synth::geometry_maps(&self.geometry);
+        if let Some(s) = &self.local_scale {
+            m.channels.push((LOCAL_SCALE_CHANNEL.into(), s.clone()));
+        }
+        m
     }
 
     /// Writes BRIEF's output directory into `dir` (created if missing): facemaps.exr,
@@ -1058,6 +1112,9 @@ impl SynthResult {
                     )?;
                     let mut names = crate::bake::GEOMETRY_CHANNELS.to_vec();
                     names.extend(TANGENT_CHANNELS);
+                    if self.local_scale.is_some() {
+                        names.push(LOCAL_SCALE_CHANNEL);
+                    }
                     crate::io::exr::write_tiles_with_attributes(
                         &p,
                         crate::io::exr::TileLayout::of(g.layout.clone()),
@@ -1067,6 +1124,11 @@ impl SynthResult {
                         |f, tile| {
                             let r = g.layout.range(f);
                             for (c, out) in tile.chunks_exact_mut(r.len()).enumerate() {
+                                if c == 9 {
+                                    let s = self.local_scale.as_ref().expect("named above");
+                                    out.copy_from_slice(&s[r.clone()]);
+                                    continue;
+                                }
                                 if c >= 6 {
                                     for (o, t) in out.iter_mut().zip(&self.tangents[r.clone()]) {
                                         *o = t[c % 3];
@@ -1150,6 +1212,8 @@ pub struct SynthCommand {
     /// `--texel-size L` (per-face resolutions instead of `resolution`).
     pub texel_size: Option<f64>,
     pub scale: Option<f64>,
+    /// `--scale-map FILE`.
+    pub scale_map: Option<PathBuf>,
     pub orientation: Orientation,
     pub seed: u64,
     /// `--search` (multiscale only; `None` = the default, k-coherence).
@@ -1191,6 +1255,9 @@ impl SynthCommand {
             .cache(self.cache.clone());
         if let Some(h) = &self.height {
             s = s.height(h);
+        }
+        if let Some(m) = &self.scale_map {
+            s = s.scale_map(m);
         }
         for (name, file) in &self.maps {
             s = s.map(name, file);

@@ -1408,3 +1408,116 @@ fn h11_bench_with_absurd_sizes_is_refused_before_it_starts() {
     ]);
     assert_clean_failure(&o, none, "bench exr", &["--max-memory 1.0 MiB"]);
 }
+
+/// `synth --scale-map FILE` with `text` in FILE: the failure names the file (and line).
+#[track_caller]
+fn bad_scale_map(text: &str, names_line: Option<usize>, problem: &[&str]) -> String {
+    let tmp = tempfile::tempdir().unwrap();
+    let map = tmp.path().join("scale map.txt");
+    std::fs::write(&map, text).unwrap();
+    let m = map.display().to_string();
+    let names = match names_line {
+        Some(l) => format!("{m}: line {l}:"),
+        None => format!("{m}:"),
+    };
+    let (out, msg) = synth_fails_in(
+        &spot(),
+        &gravel(),
+        &["--resolution", "4", "--scale-map", &m],
+        &names,
+        problem,
+    );
+    assert!(
+        !out.path().join("out").exists(),
+        "--out is not even created for a bad scale map"
+    );
+    msg
+}
+
+#[test]
+fn s01_missing_scale_map() {
+    let tmp = tempfile::tempdir().unwrap();
+    let map = tmp.path().join("nowhere.txt");
+    let m = map.display().to_string();
+    synth_fails(
+        &spot(),
+        &gravel(),
+        &["--scale-map", &m],
+        &format!("{m}: cannot read scale map"),
+        &["no such file"],
+    );
+}
+
+#[test]
+fn s02_malformed_scale_map_lines() {
+    bad_scale_map(
+        "# ok\nvertex 3\n",
+        Some(2),
+        &["expected `vertex INDEX FACTOR`"],
+    );
+    bad_scale_map("point 0 0 2\n", Some(1), &["expected `point X Y Z FACTOR`"]);
+    bad_scale_map(
+        "v 1 2\nv x 2\n",
+        Some(2),
+        &["vertex index 'x' is not a whole number"],
+    );
+    bad_scale_map("p 0 zero 0 2\n", Some(1), &["'zero' is not a number"]);
+    bad_scale_map("scale 2\n", Some(1), &["unknown keyword 'scale'"]);
+    bad_scale_map("# nothing here\n", None, &["has no constraints"]);
+    bad_scale_map(
+        "v 0 2\nv 0 3\n",
+        Some(2),
+        &["vertex 0 has factor 3 here and 2 on line 1"],
+    );
+}
+
+#[test]
+fn s03_scale_map_vertex_out_of_range() {
+    bad_scale_map(
+        "v 0 1\nv 188 2\n",
+        Some(2),
+        &["vertex 188, but the mesh has 188 vertices (0-based)"],
+    );
+}
+
+#[test]
+fn s04_scale_map_factor_not_positive_or_not_finite() {
+    for f in ["0", "-1", "NaN", "inf", "-inf"] {
+        bad_scale_map(
+            &format!("vertex 3 {f}\n"),
+            Some(1),
+            &[&format!("factor {f} must be a finite number > 0")],
+        );
+    }
+    bad_scale_map("v 1 two\n", Some(1), &["factor 'two' is not a number"]);
+}
+
+#[test]
+fn s05_scale_map_ratio_too_large() {
+    let msg = bad_scale_map(
+        "v 0 0.1\nv 5 1\nv 9 2\n",
+        None,
+        &[
+            "factors 0.1 (line 1) and 2 (line 3)",
+            "20.000x apart",
+            "at most 16x",
+        ],
+    );
+    assert!(!msg.contains("line 2"), "{msg}");
+}
+
+#[test]
+fn s06_scale_map_point_off_the_surface() {
+    // Found when the map is interpolated (after --out was opened: it stays empty).
+    let tmp = tempfile::tempdir().unwrap();
+    let map = tmp.path().join("far.txt");
+    std::fs::write(&map, "v 0 1\npoint 0 0 40 2\n").unwrap();
+    let m = map.display().to_string();
+    synth_fails_in(
+        &spot(),
+        &gravel(),
+        &["--resolution", "4", "--scale-map", &m],
+        &format!("{m}: line 2: point (0, 0, 40)"),
+        &["from the surface", "points must lie on the surface"],
+    );
+}

@@ -58,6 +58,7 @@ fn run(
         resolution: n,
         spacing,
         scale,
+        scale_field: None,
         seed,
         weights: &weights,
     };
@@ -229,6 +230,7 @@ fn output_is_identical_for_any_thread_count() {
         resolution: n,
         spacing,
         scale: spacing,
+        scale_field: None,
         seed: 11,
         weights: &weights,
     };

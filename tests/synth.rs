@@ -743,6 +743,7 @@ fn diagnose_seams() {
             frames: &frames,
             schedule: &schedule,
             scale: r.report.scale,
+            factor: None,
             seed,
         },
         &CoherentParams::default(),

@@ -29,7 +29,8 @@ pub struct Cli {
 #[derive(Subcommand, Debug)]
 pub enum Command {
     /// Synthesize a texture from an example image over a subdivision surface.
-    Synth(synth::SynthArgs),
+    // Boxed: its flags are many times the size of the other commands'.
+    Synth(Box<synth::SynthArgs>),
     /// Write only the geometry maps (limit position and normal per texel).
     Bake(bake::BakeArgs),
     /// Print the sampling pattern around a surface point as JSON (sampler validation).
@@ -106,7 +107,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         });
     }
     match cli.command {
-        Command::Synth(a) => synth::run(a),
+        Command::Synth(a) => synth::run(*a),
         Command::Bake(a) => bake::run(a),
         Command::Probe(a) => probe::run(a),
         Command::Render(a) => render::run(a),

@@ -144,6 +144,10 @@ pub struct SynthArgs {
     /// Surface length covered by one example pixel (default: median texel spacing).
     #[arg(long, value_name = "S", value_parser = parse_positive, allow_negative_numbers = true)]
     pub scale: Option<f64>,
+    /// Spatially varying scale: a file of `vertex INDEX FACTOR` / `point X Y Z FACTOR` lines
+    /// (docs/formats.md); the factors, interpolated over the surface, multiply the scale.
+    #[arg(long, value_name = "FILE")]
+    pub scale_map: Option<PathBuf>,
     /// Orientation field: auto (the smoothest field), up[+-AXIS] (the example upright
     /// along an axis, +y by default: level brick courses), straight, +x|-x|+y|-y|+z|-z (the
     /// example's x along an axis), or a constraints file.
@@ -292,6 +296,7 @@ pub fn run(mut a: SynthArgs) -> anyhow::Result<()> {
         resolution: a.resolution,
         texel_size: a.texel_size,
         scale: a.scale,
+        scale_map: a.scale_map,
         orientation: a.orient,
         seed: a.seed,
         search: a.search.map(|s| match s {

@@ -165,8 +165,15 @@ pub struct Quality {
     /// The scale S used (surface length per example pixel), when known.
     pub scale: Option<f64>,
     /// r = |source_a - source_b|·S/|P_a - P_b| over adjacent pairs continuing a patch.
-    /// `None` without `source.u`/`source.v` channels or without continued pairs.
+    /// With a scale map (geometry.exr has `scale`, and no `--scale` was given) S is the
+    /// requested local scale, the mean of the pair's two values, so a result that follows
+    /// the map scores 1. `None` without `source.u`/`source.v` channels or without
+    /// continued pairs.
     pub scale_fidelity: Option<Spread>,
+    /// The smallest and largest requested local scale (geometry.exr `scale`) when scale
+    /// fidelity was measured against it; `None` with one scale S.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub local_scale: Option<[f64; 2]>,
     /// Share of adjacent pairs (finite sources) whose sources are at most 4 px apart.
     pub coherent_fraction: Option<f64>,
     /// BRIEF's patch fidelity at S = 1 (pixel noise); `None` without an example or
@@ -195,7 +202,8 @@ pub struct Quality {
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct EvalOptions {
     /// Scale S; `None` reads `scale` from DIR/report.json (only needed when the maps carry
-    /// source positions).
+    /// source positions). Given, it replaces geometry.exr's local `scale` channel (a
+    /// scale-map result measured against one scale).
     pub scale: Option<f64>,
     /// Example image for patch fidelity; `None` takes report.json's `inputs.example`
     /// when that file exists.
@@ -275,7 +283,11 @@ pub fn evaluate_with(dir: &Path, opts: &EvalOptions) -> Result<Quality> {
         Some(p) => Some(Example::load(p)?),
         None => None,
     };
-    let mut q = evaluate_maps(&colour, &geometry, scale, example.as_ref())
+    let local = match opts.scale {
+        Some(_) => None,
+        None => geometry.channel(crate::scale_field::CHANNEL),
+    };
+    let mut q = evaluate_maps_local(&colour, &geometry, scale, local, example.as_ref())
         .map_err(|e| Error::file(&colour_path, e))?;
     q.scale = scale;
     q.example = example_path.map(|p| p.display().to_string());
@@ -409,6 +421,20 @@ pub fn evaluate_maps(
     scale: Option<f64>,
     example: Option<&Example>,
 ) -> std::result::Result<Quality, String> {
+    let local = geometry.channel(crate::scale_field::CHANNEL);
+    evaluate_maps_local(colour, geometry, scale, local, example)
+}
+
+/// [`evaluate_maps`] with the requested local scale per texel given (`local`, e.g.
+/// geometry.exr's `scale`) or not: with it, scale fidelity divides each pair's
+/// |Δsource|/|ΔP| by the mean of the pair's local scales instead of `scale`.
+pub fn evaluate_maps_local(
+    colour: &FaceMaps,
+    geometry: &FaceMaps,
+    scale: Option<f64>,
+    local: Option<&[f32]>,
+    example: Option<&Example>,
+) -> std::result::Result<Quality, String> {
     let l = &*colour.layout;
     let f = l.faces();
     let n = l.largest_side();
@@ -436,6 +462,22 @@ pub fn evaluate_maps(
         }
     }
     let texels = l.len();
+    if let Some(ls) = local {
+        if ls.len() != texels {
+            return Err(format!(
+                "the '{}' channel has {} values for {texels} texels",
+                crate::scale_field::CHANNEL,
+                ls.len()
+            ));
+        }
+    }
+    let local_range = local.map(|ls| {
+        let it = ls.iter().filter(|v| v.is_finite() && **v > 0.0);
+        [
+            it.clone().fold(f64::INFINITY, |m, &v| m.min(v as f64)),
+            it.fold(0.0f64, |m, &v| m.max(v as f64)),
+        ]
+    });
     let col = |i: usize| [r[i] as f64, g[i] as f64, b[i] as f64];
     let pos = |i: usize| [px[i] as f64, py[i] as f64, pz[i] as f64];
     let finite = |a: &[f64; 3]| a.iter().all(|c| c.is_finite());
@@ -478,7 +520,14 @@ pub fn evaluate_maps(
                                 p.source_pairs += 1;
                                 if ds <= COHERENT_PIXELS {
                                     p.coherent_pairs += 1;
-                                    if let (Some(s), Some(dp)) = (scale, dp) {
+                                    let s = match local {
+                                        Some(ls) => {
+                                            let m = 0.5 * (ls[a] as f64 + ls[bi] as f64);
+                                            (m.is_finite() && m > 0.0).then_some(m)
+                                        }
+                                        None => scale,
+                                    };
+                                    if let (Some(s), Some(dp)) = (s, dp) {
                                         if dp > 0.0 {
                                             p.ratios.push(ds * s / dp);
                                         }
@@ -577,6 +626,7 @@ pub fn evaluate_maps(
         interior_mean_sq: (colour_pairs > 0).then_some(interior_mean_sq),
         scale,
         scale_fidelity: spread(ratios),
+        local_scale: local_range,
         coherent_fraction: src
             .filter(|_| source_pairs > 0)
             .map(|_| coherent_pairs as f64 / source_pairs as f64),

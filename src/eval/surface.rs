@@ -108,6 +108,9 @@ pub(crate) struct Cloud<'a> {
     pub h: f64,
     /// Surface length per example pixel.
     pub scale: f64,
+    /// The requested local scale per texel (geometry.exr `scale`, a scale-map result):
+    /// replaces `scale` in the fit's stretch bound and the fallback directions.
+    local: Option<Vec<f32>>,
 }
 
 fn channel<'a>(m: &'a FaceMaps, name: &str) -> Option<&'a [f32]> {
@@ -180,6 +183,10 @@ impl<'a> Cloud<'a> {
             cover: Vec::new(),
             h,
             scale,
+            local: geometry
+                .channel(crate::scale_field::CHANNEL)
+                .filter(|c| c.len() == total)
+                .map(|c| c.to_vec()),
         };
         // Where faces of different texel density meet, the gap between their outer texel
         // rows is half of each spacing: a point in it may be farther from the denser
@@ -286,6 +293,14 @@ impl<'a> Cloud<'a> {
         }
     }
 
+    /// Surface length per example pixel at texel t (the local scale where there is one).
+    fn scale_at(&self, t: usize) -> f64 {
+        match &self.local {
+            Some(l) if l[t].is_finite() && l[t] > 0.0 => l[t] as f64,
+            _ => self.scale,
+        }
+    }
+
     /// t's pixel directions: the least-squares fit, or the fallback (module docs).
     pub fn frame(&self, t: usize) -> Frame {
         self.fit(t).unwrap_or_else(|| self.fallback_frame(t))
@@ -370,7 +385,8 @@ impl<'a> Cloud<'a> {
             return None;
         }
         // Pixel lengths 1/σ within a factor MAX_STRETCH of the scale.
-        if !(self.scale * s2 >= 1.0 / MAX_STRETCH && self.scale * s1 <= MAX_STRETCH) {
+        let scale = self.scale_at(t);
+        if !(scale * s2 >= 1.0 / MAX_STRETCH && scale * s1 <= MAX_STRETCH) {
             return None;
         }
         let inv = [
@@ -410,8 +426,8 @@ impl<'a> Cloud<'a> {
             (None, None) => (e1, e2),
         };
         Frame {
-            a: a * self.scale,
-            b: b * self.scale,
+            a: a * self.scale_at(t),
+            b: b * self.scale_at(t),
             fallback: true,
         }
     }

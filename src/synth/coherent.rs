@@ -6,7 +6,7 @@
 //! 1. Its synthesized neighbours x_i come from [`crate::texels::TexelGraph`] (5x5 block,
 //!    across edges and around corners); unsynthesized ones are ignored.
 //! 2. Tangent displacements e_i = ((P(x_i) − P(x))·v1, −(P(x_i) − P(x))·v2) / S, in example
-//!    pixels (S = scale, surface length per pixel). Image rows grow *downwards* while v2 =
+//!    pixels (S = scale, surface length per pixel; with a scale map, x's local step). Image rows grow *downwards* while v2 =
 //!    n × v1 turns counter-clockwise seen from outside, hence the minus: without it the
 //!    texture would appear mirrored on the surface.
 //! 3. Candidates y'_i = x'_i − e_i, x'_i the recorded (floating point) source of x_i —
@@ -115,6 +115,9 @@ pub struct Inputs<'a> {
     pub schedule: &'a Schedule,
     /// Surface length per example pixel.
     pub scale: f64,
+    /// The scale map's factor per texel (`None`: 1 everywhere): texel t's neighbours are
+    /// measured at the local step `scale × factor[t]`.
+    pub factor: Option<&'a [f64]>,
     pub seed: u64,
 }
 
@@ -470,6 +473,10 @@ fn synth_domain<const K: usize>(
         cands.clear();
         let p = geom.pos[t];
         let [v1, v2] = c.inp.frames[t];
+        let inv_scale = match c.inp.factor {
+            None => c.inv_scale,
+            Some(f) => (1.0 / (c.inp.scale * f[t])) as f32,
+        };
         for &j in &nb {
             let j = j as usize;
             let (s, f) = if (base..base + nn).contains(&j) {
@@ -485,7 +492,7 @@ fn synth_domain<const K: usize>(
                 (src_g[j], &feat_g[j])
             };
             let dp = geom.pos[j] - p;
-            let e = [dp.dot(v1) * c.inv_scale, -dp.dot(v2) * c.inv_scale];
+            let e = [dp.dot(v1) * inv_scale, -dp.dot(v2) * inv_scale];
             es.push(e);
             fs.push(*f);
             // Step 3: the continuation of x_i's patch.

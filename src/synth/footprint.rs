@@ -60,8 +60,15 @@ pub struct LevelTexels {
     pub graph: TexelGraph,
     /// (v1, v2) per texel.
     pub frames: Vec<[Vec3; 2]>,
-    /// Surface length of one example pixel of this level (δ).
+    /// Surface length of one example pixel of this level (δ) where the scale map's factor
+    /// is 1 (everywhere without a scale map).
     pub step: f64,
+    /// The scale map's factor per texel ([`crate::scale_field`]): the local step at texel
+    /// `t` is `step × factor[t]` ([`LevelTexels::step_at`]). `None` without a scale map —
+    /// then every method runs exactly the arithmetic it ran before scale maps existed, so
+    /// results without `--scale-map` are bit-identical to earlier versions. f64 so that a
+    /// constant factor k gives the same local step, bit for bit, as the global scale S·k.
+    pub factor: Option<Vec<f64>>,
     /// The grid's 4-neighbourhood across domains: floods and seams run on it.
     pub edges: EdgeGraph,
 }
@@ -102,7 +109,41 @@ impl LevelTexels {
             graph,
             frames,
             step,
+            factor: None,
             edges,
+        }
+    }
+
+    /// The same texels with the scale map's factor at each (`None`: no scale map).
+    pub fn with_scale(
+        mut self,
+        surface: &Surface,
+        scale: Option<&crate::scale_field::ScaleField>,
+    ) -> Self {
+        self.factor = scale.map(|f| f.layout_factors(surface, &self.geometry.layout));
+        self
+    }
+
+    /// Surface length of one example pixel at texel `t` (the local step).
+    #[inline]
+    pub fn step_at(&self, t: usize) -> f64 {
+        match &self.factor {
+            None => self.step,
+            Some(f) => self.step * f[t],
+        }
+    }
+
+    /// Example pixels per surface length at texel `t`, as the methods use it (f32).
+    #[inline]
+    pub fn inv_step_at(&self, t: usize) -> f32 {
+        (1.0 / self.step_at(t)) as f32
+    }
+
+    /// The largest local step (the step without a scale map).
+    pub fn max_step(&self) -> f64 {
+        match &self.factor {
+            None => self.step,
+            Some(f) => self.step * f.iter().copied().fold(f64::MIN_POSITIVE, f64::max),
         }
     }
 
@@ -126,21 +167,24 @@ impl LevelTexels {
         self.geometry.is_empty()
     }
 
-    /// `P(t) − P(s)` in `s`'s frame, in example pixels of this level.
+    /// `P(t) − P(s)` in `s`'s frame, in example pixels of this level (at `s`'s local step).
     #[inline]
     pub fn offset(&self, s: usize, t: usize) -> [f32; 2] {
         let d = self.geometry.pos[t] - self.geometry.pos[s];
         let [v1, v2] = self.frames[s];
-        let k = (1.0 / self.step) as f32;
+        let k = self.inv_step_at(s);
         [d.dot(v1) * k, -d.dot(v2) * k]
     }
 }
 
-/// Patch centres: a maximal Poisson-disk sample of the texels with minimum 3D distance
-/// `spacing` (paper 001 §4.2: "randomly and uniformly select some vertices"), visiting
-/// texels in a seeded hash order. Every texel (of `mask`, when given) lies within
-/// `spacing` of some centre.
-pub fn centres(level: &LevelTexels, spacing: f64, seed: u64, mask: Option<&[bool]>) -> Vec<u32> {
+/// Patch centres: a maximal Poisson-disk sample of the texels (paper 001 §4.2: "randomly
+/// and uniformly select some vertices"), visiting texels in a seeded hash order, two
+/// centres at least `pixels` example pixels apart: in 3D, `pixels` × the local step, and
+/// between texels of different local steps (a scale map) the mean of theirs — so where the
+/// texture is smaller, centres are denser (001 §4.2: "more vertices are selected where the
+/// local vectors are short") and every patch still overlaps its neighbours by the same
+/// share. Every texel (of `mask`, when given) lies within its own distance of some centre.
+pub fn centres(level: &LevelTexels, pixels: f64, seed: u64, mask: Option<&[bool]>) -> Vec<u32> {
     use std::collections::HashMap;
     let pos = &level.geometry.pos;
     let n = pos.len();
@@ -149,7 +193,9 @@ pub fn centres(level: &LevelTexels, spacing: f64, seed: u64, mask: Option<&[bool
         .map(|t| (super::matching::search::hash(seed, &[0xCE47, t as u64]), t))
         .collect();
     order.par_sort_unstable();
-    let cell = spacing.max(1e-30) as f32;
+    // The minimum distance at texel t; the grid's cells are the largest of them.
+    let radius = |t: usize| (pixels * level.step_at(t)).max(1e-30);
+    let cell = (pixels * level.max_step()).max(1e-30) as f32;
     let key = |p: Vec3| -> (i64, i64, i64) {
         (
             (p.x / cell).floor() as i64,
@@ -159,19 +205,23 @@ pub fn centres(level: &LevelTexels, spacing: f64, seed: u64, mask: Option<&[bool
     };
     let mut grid: HashMap<(i64, i64, i64), Vec<u32>> = HashMap::new();
     let mut out = Vec::new();
-    let s2 = (spacing * spacing) as f32;
     for &(_, t) in &order {
         let p = pos[t as usize];
         if !p.is_finite() {
             continue;
         }
+        let rt = radius(t as usize);
         let (i, j, k) = key(p);
         let mut free = true;
         'search: for a in i - 1..=i + 1 {
             for b in j - 1..=j + 1 {
                 for c in k - 1..=k + 1 {
                     if let Some(v) = grid.get(&(a, b, c)) {
-                        if v.iter().any(|&q| pos[q as usize].distance_squared(p) < s2) {
+                        // (r + r) / 2 is r exactly: one factor everywhere is one scale.
+                        if v.iter().any(|&q| {
+                            let r = 0.5 * (rt + radius(q as usize));
+                            pos[q as usize].distance_squared(p) < (r * r) as f32
+                        }) {
                             free = false;
                             break 'search;
                         }
@@ -389,11 +439,10 @@ fn flood(level: &LevelTexels, fl: &mut Flood, c: usize, half: f32) -> (Vec<u32>,
     let gen = fl.gen;
     let pos = &level.geometry.pos;
     let normal = &level.geometry.normal;
-    let inv_step = (1.0 / level.step) as f32;
     // Paths run over the edge graph (the 4-neighbourhood), so a path to a texel is at most
     // √2 times its straight distance; the patch's half-diagonal is √2·half: paths longer
-    // than 2·half (plus two texels) cannot end inside the patch.
-    let limit = ((2.0 * half + 2.0) as f64 * level.step) as f32;
+    // than 2·half (plus two texels) cannot end inside the patch (at the largest step).
+    let limit = ((2.0 * half + 2.0) as f64 * level.max_step()) as f32;
     let edges = level.edges();
     let keep = half + 1.0;
     fl.heap.clear();
@@ -415,6 +464,10 @@ fn flood(level: &LevelTexels, fl: &mut Flood, c: usize, half: f32) -> (Vec<u32>,
             fl.coord[s] = [0.0, 0.0];
         } else {
             let p = fl.parent[s] as usize;
+            // Steps into s are measured at s's local step (the scale map's factor there):
+            // the coordinates are then the integral of the surface length over the local
+            // step along the paths, so the example is laid at each texel's own scale.
+            let inv_step = level.inv_step_at(s);
             fl.e1[s] = transport(fl.e1[p], normal[p], normal[s]);
             let nb = edges.of(s);
             let (mut sx, mut sy, mut sw) = (0.0f32, 0.0f32, 0.0f32);

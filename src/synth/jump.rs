@@ -196,7 +196,7 @@ pub fn run(
     let pos = &level.geometry.pos;
     let frames = &level.frames;
     let edges = level.edges();
-    let inv_scale = (1.0 / level.step) as f32;
+    let inv_global = (1.0 / level.step) as f32;
     let (w, h) = (map.width as f32, map.height as f32);
     let (bx, by) = ((params.border * w).max(1e-3), (params.border * h).max(1e-3));
     let cw = params.continuation.max(0.0);
@@ -216,6 +216,11 @@ pub fn run(
         let mut margin = 0.0f32;
         let mut sum = 0.0f32;
         let pt = pos[t];
+        // Offsets into t are measured at t's local step (the scale map's factor there).
+        let inv_scale = match &level.factor {
+            None => inv_global,
+            Some(_) => level.inv_step_at(t),
+        };
         for &s in edges.of(t) {
             let s = s as usize;
             let a = src[s];

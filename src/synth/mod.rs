@@ -150,6 +150,10 @@ pub struct Target<'a> {
     pub seed: u64,
     /// What methods derive from the texels alone, kept for later runs on the same mesh.
     pub derived: &'a Derived,
+    /// The scale map's interpolated factor (`--scale-map`; [`crate::scale_field`]): the
+    /// local step is [`Target::scale`] × factor. Methods that build texels of their own
+    /// (coarser levels) evaluate it there; `texels.factor` holds it at the output texels.
+    pub scale_field: Option<&'a crate::scale_field::ScaleField>,
 }
 
 /// Mesh-side structures some methods derive from [`Target::texels`] on first use and keep
@@ -169,9 +173,20 @@ impl Derived {
 }
 
 impl Target<'_> {
-    /// Surface length per example pixel.
+    /// Surface length per example pixel where the scale map's factor is 1 (everywhere
+    /// without a scale map).
     pub fn scale(&self) -> f64 {
         self.texels.step
+    }
+
+    /// The scale level plans are made for: [`Target::scale`] × the scale map's smallest
+    /// factor (the finest local step), so that no level's texels are coarser than its
+    /// example pixels anywhere. Without a scale map, [`Target::scale`].
+    pub fn reference_scale(&self) -> f64 {
+        match self.scale_field {
+            None => self.scale(),
+            Some(f) => self.scale() * f.range().0,
+        }
     }
 }
 
@@ -354,6 +369,7 @@ pub fn synthesize(
                 resolution,
                 spacing: target.spacing,
                 scale: target.scale(),
+                scale_field: target.scale_field,
                 seed: target.seed,
                 weights: &weights,
                 appearance: mode,
@@ -452,6 +468,7 @@ fn coherent_output<const K: usize>(
         frames: &t.frames,
         schedule: &schedule,
         scale: t.step,
+        factor: t.factor.as_deref(),
         seed: target.seed,
     };
     let faces = t.geometry.faces();

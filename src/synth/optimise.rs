@@ -147,7 +147,10 @@ pub fn run<const K: usize>(
             ((out_layout.len() as f64 / out_layout.faces() as f64).sqrt()).round() as usize
         })
         .max(1);
-    let scale = target.scale();
+    // With a scale map the levels are planned for its smallest factor (the finest local
+    // step: no texel of a level is coarser than that level's example pixels anywhere);
+    // each texel then samples at its own step (`LevelTexels::step_at`).
+    let scale = target.reference_scale();
     // Example levels: j0 skips levels finer than the output texels (a texture scaled
     // down); then halve while the example and the maps stay large enough.
     let j0 = ((target.spacing / scale).log2().round().max(0.0)) as usize;
@@ -186,20 +189,24 @@ pub fn run<const K: usize>(
         if li == 0 {
             info = Some(ex.info);
         }
-        let step = scale * (1u64 << j) as f64;
+        // The step where the scale map's factor is 1 (the factor multiplies it per texel).
+        let step = target.scale() * (1u64 << j) as f64;
         // The output level reuses the target's texels unless its pixels are coarser.
-        let owned = (li > 0 || j > 0).then(|| match out_layout.uniform_n() {
-            Some(_) => LevelTexels::new(target.surface, target.field, r, step),
-            None => {
-                // Per-face sides scaled like the typical one, in whole halvings.
-                let k = (n as f64 / r.max(1) as f64).log2().round().max(0.0) as u32;
-                LevelTexels::with_layout(
-                    target.surface,
-                    target.field,
-                    std::sync::Arc::new(out_layout.coarsened(k)),
-                    step,
-                )
+        let owned = (li > 0 || j > 0).then(|| {
+            match out_layout.uniform_n() {
+                Some(_) => LevelTexels::new(target.surface, target.field, r, step),
+                None => {
+                    // Per-face sides scaled like the typical one, in whole halvings.
+                    let k = (n as f64 / r.max(1) as f64).log2().round().max(0.0) as u32;
+                    LevelTexels::with_layout(
+                        target.surface,
+                        target.field,
+                        std::sync::Arc::new(out_layout.coarsened(k)),
+                        step,
+                    )
+                }
             }
+            .with_scale(target.surface, target.scale_field)
         });
         let level: &LevelTexels = owned.as_ref().unwrap_or(target.texels);
         // Start: patch sampling at the coarsest level, else the coarser level continued.
@@ -269,7 +276,7 @@ fn optimise_size<const K: usize>(
     let n = level.len();
     let f = &ex.features;
     let half = size as f32 / 2.0;
-    let spacing = (params.spacing as f64 * size as f64 * level.step).max(1e-30);
+    let spacing = params.spacing as f64 * size as f64;
     let fp = Footprints::build(level, centres(level, spacing, key, None), half);
     let np = fp.len();
     let (lo, hi_x, hi_y) = (
@@ -454,7 +461,7 @@ fn upsample<const K: usize>(
             let q = lc.index(d, cx.min(cu - 1), cy.min(cv - 1));
             let dp = fine.geometry.pos[t] - coarse.geometry.pos[q];
             let [v1, v2] = coarse.frames[q];
-            let k = (1.0 / coarse.step) as f32;
+            let k = coarse.inv_step_at(q);
             let e = [dp.dot(v1) * k, -dp.dot(v2) * k];
             let s = [2.0 * (csrc[q][0] + e[0]), 2.0 * (csrc[q][1] + e[1])];
             [s[0].clamp(0.5, w - 0.5), s[1].clamp(0.5, h - 0.5)]

@@ -218,7 +218,8 @@ pub fn run<const K: usize>(
     // (open boundaries, thin curved parts where a large patch would fold).
     for pass in 0u64.. {
         let half = size as f32 / 2.0;
-        let spacing = (params.spacing as f64 * size as f64 * level.step).max(1e-30);
+        // Centres this many example pixels apart (at each texel's local step).
+        let spacing = params.spacing as f64 * size as f64;
         let mask = (pass > 0).then(|| covered.iter().map(|&c| !c).collect::<Vec<bool>>());
         let cs = centres(
             level,

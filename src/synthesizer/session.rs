@@ -42,6 +42,7 @@ use crate::io::exr::MAX_RESOLUTION;
 use crate::layout::TexelLayout;
 use crate::memory::{Job, MeshSize};
 use crate::report::{ExampleInfo, Inputs, Report, Seconds};
+use crate::scale_field::{ScaleField, ScaleMap};
 use crate::synth::footprint::LevelTexels;
 use crate::synth::{Analyses, Derived, Method, Settings, Target};
 use crate::texels::{TexelGeometry, TexelGraph};
@@ -65,6 +66,12 @@ pub struct MeshSettings {
     pub scale: Option<f64>,
     /// Orientation field (`--orient`).
     pub orientation: Orientation,
+    /// `--scale-map FILE` ([`ScaleMap::load`]): a factor per control vertex or surface
+    /// point, interpolated over the surface ([`crate::scale_field`]), that multiplies
+    /// `scale` locally — the texture grows where the factor is large. Mesh-side, like the
+    /// orientation: it names the mesh's vertices, and its interpolation and per-texel
+    /// factors are computed once per prepared mesh, as the field's frames are.
+    pub scale_map: Option<ScaleMap>,
 }
 
 impl Default for MeshSettings {
@@ -76,6 +83,7 @@ impl Default for MeshSettings {
             texel_size: None,
             scale: None,
             orientation: Orientation::Auto,
+            scale_map: None,
         }
     }
 }
@@ -188,6 +196,8 @@ pub struct Session {
     spacing: f64,
     scale: f64,
     scale_source: &'static str,
+    /// The scale map's interpolated factor (`None` without `--scale-map`).
+    scale_field: Option<Arc<ScaleField>>,
     /// Power of two the user's mesh was divided by (1 near unit size; docs/robustness.md).
     unit: f64,
     /// Far from unit size: the user's control mesh, and (built on first use, for writing)
@@ -419,13 +429,19 @@ impl Session {
         let field = OrientationField::compute_with(&surface, &settings.orientation, &field_options)
             .map_err(|e| Error::invalid(format!("orientation field for {mesh_label}: {e:#}")))?;
         let frames = crate::synth::layout_frames(&field, &surface, &layout);
+        // The scale map is interpolated with the field (both are mesh-side data).
+        let scale_field = match &settings.scale_map {
+            None => None,
+            Some(m) => Some(Arc::new(ScaleField::compute(&surface, m, unit)?)),
+        };
         let field_s = t0.elapsed().as_secs_f64();
         report(Stage::Field, 1, 1);
 
         report(Stage::Graph, 0, 1);
         let t0 = Instant::now();
         let graph = TexelGraph::build(&surface, &geometry);
-        let texels = LevelTexels::from_parts(&surface, geometry, graph, frames, scale);
+        let texels = LevelTexels::from_parts(&surface, geometry, graph, frames, scale)
+            .with_scale(&surface, scale_field.as_deref());
         let graph_s = t0.elapsed().as_secs_f64();
         report(Stage::Graph, 1, 1);
 
@@ -443,6 +459,7 @@ impl Session {
             spacing,
             scale,
             scale_source,
+            scale_field,
             unit,
             user_control,
             user: OnceLock::new(),
@@ -568,6 +585,19 @@ impl Session {
         Ok(self.finish(example, params, labels, s, started, seconds))
     }
 
+    /// The requested local scale per texel, user units (geometry.exr `scale`): the global
+    /// scale × the scale map's factor; `None` without a scale map.
+    fn local_scale(&self) -> Option<Vec<f32>> {
+        let f = self.texels.factor.as_ref()?;
+        let s = self.scale * self.unit;
+        Some(f.par_iter().map(|&k| (s * k) as f32).collect())
+    }
+
+    /// The scale map's interpolated factor, when the session has one.
+    pub fn scale_field(&self) -> Option<&ScaleField> {
+        self.scale_field.as_deref()
+    }
+
     /// The field's v1 per texel (geometry.exr `T.X T.Y T.Z`: unit directions, the same in
     /// the user's units).
     fn tangents(&self) -> Vec<[f32; 3]> {
@@ -667,6 +697,7 @@ impl Session {
             spacing: self.spacing,
             seed: params.seed,
             derived: &self.derived,
+            scale_field: self.scale_field.as_deref(),
         };
         let out =
             crate::synth::synthesize(synth_example, &target, settings, &self.analyses, &|d, t| {
@@ -684,6 +715,7 @@ impl Session {
         Ok(Synthesized {
             source,
             tangents: self.tangents(),
+            local_scale: self.local_scale(),
             appearance: out.appearance,
             details: out.details,
             cache,
@@ -780,6 +812,7 @@ impl Session {
             seed: params.seed,
             scale,
             scale_source: self.scale_source.into(),
+            scale_map: self.scale_field.as_ref().map(|f| f.info(scale)),
             texel_spacing: spacing,
             resolution: layout
                 .uniform_n()
@@ -834,6 +867,7 @@ impl Session {
             maps,
             geometry,
             tangents: s.tangents,
+            local_scale: s.local_scale,
             handedness: params.handedness,
             surface,
             example,
@@ -851,6 +885,8 @@ struct Synthesized {
     /// The field's v1 per texel (taken while the frames are there: a one-shot run frees
     /// them before the maps stage).
     tangents: Vec<[f32; 3]>,
+    /// geometry.exr's `scale` (with a scale map).
+    local_scale: Option<Vec<f32>>,
     appearance: crate::synth::matching::appearance::AppearanceInfo,
     details: crate::synth::Details,
     cache: crate::synth::analysis::CacheReport,

@@ -100,6 +100,7 @@ pub fn bench_surface(
         resolution: n,
         spacing,
         scale: spacing,
+        scale_field: None,
         seed,
         weights: &weights,
     };

@@ -99,6 +99,9 @@ pub struct Inputs<'a> {
     pub spacing: f64,
     /// Surface length of one example pixel (S).
     pub scale: f64,
+    /// The scale map's factor (`--scale-map`): each texel samples at its level's step ×
+    /// the factor there; levels are planned for S × the smallest factor.
+    pub scale_field: Option<&'a crate::scale_field::ScaleField>,
     pub seed: u64,
     /// Matching weight per example channel ([`crate::synth::Weights::per_channel`]).
     pub weights: &'a [f32],
@@ -212,6 +215,28 @@ fn conflicts(adj: &[Vec<u32>]) -> Vec<Vec<u32>> {
             v
         })
         .collect()
+}
+
+/// The scale map's factor per texel of one level (`None`: no scale map, 1 everywhere).
+struct Factors(Option<Vec<f64>>);
+
+impl Factors {
+    fn of(inputs: &Inputs<'_>, geo: &LevelGeometry) -> Self {
+        Factors(
+            inputs
+                .scale_field
+                .map(|f| f.factors(inputs.surface, geo.len(), |t| geo.location(t))),
+        )
+    }
+
+    /// `base` (a level's step) at texel `t`.
+    #[inline]
+    fn step(&self, base: f64, t: usize) -> f64 {
+        match &self.0 {
+            None => base,
+            Some(f) => base * f[t],
+        }
+    }
 }
 
 /// One level's synthesized state: values (weighted example channels) and the example
@@ -436,12 +461,16 @@ pub fn run_on_model(
         return Err(Error::invalid("resolution must be at least 1"));
     }
     let surface = inputs.surface;
+    let reference = match inputs.scale_field {
+        None => inputs.scale,
+        Some(f) => inputs.scale * f.range().0,
+    };
     let (j0, res) = plan_levels(
         size[0],
         size[1],
         n,
         inputs.spacing,
-        inputs.scale,
+        reference,
         params.max_levels,
     )?;
     let n_levels = res.len();
@@ -503,25 +532,28 @@ pub fn run_on_model(
     let t0 = Instant::now();
     let corners = std::sync::Arc::new(level::regular_corners(surface));
     let mut geo = LevelGeometry::new(surface, inputs.field, res[top], corners.clone());
+    let mut fac = Factors::of(inputs, &geo);
     geometry_seconds += t0.elapsed().as_secs_f64();
     let t0 = Instant::now();
-    let mut state = coarsest(&ctx, top, &geo, &order, &mut stats);
+    let mut state = coarsest(&ctx, top, &geo, &fac, &order, &mut stats);
     search_seconds += t0.elapsed().as_secs_f64();
     done += geo.len() as u64;
     progress(done, total);
     for i in (0..top).rev() {
         let t0 = Instant::now();
         let fine = LevelGeometry::new(surface, inputs.field, res[i], corners.clone());
+        let fine_fac = Factors::of(inputs, &fine);
         geometry_seconds += t0.elapsed().as_secs_f64();
         let t0 = Instant::now();
-        let (s1, cache) = pass_one(&ctx, i, &fine, &geo, &state, &mut stats);
+        let (s1, cache) = pass_one(&ctx, i, &fine, &fine_fac, &geo, &state, &mut stats);
         done += fine.len() as u64;
         progress(done, total);
-        let s2 = pass_two(&ctx, i, &fine, &order, s1, &cache, &mut stats);
+        let s2 = pass_two(&ctx, i, &fine, &fine_fac, &order, s1, &cache, &mut stats);
         search_seconds += t0.elapsed().as_secs_f64();
         done += fine.len() as u64;
         progress(done, total);
         geo = fine;
+        fac = fine_fac;
         state = s2;
     }
 
@@ -535,15 +567,16 @@ pub fn run_on_model(
             [p[0] * up, p[1] * up]
         })
         .collect();
-    let finest = continuous_sources(surface, &geo, &discrete, inputs.scale, up, &mut stats);
+    let finest = continuous_sources(surface, &geo, &fac, &discrete, inputs.scale, up, &mut stats);
     let source = if geo.r == n && j0 == 0 {
         finest
     } else {
         let t0 = Instant::now();
         let out_geo = LevelGeometry::new(surface, inputs.field, n, corners.clone());
+        let out_fac = Factors::of(inputs, &out_geo);
         geometry_seconds += t0.elapsed().as_secs_f64();
         stats.resampled = out_geo.len() as u64;
-        resample(&out_geo, &geo, &finest, inputs.scale, size)
+        resample(&out_geo, &out_fac, &geo, &finest, inputs.scale, size)
     };
     stats.geometry_seconds = geometry_seconds;
     stats.search_seconds = search_seconds;
@@ -580,6 +613,7 @@ pub const CONTINUATION_ITERATIONS: usize = 4;
 fn continuous_sources(
     surface: &Surface,
     geo: &LevelGeometry,
+    fac: &Factors,
     src: &[[f32; 2]],
     scale: f64,
     up: f32,
@@ -610,7 +644,7 @@ fn continuous_sources(
                     if q == t || out.iter().any(|&(o, _)| o as usize == q) {
                         continue;
                     }
-                    let e = geo.offset_pixels(t, q, scale);
+                    let e = geo.offset_pixels(t, q, fac.step(scale, t));
                     let c = [src[q][0] - e[0], src[q][1] - e[1]];
                     let (dx, dy) = (c[0] - p[0], c[1] - p[1]);
                     if dx * dx + dy * dy <= tol2 {
@@ -700,6 +734,7 @@ fn continuous_sources(
 /// Output texel sources continued from the nearest texel of the finest synthesis level.
 fn resample(
     out: &LevelGeometry,
+    out_fac: &Factors,
     syn: &LevelGeometry,
     src: &[[f32; 2]],
     scale: f64,
@@ -713,6 +748,7 @@ fn resample(
             let q = nearest_texel(&syn.layout.taps(loc)).unwrap_or(0);
             let d = (out.pos[t] - syn.pos[q]).as_dvec3();
             let f = &out.frames[t];
+            let scale = out_fac.step(scale, t);
             let e = [(d.dot(f.v1) / scale) as f32, (-d.dot(f.v2) / scale) as f32];
             let s = src[q];
             [
@@ -835,6 +871,7 @@ fn coarsest(
     ctx: &Ctx<'_>,
     level: usize,
     geo: &LevelGeometry,
+    fac: &Factors,
     order: &DomainOrder,
     stats: &mut Stats,
 ) -> State {
@@ -853,7 +890,7 @@ fn coarsest(
         let mut own_src = vec![0u32; nn];
         for li in 0..nn {
             let t = start + li;
-            ctx.pattern(geo, t, delta, k, SamplerKind::March, &mut w);
+            ctx.pattern(geo, t, fac.step(delta, t), k, SamplerKind::March, &mut w);
             let view = View {
                 channels: c,
                 per_domain: nn,
@@ -926,6 +963,7 @@ fn coarse_seeds(
     ctx: &Ctx<'_>,
     level: usize,
     fine: &LevelGeometry,
+    fine_fac: &Factors,
     coarse: &LevelGeometry,
     coarse_src: &[u32],
     t: usize,
@@ -937,7 +975,7 @@ fn coarse_seeds(
     seeds.clear();
     let h = (k / 2) as i64;
     let r = (window / 2) as i64;
-    let delta = ctx.steps[level + 1];
+    let delta = fine_fac.step(ctx.steps[level + 1], t);
     for dy in -r..=r {
         for dx in -r..=r {
             let Some(loc) = locs[((dy + h) * k as i64 + dx + h) as usize] else {
@@ -961,6 +999,7 @@ fn pass_one(
     ctx: &Ctx<'_>,
     level: usize,
     fine: &LevelGeometry,
+    fine_fac: &Factors,
     coarse: &LevelGeometry,
     cstate: &State,
     stats: &mut Stats,
@@ -991,7 +1030,14 @@ fn pass_one(
             let mut src = vec![0u32; nn];
             for li in 0..nn {
                 let t = d * nn + li;
-                ctx.pattern(fine, t, delta, k, SamplerKind::Chart, &mut w);
+                ctx.pattern(
+                    fine,
+                    t,
+                    fine_fac.step(delta, t),
+                    k,
+                    SamplerKind::Chart,
+                    &mut w,
+                );
                 w.q.clear_all();
                 for s in 0..ns {
                     if let Some(loc) = w.locs[s] {
@@ -1009,6 +1055,7 @@ fn pass_one(
                         ctx,
                         level,
                         fine,
+                        fine_fac,
                         coarse,
                         &cstate.src,
                         t,
@@ -1046,10 +1093,12 @@ fn pass_one(
 
 /// Pass 2: refine with the level's 9x9 block plus the cached coarser block; scan-line
 /// order inside each domain, domains in the schedule's order ([`DomainOrder`]).
+#[allow(clippy::too_many_arguments)]
 fn pass_two(
     ctx: &Ctx<'_>,
     level: usize,
     geo: &LevelGeometry,
+    fac: &Factors,
     order: &DomainOrder,
     mut state: State,
     cache: &CoarseCache,
@@ -1072,6 +1121,7 @@ fn pass_two(
         let mut own_src = before.src[start..start + nn].to_vec();
         for li in 0..nn {
             let t = start + li;
+            let delta = fac.step(delta, t);
             ctx.pattern(geo, t, delta, k, SamplerKind::Chart, &mut w);
             let view = View {
                 channels: c,

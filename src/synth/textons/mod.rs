@@ -85,6 +85,7 @@ pub fn run(
             .ok_or_else(|| crate::Error::invalid(crate::synthesizer::MULTISCALE_TEXEL_SIZE))?,
         spacing: target.spacing,
         scale: target.scale(),
+        scale_field: target.scale_field,
         seed: target.seed,
         weights: &weights,
         appearance: AppearanceMode::Pca,
