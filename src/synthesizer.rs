@@ -1084,13 +1084,21 @@ impl SynthResult {
                 let mut written: Vec<PathBuf> = Vec::new();
                 let r = (|| {
                     let p = dir.join(FACEMAPS_FILE);
+                    // The last guard (issue 18): no NaN or ±inf in what synth writes.
+                    for (name, data) in &self.maps.channels {
+                        crate::io::exr::check_finite(
+                            &format!("face map channel '{name}'"),
+                            data,
+                            &self.maps.layout,
+                        )?;
+                    }
                     write_face_maps(&p, &self.maps)?;
                     written.push(p);
                     // Streamed from the texel geometry (the same bytes as writing
                     // `geometry_maps()`, without a second copy of the maps).
                     let p = dir.join(GEOMETRY_FILE);
                     let g = &self.geometry;
-                    // Streamed below, so checked here (write_face_maps checks its own).
+                    // Streamed below, so checked here.
                     use crate::io::exr::check_finite_by;
                     check_finite_by(
                         "texel position",

@@ -127,11 +127,14 @@ fn run(method: Method, n: usize, map: Option<ScaleMap>, scale: Option<f64>) -> S
 
 /// The acceptance: every method, Spot, factors 1 → 3, per region within 5%. Also: eval's
 /// scale fidelity against the local scale has median 1 and p10–p90 inside [0.9, 1.1].
+/// N = 16 (docs/synthesis.md's table; `SCALE_MAP_N` overrides it — at N = 12 the test
+/// fails on coherent and jump scale fidelity p90 1.13–1.14, the regions pass).
 #[test]
 fn every_method_follows_the_map_on_spot() {
+    let n = common::env_or("SCALE_MAP_N", 16);
     let mut failures = Vec::new();
     for method in METHODS {
-        let r = run(method, 16, Some(spot_ramp()), None);
+        let r = run(method, n, Some(spot_ramp()), None);
         let info = r.report.scale_map.as_ref().unwrap();
         assert_eq!((info.min_factor, info.max_factor), (1.0, 3.0));
         let reg = regions(&r, 1.0, 3.0);
