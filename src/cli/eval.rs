@@ -17,7 +17,8 @@ pub struct EvalArgs {
     )]
     pub dir: Option<PathBuf>,
     /// Scale S used for scale fidelity and the pfS windows (default: the one in
-    /// DIR/report.json).
+    /// DIR/report.json, or with a scale map geometry.exr's local `scale` per texel, which
+    /// this replaces).
     #[arg(long, value_name = "S", value_parser = parse_positive, allow_negative_numbers = true)]
     pub scale: Option<f64>,
     /// Example image for pf1/pf4/pf8 (default: report.json's inputs.example when that file

@@ -24,7 +24,7 @@
 //! one-shot run with the same inputs (tests/session.rs).
 //!
 //! What is kept, and why it may be kept: everything here depends on the mesh, the
-//! resolution, the scale and the orientation only ([`MeshSettings`]), never on the
+//! resolution, the scale (and scale map) and the orientation only ([`MeshSettings`]), never on the
 //! example or the seed. Per-example analysis (appearance space, jump maps, k-coherence
 //! lists) is kept by the session's [`Analyses`] (the "prepared example"), keyed by the
 //! example's pixels and parameters, so a second synthesis with the same example skips it.
