@@ -107,16 +107,20 @@ impl AnnIndex {
         }
         let dim = features.dim();
         let k = params.dims.min(dim);
-        let pca = Pca::fit(&features.data, dim, k);
+        let pca = Pca::fit(&features.pca_rows(), dim, k);
         // Pad to the tree dimension when the vectors are shorter than it.
         let kd = params.dims;
         let n = features.len();
         let mut proj = vec![0.0f32; n * kd];
         {
             use rayon::prelude::*;
-            proj.par_chunks_mut(kd).enumerate().for_each(|(i, out)| {
-                pca.project(features.vector(i), &mut out[..k]);
-            });
+            proj.par_chunks_mut(kd).enumerate().for_each_init(
+                || vec![0.0f32; dim],
+                |v, (i, out)| {
+                    features.vector_into(i, v);
+                    pca.project(v, &mut out[..k]);
+                },
+            );
         }
         let tree = match kd {
             4 => Tree::D4(build_tree(&proj)?),

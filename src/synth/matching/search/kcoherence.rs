@@ -112,18 +112,20 @@ impl KnnLists {
         let len = len.min(n);
         let dim = f.dim();
         let pd = PRUNE_DIMS.min(dim);
-        let pca = Pca::fit(&f.data, dim, pd);
+        let pca = Pca::fit(&f.pca_rows(), dim, pd);
         let mut proj = vec![0.0f32; n * PRUNE_DIMS];
-        proj.par_chunks_mut(PRUNE_DIMS)
-            .enumerate()
-            .for_each(|(i, o)| {
-                pca.project(f.vector(i), &mut o[..pd]);
-            });
+        proj.par_chunks_mut(PRUNE_DIMS).enumerate().for_each_init(
+            || vec![0.0f32; dim],
+            |v, (i, o)| {
+                f.vector_into(i, v);
+                pca.project(v, &mut o[..pd]);
+            },
+        );
         let mut lists = vec![0u32; n * len];
         lists.par_chunks_mut(len).enumerate().for_each_init(
-            Vec::<(f32, u32)>::new,
-            |lbs, (i, out)| {
-                let qi = f.vector(i);
+            || (Vec::<(f32, u32)>::new(), vec![0.0f32; dim]),
+            |(lbs, qi), (i, out)| {
+                f.vector_into(i, qi);
                 let pi = &proj[i * PRUNE_DIMS..(i + 1) * PRUNE_DIMS];
                 lbs.clear();
                 for (j, pj) in proj.chunks_exact(PRUNE_DIMS).enumerate() {
@@ -152,7 +154,7 @@ impl KnnLists {
                     if t >= seeds && lb * (1.0 - 1e-4) > top.bound() {
                         continue;
                     }
-                    let d = super::dist_bounded(qi, f.vector(j as usize), top.bound());
+                    let d = f.distance_to(qi, None, j as usize, top.bound());
                     if d < top.bound() || top.items.len() < len {
                         top.push(d, j);
                     }
@@ -181,8 +183,8 @@ impl KnnLists {
         let len = len.min(n);
         let mut lists = vec![0u32; n * len];
         lists.par_chunks_mut(len).enumerate().for_each_init(
-            || (Vec::<u32>::new(), vec![u32::MAX; 0]),
-            |(cands, _), (i, out)| {
+            || (Vec::<u32>::new(), vec![0.0f32; fine.dim()]),
+            |(cands, qi), (i, out)| {
                 let (x, y) = fine.pixel(i as u32);
                 // Parent pixel centre in coarse pixels: (x + 0.5) / 2.
                 let parent = coarse.nearest_index((x as f32 + 0.5) / 2.0, (y as f32 + 0.5) / 2.0);
@@ -205,11 +207,11 @@ impl KnnLists {
                 }
                 cands.sort_unstable();
                 cands.dedup();
-                let qi = fine.vector(i);
+                fine.vector_into(i, qi);
                 let mut top = TopK::new(len);
                 top.push(-1.0, i as u32);
                 for &j in cands.iter() {
-                    let d = super::dist_bounded(qi, fine.vector(j as usize), top.bound());
+                    let d = fine.distance_to(qi, None, j as usize, top.bound());
                     if d < top.bound() || top.items.len() < len {
                         top.push(d, j);
                     }

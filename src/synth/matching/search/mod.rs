@@ -290,18 +290,31 @@ pub struct Prepared {
     pub present: usize,
 }
 
-/// The weighted neighbourhood vectors of the valid pixels of one example level.
+/// The weighted neighbourhood vectors of the valid pixels of one example level, gathered
+/// on the fly from the level's pixels.
 ///
 /// Valid pixels are those at least [`Shape::reach`] pixels from every border (the
 /// *margin*), so their whole neighbourhood is real example content. Feature `i` is valid
 /// pixel `(margin + i % cols, margin + i / cols)`.
 ///
-/// Stored vectors (and [`Prepared`] queries) hold the samples by *decreasing weight*
-/// (`order`), not in [`Shape`] order: distances are summed in blocks with an early exit
-/// once the partial sum exceeds the k-th best so far, and with the heavy centre samples
-/// first most hopeless candidates are rejected after the first block instead of after the
-/// light corners. Measured on a 64x64 example: exact k-NN lists 2.6x faster. The order is
+/// Vectors (and [`Prepared`] queries) hold the samples by *decreasing weight* (`order`),
+/// not in [`Shape`] order: distances are summed in blocks with an early exit once the
+/// partial sum exceeds the k-th best so far, and with the heavy centre samples first most
+/// hopeless candidates are rejected after the first block instead of after the light
+/// corners. Measured on a 64x64 example: exact k-NN lists 2.6x faster. The order is
 /// internal; callers fill [`Query`] in [`Shape`] order.
+///
+/// **Why gathered, not stored.** A stored vector is `shape.dim()` floats per pixel: 848
+/// (3.4 KB) for the 9x9 + 5x5 block over 8 appearance dimensions, 330 MB for the passes
+/// of a 256² example, which dominated the multiscale method's peak memory. Every sample
+/// is a pixel of the level itself or, for the coarse block, a pixel of the coarser level
+/// *upsampled* to this level's pixels (the bilinear value at `(x + 0.5) / 2 + dx` is the
+/// upsampled image at `x + 2dx`: the same float arithmetic), so `2 x channels` floats per
+/// pixel ([`Self::source`]) and one offset and weight per dimension give every vector. The
+/// gathered values are the stored ones bit for bit (the same products), and distances are
+/// summed in the same blocks and lanes, so searches return exactly what they did. Reading
+/// a few small images instead of streaming 3.4 KB rows also made the k-coherence lists
+/// about twice as fast to build.
 #[derive(Clone, Debug)]
 pub struct Features {
     pub shape: Shape,
@@ -318,8 +331,16 @@ pub struct Features {
     pub scales: Vec<f32>,
     /// Storage order: `order[t]` is the [`Shape`] sample stored at position `t`.
     pub order: Vec<usize>,
-    /// `len() x shape.dim()` premultiplied vectors.
-    pub data: Vec<f32>,
+    /// Unweighted values the vectors are gathered from: the level's `width x height`
+    /// pixels, then (with a coarse block) the coarser level upsampled bilinearly to the
+    /// same pixels; `channels` floats each. Shared by the features of one level's passes.
+    source: std::sync::Arc<Vec<f32>>,
+    /// Per stored sample (storage order): offset in `source` of its first channel from the
+    /// first channel of the feature's own pixel in the level's image (its `channels`
+    /// values follow).
+    offsets: Vec<isize>,
+    /// Per stored sample: its square-root weight.
+    weights: Vec<f32>,
 }
 
 impl Features {
@@ -331,6 +352,18 @@ impl Features {
     /// `margin` overrides [`Shape::reach`] when larger, so that the features of several
     /// shapes on one level (the two passes) index the same pixels.
     pub fn build(pyr: &Pyramid, level: usize, shape: Shape, margin: usize) -> Result<Self> {
+        Self::build_sharing(pyr, level, shape, margin, None)
+    }
+
+    /// [`Self::build`], reusing the gathered-from values of `other` (features of the same
+    /// level with a coarse block) when it has them.
+    pub fn build_sharing(
+        pyr: &Pyramid,
+        level: usize,
+        shape: Shape,
+        margin: usize,
+        other: Option<&Features>,
+    ) -> Result<Self> {
         let img = pyr.level(level);
         if shape.channels != img.channels {
             return Err(Error::invalid(format!(
@@ -358,44 +391,51 @@ impl Features {
         let (cols, rows) = (w - 2 * margin, h - 2 * margin);
         let scales = shape.sample_scales();
         let order = weight_order(&scales);
-        let offsets: Vec<Offset> = {
-            let o = shape.offsets();
-            order.iter().map(|&s| o[s]).collect()
-        };
         let c = shape.channels;
-        let dim = shape.dim();
-        let coarse_img = (shape.coarse > 0).then(|| pyr.level(level + 1));
-        let mut data = vec![0.0f32; cols * rows * dim];
-        let fill = |row: usize, out: &mut [f32]| {
-            let y = margin + row;
-            let mut buf = vec![0.0f32; c];
-            for col in 0..cols {
-                let x = margin + col;
-                let v = &mut out[col * dim..(col + 1) * dim];
-                for (s, o) in offsets.iter().enumerate() {
-                    let dst = &mut v[s * c..(s + 1) * c];
-                    if o.coarse {
-                        let ci = coarse_img.expect("coarse level present");
-                        let cx = (x as f32 + 0.5) / 2.0 + o.dx as f32;
-                        let cy = (y as f32 + 0.5) / 2.0 + o.dy as f32;
-                        ci.bilinear(cx, cy, &mut buf);
-                        dst.copy_from_slice(&buf);
-                    } else {
-                        let px = (x as i32 + o.dx) as usize;
-                        let py = (y as i32 + o.dy) as usize;
-                        dst.copy_from_slice(img.pixel(px, py));
-                    }
-                    for d in dst.iter_mut() {
-                        *d *= scales[order[s]];
-                    }
+        let plane = w * h * c;
+        let source = match other {
+            Some(o)
+                if o.level == level
+                    && o.width == w
+                    && o.height == h
+                    && o.shape.channels == c
+                    && (shape.coarse == 0 || o.source.len() == 2 * plane) =>
+            {
+                o.source.clone()
+            }
+            _ => {
+                let mut v = Vec::with_capacity(if shape.coarse > 0 { 2 * plane } else { plane });
+                v.extend_from_slice(&img.data);
+                if shape.coarse > 0 {
+                    // The coarser level at this level's pixel centres: U(x, y) is its
+                    // bilinear value at ((x + 0.5) / 2, (y + 0.5) / 2).
+                    let ci = pyr.level(level + 1);
+                    v.resize(2 * plane, 0.0);
+                    let up = &mut v[plane..];
+                    use rayon::prelude::*;
+                    up.par_chunks_mut(w * c).enumerate().for_each(|(y, row)| {
+                        for (x, px) in row.chunks_exact_mut(c).enumerate() {
+                            ci.bilinear((x as f32 + 0.5) / 2.0, (y as f32 + 0.5) / 2.0, px);
+                        }
+                    });
                 }
+                std::sync::Arc::new(v)
             }
         };
-        {
-            use rayon::prelude::*;
-            data.par_chunks_mut(cols * dim)
-                .enumerate()
-                .for_each(|(row, out)| fill(row, out));
+        let all = shape.offsets();
+        let mut offsets = Vec::with_capacity(shape.samples());
+        let mut weights = Vec::with_capacity(shape.samples());
+        for &s in &order {
+            let o = all[s];
+            // A coarse sample (dx, dy) in coarse pixels is the upsampled image 2(dx, dy)
+            // fine pixels away: ((x + 2dx) + 0.5) / 2 = (x + 0.5) / 2 + dx exactly.
+            let (dx, dy, at) = if o.coarse {
+                (2 * o.dx as isize, 2 * o.dy as isize, plane as isize)
+            } else {
+                (o.dx as isize, o.dy as isize, 0)
+            };
+            offsets.push(at + (dy * w as isize + dx) * c as isize);
+            weights.push(scales[s]);
         }
         Ok(Self {
             shape,
@@ -407,7 +447,9 @@ impl Features {
             rows,
             scales,
             order,
-            data,
+            source,
+            offsets,
+            weights,
         })
     }
 
@@ -426,11 +468,57 @@ impl Features {
         self.shape.dim()
     }
 
-    /// Weighted vector of feature `i`.
+    /// Bytes held (the gathered-from values count once per level when shared).
+    pub fn heap_bytes(&self) -> usize {
+        4 * self.source.len() + 12 * self.offsets.len()
+    }
+
+    /// Offset in [`Self::source`] of the first channel of feature `i`'s pixel.
     #[inline]
-    pub fn vector(&self, i: usize) -> &[f32] {
-        let d = self.dim();
-        &self.data[i * d..(i + 1) * d]
+    fn base(&self, i: usize) -> usize {
+        let (x, y) = (self.margin + i % self.cols, self.margin + i / self.cols);
+        (y * self.width + x) * self.shape.channels
+    }
+
+    /// The weighted vector of feature `i` into `out` (`dim()` long).
+    #[inline]
+    pub fn vector_into(&self, i: usize, out: &mut [f32]) {
+        let c = self.shape.channels;
+        let base = self.base(i) as isize;
+        for ((o, &off), &w) in out
+            .chunks_exact_mut(c)
+            .zip(&self.offsets)
+            .zip(&self.weights)
+        {
+            let at = (base + off) as usize;
+            for (o, &x) in o.iter_mut().zip(&self.source[at..at + c]) {
+                *o = x * w;
+            }
+        }
+    }
+
+    /// Weighted vector of feature `i` (allocates; see [`Self::vector_into`]).
+    pub fn vector(&self, i: usize) -> Vec<f32> {
+        let mut v = vec![0.0; self.dim()];
+        self.vector_into(i, &mut v);
+        v
+    }
+
+    /// The vectors of the rows [`pca::Pca::fit`] uses (all up to [`pca::MAX_ROWS`], else
+    /// that many evenly spaced), row-major: fitting on them is fitting on all vectors.
+    pub fn pca_rows(&self) -> Vec<f32> {
+        let n = self.len();
+        let dim = self.dim();
+        let rows: Vec<usize> = if n <= pca::MAX_ROWS {
+            (0..n).collect()
+        } else {
+            (0..pca::MAX_ROWS).map(|i| i * n / pca::MAX_ROWS).collect()
+        };
+        let mut out = vec![0.0f32; rows.len() * dim];
+        for (o, &r) in out.chunks_exact_mut(dim).zip(&rows) {
+            self.vector_into(r, o);
+        }
+        out
     }
 
     /// Pixel (column, row) of feature `i` in its level.
@@ -483,15 +571,23 @@ impl Features {
         out.complete = present == q.present.len();
     }
 
+    /// Squared distance from the weighted vector `a` (`dim()` long, storage order) to
+    /// feature `i`, over the dimensions where `mask` (if any) is 1, giving up (returning a
+    /// value `> bound`) once the partial sum exceeds `bound`. Bit for bit
+    /// [`dist_bounded`] / [`dist_masked_bounded`] of `a` and the stored vector.
+    #[inline]
+    pub fn distance_to(&self, a: &[f32], mask: Option<&[f32]>, i: usize, bound: f32) -> f32 {
+        gather_dispatch(a, mask, self, self.base(i), bound)
+    }
+
     /// Weighted squared distance from `q` to feature `i`, over present samples, giving up
     /// (returning a value `> bound`) once the partial sum exceeds `bound`.
     #[inline]
     pub fn distance(&self, q: &Prepared, i: usize, bound: f32) -> f32 {
-        let x = self.vector(i);
         if q.complete {
-            dist_bounded(&q.v, x, bound)
+            self.distance_to(&q.v, None, i, bound)
         } else {
-            dist_masked_bounded(&q.v, &q.mask, x, bound)
+            self.distance_to(&q.v, Some(&q.mask), i, bound)
         }
     }
 
@@ -537,6 +633,53 @@ const BLOCK: usize = 32;
 /// the output never depends on which CPU features were detected.
 const LANES: usize = 16;
 
+/// One block's partial sum: 16 lanes, each the running sum of its dimensions in order,
+/// then the lanes summed in order.
+#[inline(always)]
+fn block_sum(ca: &[f32], cb: &[f32], cm: Option<&[f32]>) -> f32 {
+    let mut acc = [0.0f32; LANES];
+    let mut ia = ca.chunks_exact(LANES);
+    let mut ib = cb.chunks_exact(LANES);
+    match cm {
+        None => {
+            for (x, y) in (&mut ia).zip(&mut ib) {
+                for k in 0..LANES {
+                    let d = x[k] - y[k];
+                    acc[k] += d * d;
+                }
+            }
+            for (k, (x, y)) in ia.remainder().iter().zip(ib.remainder()).enumerate() {
+                let d = x - y;
+                acc[k] += d * d;
+            }
+        }
+        Some(cm) => {
+            let mut im = cm.chunks_exact(LANES);
+            for ((x, y), w) in (&mut ia).zip(&mut ib).zip(&mut im) {
+                for k in 0..LANES {
+                    let d = x[k] - y[k];
+                    acc[k] += w[k] * (d * d);
+                }
+            }
+            for (k, ((x, y), w)) in ia
+                .remainder()
+                .iter()
+                .zip(ib.remainder())
+                .zip(im.remainder())
+                .enumerate()
+            {
+                let d = x - y;
+                acc[k] += w * (d * d);
+            }
+        }
+    }
+    let mut s = 0.0f32;
+    for v in acc {
+        s += v;
+    }
+    s
+}
+
 #[inline(always)]
 fn dist_kernel(a: &[f32], b: &[f32], m: Option<&[f32]>, bound: f32) -> f32 {
     let n = a.len().min(b.len());
@@ -545,55 +688,105 @@ fn dist_kernel(a: &[f32], b: &[f32], m: Option<&[f32]>, bound: f32) -> f32 {
     let mut start = 0;
     while start < n {
         let end = (start + BLOCK).min(n);
-        let (ca, cb) = (&a[start..end], &b[start..end]);
-        let mut acc = [0.0f32; LANES];
-        let mut ia = ca.chunks_exact(LANES);
-        let mut ib = cb.chunks_exact(LANES);
-        match m {
-            None => {
-                for (x, y) in (&mut ia).zip(&mut ib) {
-                    for k in 0..LANES {
-                        let d = x[k] - y[k];
-                        acc[k] += d * d;
-                    }
-                }
-                for (k, (x, y)) in ia.remainder().iter().zip(ib.remainder()).enumerate() {
-                    let d = x - y;
-                    acc[k] += d * d;
-                }
-            }
-            Some(m) => {
-                let cm = &m[start..end];
-                let mut im = cm.chunks_exact(LANES);
-                for ((x, y), w) in (&mut ia).zip(&mut ib).zip(&mut im) {
-                    for k in 0..LANES {
-                        let d = x[k] - y[k];
-                        acc[k] += w[k] * (d * d);
-                    }
-                }
-                for (k, ((x, y), w)) in ia
-                    .remainder()
-                    .iter()
-                    .zip(ib.remainder())
-                    .zip(im.remainder())
-                    .enumerate()
-                {
-                    let d = x - y;
-                    acc[k] += w * (d * d);
-                }
-            }
-        }
-        let mut s = 0.0f32;
-        for v in acc {
-            s += v;
-        }
-        total += s;
+        total += block_sum(&a[start..end], &b[start..end], m.map(|m| &m[start..end]));
         if total > bound {
             return total;
         }
         start = end;
     }
     total
+}
+
+/// [`dist_kernel`] against the vector of `f` at `base` ([`Features::distance_to`]),
+/// gathered one block at a time: the same blocks, lanes and early exit. `C` is the
+/// channel count when a block holds whole samples (`BLOCK % C == 0`: one fixed-length copy
+/// per sample), 0 for any other count (runs of channels split at block ends).
+#[inline(always)]
+fn gather_kernel<const C: usize>(
+    a: &[f32],
+    m: Option<&[f32]>,
+    f: &Features,
+    base: usize,
+    bound: f32,
+) -> f32 {
+    let c = f.shape.channels;
+    debug_assert!(C == 0 || C == c);
+    let n = a.len().min(f.offsets.len() * c);
+    let src = &f.source[..];
+    let base = base as isize;
+    let mut buf = [0.0f32; BLOCK];
+    let mut total = 0.0f32;
+    let mut start = 0;
+    while start < n {
+        let end = (start + BLOCK).min(n);
+        if C > 0 {
+            let (s0, s1) = (start / C, end / C);
+            for ((o, &off), &w) in buf
+                .chunks_exact_mut(C)
+                .zip(&f.offsets[s0..s1])
+                .zip(&f.weights[s0..s1])
+            {
+                let at = (base + off) as usize;
+                let x = &src[at..at + C];
+                for k in 0..C {
+                    o[k] = x[k] * w;
+                }
+            }
+        } else {
+            // Dimensions start..end: runs of consecutive channels of one sample each.
+            let mut d = start;
+            while d < end {
+                let (s, k) = (d / c, d % c);
+                let len = (c - k).min(end - d);
+                let at = (base + f.offsets[s]) as usize + k;
+                let w = f.weights[s];
+                for (o, &x) in buf[d - start..d - start + len]
+                    .iter_mut()
+                    .zip(&src[at..at + len])
+                {
+                    *o = x * w;
+                }
+                d += len;
+            }
+        }
+        let b = &buf[..end - start];
+        total += block_sum(&a[start..end], b, m.map(|m| &m[start..end]));
+        if total > bound {
+            return total;
+        }
+        start = end;
+    }
+    total
+}
+
+/// [`gather_kernel`] for the channel count of `f`.
+#[inline(always)]
+fn gather_any(a: &[f32], m: Option<&[f32]>, f: &Features, base: usize, bound: f32) -> f32 {
+    match f.shape.channels {
+        8 => gather_kernel::<8>(a, m, f, base, bound),
+        4 => gather_kernel::<4>(a, m, f, base, bound),
+        2 => gather_kernel::<2>(a, m, f, base, bound),
+        1 => gather_kernel::<1>(a, m, f, base, bound),
+        _ => gather_kernel::<0>(a, m, f, base, bound),
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn gather_avx2(a: &[f32], m: Option<&[f32]>, f: &Features, base: usize, bound: f32) -> f32 {
+    gather_any(a, m, f, base, bound)
+}
+
+#[inline]
+fn gather_dispatch(a: &[f32], m: Option<&[f32]>, f: &Features, base: usize, bound: f32) -> f32 {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2 (checked just above).
+            return unsafe { gather_avx2(a, m, f, base, bound) };
+        }
+    }
+    gather_any(a, m, f, base, bound)
 }
 
 #[cfg(target_arch = "x86_64")]

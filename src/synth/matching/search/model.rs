@@ -205,9 +205,12 @@ impl ExampleModel {
                     lists: None,
                 }
             } else {
+                // Both passes gather from the same level and upsampled coarser level.
+                let f2 = Features::build(&pyramid, l, s2, margin)?;
+                let f1 = Features::build_sharing(&pyramid, l, s1, margin, Some(&f2))?;
                 LevelModel {
-                    pass1: Some(mk(Features::build(&pyramid, l, s1, margin)?)?),
-                    pass2: mk(Features::build(&pyramid, l, s2, margin)?)?,
+                    pass1: Some(mk(f1)?),
+                    pass2: mk(f2)?,
                     lists: None,
                 }
             };
