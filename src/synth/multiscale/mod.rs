@@ -545,10 +545,12 @@ pub fn run_on_model(
         let fine_fac = Factors::of(inputs, &fine);
         geometry_seconds += t0.elapsed().as_secs_f64();
         let t0 = Instant::now();
-        let (s1, cache) = pass_one(&ctx, i, &fine, &fine_fac, &geo, &state, &mut stats);
+        let s1 = pass_one(&ctx, i, &fine, &fine_fac, &geo, &state, &mut stats);
         done += fine.len() as u64;
         progress(done, total);
-        let s2 = pass_two(&ctx, i, &fine, &fine_fac, &order, s1, &cache, &mut stats);
+        let s2 = pass_two(
+            &ctx, i, &fine, &fine_fac, &geo, &state, &order, s1, &mut stats,
+        );
         search_seconds += t0.elapsed().as_secs_f64();
         done += fine.len() as u64;
         progress(done, total);
@@ -557,17 +559,21 @@ pub fn run_on_model(
         state = s2;
     }
 
-    // Sources in level-0 example pixels, made continuous.
+    // Sources in level-0 example pixels, made continuous (the values are not needed any
+    // more).
+    let State { values, src } = state;
+    drop(values);
     let up = (1u64 << j0) as f32;
-    let discrete: Vec<[f32; 2]> = state
-        .src
+    let discrete: Vec<[f32; 2]> = src
         .iter()
         .map(|&s| {
             let p = ctx.position(0, s);
             [p[0] * up, p[1] * up]
         })
         .collect();
+    drop(src);
     let finest = continuous_sources(surface, &geo, &fac, &discrete, inputs.scale, up, &mut stats);
+    drop(discrete);
     let source = if geo.r == n && j0 == 0 {
         finest
     } else {
@@ -622,13 +628,21 @@ fn continuous_sources(
     let r = geo.r;
     let tol = PATCH_TOLERANCE * up;
     let tol2 = tol * tol;
-    // Coherent neighbours of every texel: (neighbour, offset e(t, q) in example pixels).
-    let links: Vec<Vec<(u32, [f32; 2])>> = (0..geo.len())
-        .into_par_iter()
-        .map(|t| {
+    let n_t = geo.len();
+    // Coherent neighbours of every texel: (neighbour, offset e(t, q) in example pixels),
+    // at most 8, found in parallel into fixed slots and then packed into one list with
+    // per-texel starts (a Vec per texel cost ~130 B/texel in headers and allocations).
+    const SLOTS: usize = 8;
+    let mut slots = vec![(0u32, [0.0f32; 2]); n_t * SLOTS];
+    let mut counts = vec![0u8; n_t];
+    slots
+        .par_chunks_mut(SLOTS)
+        .zip(counts.par_iter_mut())
+        .enumerate()
+        .for_each(|(t, (out, count))| {
             let loc = geo.location(t);
             let p = src[t];
-            let mut out = Vec::with_capacity(8);
+            let mut len = 0;
             for b in -1i32..=1 {
                 for a in -1i32..=1 {
                     if a == 0 && b == 0 {
@@ -641,81 +655,113 @@ fn continuous_sources(
                     let Some(q) = nearest_texel(&geo.layout.taps(l)) else {
                         continue;
                     };
-                    if q == t || out.iter().any(|&(o, _)| o as usize == q) {
+                    if q == t || out[..len].iter().any(|&(o, _)| o as usize == q) {
                         continue;
                     }
                     let e = geo.offset_pixels(t, q, fac.step(scale, t));
                     let c = [src[q][0] - e[0], src[q][1] - e[1]];
                     let (dx, dy) = (c[0] - p[0], c[1] - p[1]);
                     if dx * dx + dy * dy <= tol2 {
-                        out.push((q as u32, e));
+                        out[len] = (q as u32, e);
+                        len += 1;
                     }
                 }
             }
-            out
-        })
-        .collect();
-    stats.continued = links.iter().filter(|l| !l.is_empty()).count() as u64;
+            *count = len as u8;
+        });
+    // Pack in place (entries only move towards the front).
+    let mut link_start = Vec::with_capacity(n_t + 1);
+    let mut at = 0usize;
+    for (t, &k) in counts.iter().enumerate() {
+        link_start.push(at as u32);
+        slots.copy_within(t * SLOTS..t * SLOTS + k as usize, at);
+        at += k as usize;
+    }
+    link_start.push(at as u32);
+    drop(counts);
+    slots.truncate(at);
+    slots.shrink_to_fit();
+    let links = Flat {
+        start: link_start,
+        items: slots,
+    };
+    stats.continued = (0..n_t).filter(|&t| !links.of(t).is_empty()).count() as u64;
     // Each connected patch (over links in either direction) is laid out by a breadth-first
     // tree from its first texel — exact continuation along the tree — and moved as a whole
     // to fit its discrete sources on average; Jacobi steps then spread what the field's
     // curl leaves between tree branches.
-    let n_t = geo.len();
-    let mut back: Vec<Vec<(u32, [f32; 2])>> = vec![Vec::new(); n_t];
-    for (t, l) in links.iter().enumerate() {
-        for &(q, e) in l {
-            // t's link to q with offset e(t, q): q's link back to t has offset ≈ −e.
-            back[q as usize].push((t as u32, [-e[0], -e[1]]));
+    //
+    // t's link to q with offset e(t, q): q's link back to t has offset ≈ −e. Back links of
+    // q in increasing t.
+    let back = {
+        let mut start = vec![0u32; n_t + 1];
+        for &(q, _) in &links.items {
+            start[q as usize + 1] += 1;
         }
-    }
+        for i in 0..n_t {
+            start[i + 1] += start[i];
+        }
+        let mut fill: Vec<u32> = start[..n_t].to_vec();
+        let mut items = vec![(0u32, [0.0f32; 2]); links.items.len()];
+        for t in 0..n_t {
+            for &(q, e) in links.of(t) {
+                let f = &mut fill[q as usize];
+                items[*f as usize] = (t as u32, [-e[0], -e[1]]);
+                *f += 1;
+            }
+        }
+        Flat { start, items }
+    };
+    let linked = |t: usize| !(links.of(t).is_empty() && back.of(t).is_empty());
+    // `cur` holds the tree layout (relative to the root) of a patch's members while it is
+    // laid out, then their positions.
     let mut cur: Vec<[f64; 2]> = src.iter().map(|s| [s[0] as f64, s[1] as f64]).collect();
     let mut seen = vec![false; n_t];
     let mut queue = std::collections::VecDeque::new();
     let mut members = Vec::new();
     for root in 0..n_t {
-        if seen[root] || (links[root].is_empty() && back[root].is_empty()) {
+        if seen[root] || !linked(root) {
             continue;
         }
         seen[root] = true;
         members.clear();
         queue.push_back(root);
-        let mut pos_of = std::collections::HashMap::new();
-        pos_of.insert(root, [0.0f64, 0.0f64]);
+        cur[root] = [0.0f64, 0.0f64];
         while let Some(t) = queue.pop_front() {
             members.push(t);
-            let st = pos_of[&t];
-            for &(q, e) in links[t].iter().chain(back[t].iter()) {
+            let st = cur[t];
+            for &(q, e) in links.of(t).iter().chain(back.of(t).iter()) {
                 let q = q as usize;
                 if !seen[q] {
                     seen[q] = true;
                     // s(q) = s(t) + e(t, q).
-                    pos_of.insert(q, [st[0] + e[0] as f64, st[1] + e[1] as f64]);
+                    cur[q] = [st[0] + e[0] as f64, st[1] + e[1] as f64];
                     queue.push_back(q);
                 }
             }
         }
         let (mut dx, mut dy) = (0.0f64, 0.0f64);
         for &t in &members {
-            let p = pos_of[&t];
+            let p = cur[t];
             dx += src[t][0] as f64 - p[0];
             dy += src[t][1] as f64 - p[1];
         }
         let m = members.len() as f64;
         for &t in &members {
-            let p = pos_of[&t];
+            let p = cur[t];
             cur[t] = [p[0] + dx / m, p[1] + dy / m];
         }
     }
+    drop(seen);
     for _ in 0..CONTINUATION_ITERATIONS {
         cur = (0..n_t)
             .into_par_iter()
             .map(|t| {
-                let l = &links[t];
-                if l.is_empty() && back[t].is_empty() {
+                if !linked(t) {
                     return cur[t];
                 }
                 let (mut sx, mut sy, mut w) = (0.0f64, 0.0f64, 0.0f64);
-                for &(q, e) in l.iter().chain(back[t].iter()) {
+                for &(q, e) in links.of(t).iter().chain(back.of(t).iter()) {
                     let c = cur[q as usize];
                     sx += c[0] - e[0] as f64;
                     sy += c[1] - e[1] as f64;
@@ -729,6 +775,19 @@ fn continuous_sources(
     cur.into_iter()
         .map(|c| [c[0] as f32, c[1] as f32])
         .collect()
+}
+
+/// Per-texel lists packed into one: texel `t`'s are `items[start[t]..start[t + 1]]`.
+struct Flat<T> {
+    start: Vec<u32>,
+    items: Vec<T>,
+}
+
+impl<T> Flat<T> {
+    #[inline]
+    fn of(&self, t: usize) -> &[T] {
+        &self.items[self.start[t] as usize..self.start[t + 1] as usize]
+    }
 }
 
 /// Output texel sources continued from the nearest texel of the finest synthesis level.
@@ -948,13 +1007,6 @@ fn absorb(stats: &mut Stats, w: &Work) {
     stats.patterns.add(&w.pst);
 }
 
-/// The coarser-level block of every texel (reused by pass 2) with presence flags.
-struct CoarseCache {
-    samples: usize,
-    values: Vec<f32>,
-    present: Vec<bool>,
-}
-
 /// k-coherence seeds from the coarser level: the forward-shifted sources of the coarse
 /// texels nearest to the central `window x window` samples of the coarse pattern, scaled
 /// to this level.
@@ -994,6 +1046,49 @@ fn coarse_seeds(
     }
 }
 
+/// The coarser level's K×K block around texel `t` of `fine` into `w.q` (missing where
+/// nothing is there): what pass 1 matches alone and pass 2 appends to
+/// the level's own block. `w.locs` holds the block's pattern afterwards. Pass 2 gathers it
+/// again rather than keeping pass 1's: the same pattern (the same calls, in the same
+/// order per domain, with a scratch of their own) and the same fetches give the same
+/// values, and keeping them all cost 25 samples x (channels + 1) x 4 bytes per texel of
+/// the finest level (825 B with 8 appearance dimensions), the run's peak.
+#[allow(clippy::too_many_arguments)]
+fn coarse_block(
+    ctx: &Ctx<'_>,
+    level: usize,
+    fine: &LevelGeometry,
+    fine_fac: &Factors,
+    coarse: &LevelGeometry,
+    view: &View<'_>,
+    t: usize,
+    w: &mut Work,
+) {
+    let k = ctx.model.shape(level, Pass::One).coarse;
+    let delta = fine_fac.step(ctx.steps[level + 1], t);
+    ctx.pattern(fine, t, delta, k, SamplerKind::Chart, w);
+    for s in 0..k * k {
+        match w.locs[s] {
+            Some(loc) if view.fetch_at(&coarse.layout, loc, &mut w.val) => {
+                w.q.set(s, &w.val);
+            }
+            _ => w.q.clear(s),
+        }
+    }
+}
+
+/// The view of a finished coarser level (every texel generated, no domain in progress).
+fn finished_view<'a>(c: usize, coarse: &LevelGeometry, cstate: &'a State) -> View<'a> {
+    View {
+        channels: c,
+        per_domain: coarse.per_domain(),
+        before: &cstate.values,
+        before_generated: true,
+        finished: &[],
+        own: None,
+    }
+}
+
 /// Pass 1: every texel from the coarser level's 5x5 block alone (all independent).
 fn pass_one(
     ctx: &Ctx<'_>,
@@ -1003,52 +1098,21 @@ fn pass_one(
     coarse: &LevelGeometry,
     cstate: &State,
     stats: &mut Stats,
-) -> (State, CoarseCache) {
+) -> State {
     let c = ctx.channels;
-    let shape = ctx.model.shape(level, Pass::One);
-    let k = shape.coarse;
-    let ns = k * k;
-    let delta = ctx.steps[level + 1];
+    let k = ctx.model.shape(level, Pass::One).coarse;
     let nn = fine.per_domain();
     let faces = fine.len() / nn;
-    let view = View {
-        channels: c,
-        per_domain: coarse.per_domain(),
-        before: &cstate.values,
-        before_generated: true,
-        finished: &[],
-        own: None,
-    };
-    // Per domain: coarse-block values, their presence, chosen features, counters.
-    type DomainPass1 = (Vec<f32>, Vec<bool>, Vec<u32>, Work);
-    let results: Vec<DomainPass1> = (0..faces)
+    let view = finished_view(c, coarse, cstate);
+    // Per domain: chosen features, counters.
+    let results: Vec<(Vec<u32>, Work)> = (0..faces)
         .into_par_iter()
         .map(|d| {
             let mut w = Work::new(ctx.model, level, Pass::One);
-            let mut vals = vec![0.0f32; nn * ns * c];
-            let mut pres = vec![false; nn * ns];
             let mut src = vec![0u32; nn];
             for li in 0..nn {
                 let t = d * nn + li;
-                ctx.pattern(
-                    fine,
-                    t,
-                    fine_fac.step(delta, t),
-                    k,
-                    SamplerKind::Chart,
-                    &mut w,
-                );
-                w.q.clear_all();
-                for s in 0..ns {
-                    if let Some(loc) = w.locs[s] {
-                        if view.fetch_at(&coarse.layout, loc, &mut w.val) {
-                            w.q.set(s, &w.val);
-                            let o = (li * ns + s) * c;
-                            vals[o..o + c].copy_from_slice(&w.val);
-                            pres[li * ns + s] = true;
-                        }
-                    }
-                }
+                coarse_block(ctx, level, fine, fine_fac, coarse, &view, t, &mut w);
                 if let Some(win) = ctx.kwindow {
                     let mut seeds = std::mem::take(&mut w.seeds);
                     coarse_seeds(
@@ -1068,48 +1132,43 @@ fn pass_one(
                 }
                 src[li] = ctx.choose(level, Pass::One, t, &mut w);
             }
-            (vals, pres, src, w)
+            (src, w)
         })
         .collect();
     let mut values = vec![0.0f32; fine.len() * c];
     let mut src = vec![0u32; fine.len()];
-    let mut cache = CoarseCache {
-        samples: ns,
-        values: Vec::with_capacity(fine.len() * ns * c),
-        present: Vec::with_capacity(fine.len() * ns),
-    };
-    for (d, (vals, pres, s, w)) in results.into_iter().enumerate() {
+    for (d, (s, w)) in results.into_iter().enumerate() {
         for (li, &index) in s.iter().enumerate() {
             let t = d * nn + li;
             values[t * c..(t + 1) * c].copy_from_slice(ctx.value(level, index));
             src[t] = index;
         }
-        cache.values.extend_from_slice(&vals);
-        cache.present.extend_from_slice(&pres);
         absorb(stats, &w);
     }
-    (State { values, src }, cache)
+    State { values, src }
 }
 
-/// Pass 2: refine with the level's 9x9 block plus the cached coarser block; scan-line
-/// order inside each domain, domains in the schedule's order ([`DomainOrder`]).
+/// Pass 2: refine with the level's 9x9 block plus the coarser block (gathered again,
+/// [`coarse_block`]); scan-line order inside each domain, domains in the schedule's order
+/// ([`DomainOrder`]).
 #[allow(clippy::too_many_arguments)]
 fn pass_two(
     ctx: &Ctx<'_>,
     level: usize,
     geo: &LevelGeometry,
     fac: &Factors,
+    coarse: &LevelGeometry,
+    cstate: &State,
     order: &DomainOrder,
     mut state: State,
-    cache: &CoarseCache,
     stats: &mut Stats,
 ) -> State {
     let c = ctx.channels;
     let shape = ctx.model.shape(level, Pass::Two);
     let k = shape.fine;
     let nf = k * k;
-    let ns = cache.samples;
     let nn = geo.per_domain();
+    let coarse_view = finished_view(c, coarse, cstate);
     let delta = ctx.steps[level];
     let all_gen = vec![true; nn];
     let before = &state;
@@ -1117,6 +1176,8 @@ fn pass_two(
         let start = d * nn;
         let finished = order.visible(d, done);
         let mut w = Work::new(ctx.model, level, Pass::Two);
+        // Pass 1's pattern calls again, with a scratch (and counters) of their own.
+        let mut wc = Work::new(ctx.model, level, Pass::One);
         let mut own_vals = before.values[start * c..(start + nn) * c].to_vec();
         let mut own_src = before.src[start..start + nn].to_vec();
         for li in 0..nn {
@@ -1146,10 +1207,12 @@ fn pass_two(
                     None => w.q.clear(s),
                 }
             }
+            coarse_block(ctx, level, geo, fac, coarse, &coarse_view, t, &mut wc);
+            let ns = shape.coarse * shape.coarse;
             for s in 0..ns {
-                if cache.present[t * ns + s] {
-                    let o = (t * ns + s) * c;
-                    w.q.set(nf + s, &cache.values[o..o + c]);
+                if wc.q.present[s] {
+                    let v = &wc.q.values[s * c..(s + 1) * c];
+                    w.q.set(nf + s, v);
                 } else {
                     w.q.clear(nf + s);
                 }
