@@ -103,6 +103,12 @@ const TEXTON_TEXEL: u64 = 1700;
 /// all for a BTF run): the decoded image, its filter responses and the k-means data, plus
 /// the search model of the embedding spread over the images.
 const TEXTON_IMAGE_PIXEL: u64 = 400;
+/// `--scale-map`, per texel: the interpolated factor (f64, kept by the session) and
+/// geometry.exr's `scale` channel (f32, the requested local scale).
+const SCALE_MAP_TEXEL: u64 = 12;
+/// `--scale-map` with the multiscale methods, per output texel: their own factor per
+/// texel of the level being synthesized and of the coarser one (f64, 1 + 1/4).
+const SCALE_MAP_LEVELS: u64 = 10;
 /// `--displace`, per vertex of the tessellation: the limit mesh (its half-edge topology,
 /// f64 positions, normals and locations) and the displaced f32 copy with texture
 /// coordinates and quads. Measured: 341 MB peak with vs 108 MB without on Spot at N = 32
@@ -353,6 +359,8 @@ pub enum Job {
         method: Method,
         /// `--displace`: displaced.obj is tessellated at texel resolution.
         displace: bool,
+        /// `--scale-map`: a factor per texel and geometry.exr's `scale` channel.
+        scale_map: bool,
     },
     /// `bake` on `threads` worker threads.
     Bake { threads: usize },
@@ -467,6 +475,7 @@ pub fn estimate_texels(size: &MeshSize, count: &TexelCount, job: &Job) -> Estima
             example_pixels,
             method,
             displace,
+            scale_map,
         } => {
             parts.push((
                 "orientation field",
@@ -504,6 +513,13 @@ pub fn estimate_texels(size: &MeshSize, count: &TexelCount, job: &Job) -> Estima
                         sat(example_pixels as u64, MULTISCALE_PIXEL_PER_CHANNEL * c),
                     ));
                 }
+            }
+            if scale_map {
+                let per = match method {
+                    Method::Multiscale | Method::Textons => SCALE_MAP_TEXEL + SCALE_MAP_LEVELS,
+                    _ => SCALE_MAP_TEXEL,
+                };
+                parts.push(("scale map", sat(texels, per)));
             }
             if displace {
                 parts.push((
@@ -976,6 +992,7 @@ mod tests {
             example_pixels: 128 * 128,
             method: Method::Coherent,
             displace: false,
+            scale_map: false,
         };
         let a = estimate(&s, 32, &job(5));
         let b = estimate(&s, 64, &job(5));
@@ -997,6 +1014,7 @@ mod tests {
                 example_pixels: 128 * 128,
                 method,
                 displace: false,
+                scale_map: false,
             };
             estimate(&s, 64, &job).bytes
         };

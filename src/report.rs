@@ -130,6 +130,10 @@ pub struct Report {
     pub synthesis_texels_per_second: f64,
     /// Peak resident memory of the process (bytes), where the OS tells it.
     pub peak_memory_bytes: Option<u64>,
+    /// The memory guard's estimate of the run's peak (bytes; [`crate::memory`]), recorded
+    /// so that it can be compared with `peak_memory_bytes`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub memory_estimate_bytes: Option<u64>,
     /// pf1/pf4/pf8 of the result (`surfsynth synth` measures them after writing;
     /// [`crate::eval::summary_fidelity`]).
     #[serde(skip_serializing_if = "Option::is_none")]

@@ -749,6 +749,7 @@ impl Synthesizer {
             example_pixels: ex_pixels.min(usize::MAX as u64) as usize,
             method: self.settings.method,
             displace: self.displace.is_some(),
+            scale_map: self.scale_map.is_some(),
         };
         if let Some((ex, maps)) = &pending {
             for (name, m) in maps {

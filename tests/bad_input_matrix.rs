@@ -901,6 +901,7 @@ fn g02_synth_normal_run_passes_the_default_guard_and_the_estimate_is_close() {
         example_pixels: 128 * 128,
         method: surfsynth::synth::Method::DEFAULT,
         displace: false,
+        scale_map: false,
     };
     let est = surfsynth::memory::estimate(&size, n, &job).bytes;
     let ratio = est as f64 / peak as f64;

@@ -379,6 +379,7 @@ fn jump_memory_estimate_is_close_to_the_peak() {
         example_pixels: 128 * 128,
         method: Method::Jump,
         displace: false,
+        scale_map: false,
     };
     let est = surfsynth::memory::estimate(&size, 32, &job).bytes;
     let ratio = est as f64 / peak as f64;

@@ -230,6 +230,7 @@ const MESH_JOB: Job = Job::Synth {
     example_pixels: 0,
     method: Method::Coherent,
     displace: false,
+    scale_map: false,
 };
 
 /// The user's control mesh where it must be kept (a mesh far from unit size: outputs are
@@ -651,21 +652,29 @@ impl Session {
             example_pixels,
             method: settings.method,
             displace: params.displace.is_some(),
+            scale_map: self.scale_field.is_some(),
         };
-        match self.texel_size {
-            None => crate::memory::check(
-                &self.mesh_label,
-                n,
-                &job,
-                &crate::memory::estimate(&self.size, n, &job),
-            )?,
-            Some(_) => crate::memory::check_layout(
-                &self.mesh_label,
-                &self.surface.control,
-                &self.layout,
-                &job,
-            )?,
-        }
+        let memory_estimate = match self.texel_size {
+            None => {
+                let e = crate::memory::estimate(&self.size, n, &job);
+                crate::memory::check(&self.mesh_label, n, &job, &e)?;
+                e.bytes
+            }
+            Some(_) => {
+                crate::memory::check_layout(
+                    &self.mesh_label,
+                    &self.surface.control,
+                    &self.layout,
+                    &job,
+                )?;
+                crate::memory::estimate_texels(
+                    &self.size,
+                    &crate::memory::TexelCount::of_layout(&self.layout),
+                    &job,
+                )
+                .bytes
+            }
+        };
 
         progress(Stage::Synthesis, 0, faces);
         let t0 = Instant::now();
@@ -720,6 +729,7 @@ impl Session {
             details: out.details,
             cache,
             seconds: synthesis_s,
+            memory_estimate,
         })
     }
 
@@ -859,6 +869,7 @@ impl Session {
             texels_per_second: 0.0,
             synthesis_texels_per_second: 0.0,
             peak_memory_bytes: None,
+            memory_estimate_bytes: Some(s.memory_estimate),
             patch_fidelity: None,
             cache: s.cache,
         };
@@ -891,6 +902,8 @@ struct Synthesized {
     details: crate::synth::Details,
     cache: crate::synth::analysis::CacheReport,
     seconds: f64,
+    /// The memory guard's estimate for this run (bytes).
+    memory_estimate: u64,
 }
 
 /// How the report names the example and the height map.

@@ -629,11 +629,15 @@ fn continuous_sources(
     let tol = PATCH_TOLERANCE * up;
     let tol2 = tol * tol;
     let n_t = geo.len();
-    // Coherent neighbours of every texel: (neighbour, offset e(t, q) in example pixels),
-    // at most 8, found in parallel into fixed slots and then packed into one list with
-    // per-texel starts (a Vec per texel cost ~130 B/texel in headers and allocations).
+    // The offset e(t, q) from texel t to its neighbour q in example pixels (t's frame and
+    // step): recomputed where needed rather than stored with every link.
+    let offset = |t: usize, q: usize| geo.offset_pixels(t, q, fac.step(scale, t));
+    // Coherent neighbours of every texel, at most 8, found in parallel into fixed slots and
+    // then packed into one list with per-texel starts (a Vec of (neighbour, offset) per
+    // texel, and one of back links, cost ~270 B/texel in headers, allocations and
+    // offsets; this is 4 B per link each way).
     const SLOTS: usize = 8;
-    let mut slots = vec![(0u32, [0.0f32; 2]); n_t * SLOTS];
+    let mut slots = vec![0u32; n_t * SLOTS];
     let mut counts = vec![0u8; n_t];
     slots
         .par_chunks_mut(SLOTS)
@@ -655,14 +659,14 @@ fn continuous_sources(
                     let Some(q) = nearest_texel(&geo.layout.taps(l)) else {
                         continue;
                     };
-                    if q == t || out[..len].iter().any(|&(o, _)| o as usize == q) {
+                    if q == t || out[..len].iter().any(|&o| o as usize == q) {
                         continue;
                     }
-                    let e = geo.offset_pixels(t, q, fac.step(scale, t));
+                    let e = offset(t, q);
                     let c = [src[q][0] - e[0], src[q][1] - e[1]];
                     let (dx, dy) = (c[0] - p[0], c[1] - p[1]);
                     if dx * dx + dy * dy <= tol2 {
-                        out[len] = (q as u32, e);
+                        out[len] = q as u32;
                         len += 1;
                     }
                 }
@@ -695,24 +699,34 @@ fn continuous_sources(
     // q in increasing t.
     let back = {
         let mut start = vec![0u32; n_t + 1];
-        for &(q, _) in &links.items {
+        for &q in &links.items {
             start[q as usize + 1] += 1;
         }
         for i in 0..n_t {
             start[i + 1] += start[i];
         }
         let mut fill: Vec<u32> = start[..n_t].to_vec();
-        let mut items = vec![(0u32, [0.0f32; 2]); links.items.len()];
+        let mut items = vec![0u32; links.items.len()];
         for t in 0..n_t {
-            for &(q, e) in links.of(t) {
+            for &q in links.of(t) {
                 let f = &mut fill[q as usize];
-                items[*f as usize] = (t as u32, [-e[0], -e[1]]);
+                items[*f as usize] = t as u32;
                 *f += 1;
             }
         }
         Flat { start, items }
     };
     let linked = |t: usize| !(links.of(t).is_empty() && back.of(t).is_empty());
+    // Every neighbour of t over links in either direction, with the offset from t: links
+    // first, then back links (whose offset is minus the other texel's).
+    let around = |t: usize| {
+        let fwd = links.of(t).iter().map(move |&q| (q as usize, offset(t, q as usize)));
+        let bwd = back.of(t).iter().map(move |&o| {
+            let e = offset(o as usize, t);
+            (o as usize, [-e[0], -e[1]])
+        });
+        fwd.chain(bwd)
+    };
     // `cur` holds the tree layout (relative to the root) of a patch's members while it is
     // laid out, then their positions.
     let mut cur: Vec<[f64; 2]> = src.iter().map(|s| [s[0] as f64, s[1] as f64]).collect();
@@ -730,8 +744,7 @@ fn continuous_sources(
         while let Some(t) = queue.pop_front() {
             members.push(t);
             let st = cur[t];
-            for &(q, e) in links.of(t).iter().chain(back.of(t).iter()) {
-                let q = q as usize;
+            for (q, e) in around(t) {
                 if !seen[q] {
                     seen[q] = true;
                     // s(q) = s(t) + e(t, q).
@@ -761,8 +774,8 @@ fn continuous_sources(
                     return cur[t];
                 }
                 let (mut sx, mut sy, mut w) = (0.0f64, 0.0f64, 0.0f64);
-                for &(q, e) in links.of(t).iter().chain(back.of(t).iter()) {
-                    let c = cur[q as usize];
+                for (q, e) in around(t) {
+                    let c = cur[q];
                     sx += c[0] - e[0] as f64;
                     sy += c[1] - e[1] as f64;
                     w += 1.0;
