@@ -573,21 +573,49 @@ pub fn spacing_error(pts: &[Vec3], k: usize, delta: f64, n: Vec3, tol: f64) -> f
     worst as f64
 }
 
+/// A level's texel values from the example feature each texel copied: the value of
+/// feature `i` is the example level's pixel `(margin + i % cols, margin + i / cols)`
+/// ([`crate::synth::matching::search::Features::pixel`]). Texels keep only that index
+/// (4 bytes) instead of their values (4 bytes per channel: 32 with 8 appearance
+/// dimensions, held two or three times over while a level is refined).
+#[derive(Clone, Copy)]
+pub struct Lookup<'a> {
+    /// The example level's pixels (`channels` floats each).
+    pub data: &'a [f32],
+    pub width: usize,
+    pub margin: usize,
+    pub cols: usize,
+    pub channels: usize,
+}
+
+impl<'a> Lookup<'a> {
+    /// The values of feature `i`.
+    #[inline]
+    pub fn value(&self, i: u32) -> &'a [f32] {
+        let i = i as usize;
+        let (x, y) = (self.margin + i % self.cols, self.margin + i / self.cols);
+        let o = (y * self.width + x) * self.channels;
+        &self.data[o..o + self.channels]
+    }
+}
+
 /// Read access to a level's texel values while some domain is being rewritten: texels of
 /// `own` (a domain's range) come from its private copy; texels of a domain listed in
 /// `finished` (the earlier domains of the schedule that conflict with this one, all done
 /// before it starts) from that domain's result; all others from `before`, the level's
 /// state before the pass (generated or not as `before_generated` says). No domain ever
 /// reads another's in-progress texels, and which domains it sees finished depends only on
-/// the schedule, so results are the same for any thread count and any timing.
+/// the schedule, so results are the same for any thread count and any timing. Texels are
+/// held as the example features they copied, read through `lookup`.
 pub struct View<'a> {
     pub channels: usize,
     /// Texels per domain.
     pub per_domain: usize,
-    pub before: &'a [f32],
+    pub lookup: Lookup<'a>,
+    pub before: &'a [u32],
     pub before_generated: bool,
-    /// Per domain: its finished values, if this domain may read them (may be empty).
-    pub finished: &'a [Option<&'a [f32]>],
+    /// Per domain: its finished sources, if this domain may read them (may be empty).
+    pub finished: &'a [Option<&'a [u32]>],
     pub own: Option<Own<'a>>,
 }
 
@@ -595,21 +623,21 @@ pub struct View<'a> {
 pub struct Own<'a> {
     pub start: usize,
     pub len: usize,
-    pub values: &'a [f32],
+    pub src: &'a [u32],
     pub generated: &'a [bool],
     /// True when every entry of `generated` is (lets fetches skip the checks).
     pub all_generated: bool,
 }
 
 impl View<'_> {
-    /// Values of the domain holding texel `i` (all its texels), the index of `i` in them,
+    /// Sources of the domain holding texel `i` (all its texels), the index of `i` in them,
     /// and whether they are generated (`None`: per texel, from `own.generated`).
     #[inline]
-    fn domain_of(&self, i: usize) -> (&[f32], usize, Option<bool>) {
+    fn domain_of(&self, i: usize) -> (&[u32], usize, Option<bool>) {
         if let Some(o) = &self.own {
             if i >= o.start && i < o.start + o.len {
                 let g = if o.all_generated { Some(true) } else { None };
-                return (o.values, i - o.start, g);
+                return (o.src, i - o.start, g);
             }
         }
         let e = i / self.per_domain;
@@ -621,13 +649,17 @@ impl View<'_> {
 
     #[inline]
     fn get(&self, i: usize) -> (&[f32], bool) {
-        let c = self.channels;
-        let (vals, j, g) = self.domain_of(i);
+        let (src, j, g) = self.domain_of(i);
         let g = match g {
             Some(g) => g,
             None => self.own.as_ref().expect("own texel").generated[j],
         };
-        (&vals[j * c..(j + 1) * c], g)
+        // Texels not generated have no value (the coarsest level's `before` is empty).
+        if g {
+            (self.lookup.value(src[j]), true)
+        } else {
+            (&[], false)
+        }
     }
 
     /// [`Self::fetch`] at a domain point of maps laid out by `layout`. Points whose four
@@ -653,13 +685,13 @@ impl View<'_> {
             // All four texels are in one domain: one lookup picks the storage, and with
             // everything there generated no per-texel checks are needed. Same arithmetic,
             // in the same order, as the general path below.
-            if let (vals, j, Some(true)) = self.domain_of(base) {
+            if let (src, j, Some(true)) = self.domain_of(base) {
                 let off = base - j;
                 out[..c].fill(0.0);
                 for k in 0..4 {
                     if w[k] != 0.0 {
-                        let j = (idx[k] - off) * c;
-                        for (o, s) in out[..c].iter_mut().zip(&vals[j..j + c]) {
+                        let v = self.lookup.value(src[idx[k] - off]);
+                        for (o, s) in out[..c].iter_mut().zip(v) {
                             *o += w[k] * s;
                         }
                     }

@@ -48,7 +48,9 @@ use crate::synth::matching::appearance::{
 use crate::synth::matching::search::model::{ExampleModel, Method, ModelParams, Pass, Scratch};
 use crate::synth::matching::search::{hash, pick, Prepared, Query};
 use crate::synth::schedule::Schedule;
-use level::{nearest_texel, pattern, LevelGeometry, Own, PatternScratch, PatternStats, View};
+use level::{
+    nearest_texel, pattern, LevelGeometry, Lookup, Own, PatternScratch, PatternStats, View,
+};
 use rayon::prelude::*;
 use serde::Serialize;
 use std::sync::atomic::{AtomicUsize, Ordering::AcqRel};
@@ -239,10 +241,9 @@ impl Factors {
     }
 }
 
-/// One level's synthesized state: values (weighted example channels) and the example
-/// feature index each texel was copied from.
+/// One level's synthesized state: the example feature index each texel was copied from
+/// (its values, the weighted example channels there, are read through [`Lookup`]).
 struct State {
-    values: Vec<f32>,
     src: Vec<u32>,
 }
 
@@ -337,10 +338,17 @@ impl Ctx<'_> {
         );
     }
 
-    /// The example value (weighted channels) of feature `index` at `level`.
-    fn value(&self, level: usize, index: u32) -> &[f32] {
-        let (x, y) = self.model.pixel(level, index);
-        self.model.pyramid.level(level).pixel(x, y)
+    /// The values (weighted channels) of every feature of `level`, for a [`View`].
+    fn lookup(&self, level: usize) -> Lookup<'_> {
+        let f = &self.model.searcher(level, Pass::Two).features;
+        let img = self.model.pyramid.level(level);
+        Lookup {
+            data: &img.data,
+            width: img.width,
+            margin: f.margin,
+            cols: f.cols,
+            channels: img.channels,
+        }
     }
 
     /// Continuous position of feature `index` at `level` (that level's pixels).
@@ -559,10 +567,8 @@ pub fn run_on_model(
         state = s2;
     }
 
-    // Sources in level-0 example pixels, made continuous (the values are not needed any
-    // more).
-    let State { values, src } = state;
-    drop(values);
+    // Sources in level-0 example pixels, made continuous.
+    let State { src } = state;
     let up = (1u64 << j0) as f32;
     let discrete: Vec<[f32; 2]> = src
         .iter()
@@ -831,9 +837,8 @@ fn resample(
         .collect()
 }
 
-/// Results of one domain task: its texels' values and sources.
+/// Results of one domain task: its texels' sources.
 struct DomainOut {
-    values: Vec<f32>,
     src: Vec<u32>,
     work: Work,
 }
@@ -928,11 +933,11 @@ impl DomainOrder {
             .collect()
     }
 
-    /// Per domain, the values a task for `d` may read (its earlier conflicting domains').
-    fn visible<'a>(&self, d: usize, done: &'a [OnceLock<DomainOut>]) -> Vec<Option<&'a [f32]>> {
+    /// Per domain, the sources a task for `d` may read (its earlier conflicting domains').
+    fn visible<'a>(&self, d: usize, done: &'a [OnceLock<DomainOut>]) -> Vec<Option<&'a [u32]>> {
         let mut v = vec![None; done.len()];
         for &e in &self.earlier[d] {
-            v[e as usize] = Some(done[e as usize].get().expect("finished").values.as_slice());
+            v[e as usize] = Some(done[e as usize].get().expect("finished").src.as_slice());
         }
         v
     }
@@ -952,12 +957,11 @@ fn coarsest(
     let shape = ctx.model.shape(level, Pass::Coarsest);
     let k = shape.fine;
     let delta = ctx.steps[level];
-    let nothing = vec![0.0f32; geo.len() * c];
+    let lookup = ctx.lookup(level);
     let outs = order.run(&|d, done| {
         let start = d * nn;
         let finished = order.visible(d, done);
         let mut w = Work::new(ctx.model, level, Pass::Coarsest);
-        let mut own_vals = vec![0.0f32; nn * c];
         let mut own_gen = vec![false; nn];
         let mut own_src = vec![0u32; nn];
         for li in 0..nn {
@@ -966,13 +970,14 @@ fn coarsest(
             let view = View {
                 channels: c,
                 per_domain: nn,
-                before: &nothing,
+                lookup,
+                before: &[],
                 before_generated: false,
                 finished: &finished,
                 own: Some(Own {
                     start,
                     len: nn,
-                    values: &own_vals,
+                    src: &own_src,
                     generated: &own_gen,
                     all_generated: false,
                 }),
@@ -992,25 +997,21 @@ fn coarsest(
                 w.seeds.clear();
                 ctx.choose(level, Pass::Coarsest, t, &mut w)
             };
-            own_vals[li * c..(li + 1) * c].copy_from_slice(ctx.value(level, index));
             own_src[li] = index;
             own_gen[li] = true;
         }
         DomainOut {
-            values: own_vals,
             src: own_src,
             work: w,
         }
     });
-    let mut values = nothing;
     let mut src = vec![0u32; geo.len()];
     for (d, o) in outs.iter().enumerate() {
         let start = d * nn;
-        values[start * c..(start + nn) * c].copy_from_slice(&o.values);
         src[start..start + nn].copy_from_slice(&o.src);
         absorb(stats, &o.work);
     }
-    State { values, src }
+    State { src }
 }
 
 fn absorb(stats: &mut Stats, w: &Work) {
@@ -1091,11 +1092,17 @@ fn coarse_block(
 }
 
 /// The view of a finished coarser level (every texel generated, no domain in progress).
-fn finished_view<'a>(c: usize, coarse: &LevelGeometry, cstate: &'a State) -> View<'a> {
+fn finished_view<'a>(
+    ctx: &'a Ctx<'_>,
+    level: usize,
+    coarse: &LevelGeometry,
+    cstate: &'a State,
+) -> View<'a> {
     View {
-        channels: c,
+        channels: ctx.channels,
         per_domain: coarse.per_domain(),
-        before: &cstate.values,
+        lookup: ctx.lookup(level + 1),
+        before: &cstate.src,
         before_generated: true,
         finished: &[],
         own: None,
@@ -1112,11 +1119,10 @@ fn pass_one(
     cstate: &State,
     stats: &mut Stats,
 ) -> State {
-    let c = ctx.channels;
     let k = ctx.model.shape(level, Pass::One).coarse;
     let nn = fine.per_domain();
     let faces = fine.len() / nn;
-    let view = finished_view(c, coarse, cstate);
+    let view = finished_view(ctx, level, coarse, cstate);
     // Per domain: chosen features, counters.
     let results: Vec<(Vec<u32>, Work)> = (0..faces)
         .into_par_iter()
@@ -1148,17 +1154,12 @@ fn pass_one(
             (src, w)
         })
         .collect();
-    let mut values = vec![0.0f32; fine.len() * c];
-    let mut src = vec![0u32; fine.len()];
-    for (d, (s, w)) in results.into_iter().enumerate() {
-        for (li, &index) in s.iter().enumerate() {
-            let t = d * nn + li;
-            values[t * c..(t + 1) * c].copy_from_slice(ctx.value(level, index));
-            src[t] = index;
-        }
+    let mut src = Vec::with_capacity(fine.len());
+    for (s, w) in results {
+        src.extend_from_slice(&s);
         absorb(stats, &w);
     }
-    State { values, src }
+    State { src }
 }
 
 /// Pass 2: refine with the level's 9x9 block plus the coarser block (gathered again,
@@ -1181,7 +1182,8 @@ fn pass_two(
     let k = shape.fine;
     let nf = k * k;
     let nn = geo.per_domain();
-    let coarse_view = finished_view(c, coarse, cstate);
+    let coarse_view = finished_view(ctx, level, coarse, cstate);
+    let lookup = ctx.lookup(level);
     let delta = ctx.steps[level];
     let all_gen = vec![true; nn];
     let before = &state;
@@ -1191,7 +1193,6 @@ fn pass_two(
         let mut w = Work::new(ctx.model, level, Pass::Two);
         // Pass 1's pattern calls again, with a scratch (and counters) of their own.
         let mut wc = Work::new(ctx.model, level, Pass::One);
-        let mut own_vals = before.values[start * c..(start + nn) * c].to_vec();
         let mut own_src = before.src[start..start + nn].to_vec();
         for li in 0..nn {
             let t = start + li;
@@ -1200,13 +1201,14 @@ fn pass_two(
             let view = View {
                 channels: c,
                 per_domain: nn,
-                before: &before.values,
+                lookup,
+                before: &before.src,
                 before_generated: true,
                 finished: &finished,
                 own: Some(Own {
                     start,
                     len: nn,
-                    values: &own_vals,
+                    src: &own_src,
                     generated: &all_gen,
                     all_generated: true,
                 }),
@@ -1258,18 +1260,15 @@ fn pass_two(
                 }
             }
             let index = ctx.choose(level, Pass::Two, t, &mut w);
-            own_vals[li * c..(li + 1) * c].copy_from_slice(ctx.value(level, index));
             own_src[li] = index;
         }
         DomainOut {
-            values: own_vals,
             src: own_src,
             work: w,
         }
     });
     for (d, o) in outs.iter().enumerate() {
         let start = d * nn;
-        state.values[start * c..(start + nn) * c].copy_from_slice(&o.values);
         state.src[start..start + nn].copy_from_slice(&o.src);
         absorb(stats, &o.work);
     }
