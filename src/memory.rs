@@ -18,9 +18,10 @@
 //!   the neighbourhood graph, source positions, both map sets, the atlas — plus the border
 //!   texels' neighbour lists, plus the example and its appearance space; patch sampling
 //!   and texture optimisation add their per-texel working sets (footprints, cuts, the
-//!   optimised sources and colours), the multiscale method per-channel feature costs
-//!   per texel and per example pixel, and jump maps a cost per example pixel (the map and
-//!   what builds it);
+//!   optimised sources and colours), the multiscale method (and texton synthesis on it)
+//!   its levels per texel, its example model per example pixel and its sampler per face
+//!   of the field, and jump maps a cost per example pixel (the map and what builds it);
+//!   a scale map its factor and geometry.exr's `scale` channel per texel;
 //! - `bake`: only the tiles in flight (two batches, see [`crate::io::exr::write_tiles`]) and
 //!   the per-thread scratch: the maps are streamed, never held whole.
 //!
@@ -89,20 +90,30 @@ const SYNTH_BORDER_TEXEL: u64 = 64;
 /// space (8 floats) and its similar-pixel lists (measured: ~220 B per pixel between a
 /// 128² and a 256² example).
 const EXAMPLE_PIXEL: u64 = 240;
-/// `synth --method multiscale`, per texel and per example pixel, for each synthesized
-/// channel (R G B [A] [height]): the texel pyramid's neighbourhood features and the
-/// example pyramid's features, appearance spaces per level, PCA projections and search
-/// structures. Measured on Spot at N = 16–48 with 128² and 256² examples: 1.65–1.96
-/// KB/texel and 5.5–8.8 KB/example pixel with three channels.
-const MULTISCALE_TEXEL_PER_CHANNEL: u64 = 560;
-const MULTISCALE_PIXEL_PER_CHANNEL: u64 = 2500;
-/// Texton synthesis (`Method::Textons`): multiscale's texel features over the 8-dimensional
-/// texton embedding, per output texel.
-const TEXTON_TEXEL: u64 = 1700;
+/// `synth --method multiscale` (and texton synthesis, which runs on it), on top of the
+/// parts every method has. Measured on Spot at N = 16–64 with 128², 256² and 512²
+/// examples, a 10-face grid, the bunny and a 200k-face torus (docs/robustness.md):
+///
+/// - per texel of the output: the finest level's geometry (positions, frames, parameter
+///   axes, Christoffel symbols: 140 B), the coarser level's (a quarter of that), each
+///   level's sources (4 B), and the continuation of the sources (its links, 4 B each
+///   way, and positions); the slope between N = 32 and 64 is 157 B/texel;
+const MULTISCALE_TEXEL: u64 = 160;
+/// - per example pixel (multiscale only): the appearance-space pyramid, the gathered-from images of the search features (the level
+///   and its coarser level upsampled: 2 x 8 floats per pixel and level) and the
+///   k-coherence lists (11 per pixel, 100 per pixel of the levels that parent another);
+///   measured 98–161 B/pixel between 128² and 512²;
+const MULTISCALE_PIXEL: u64 = 150;
+/// - per face of the orientation field's limit mesh: the vertex-chart sampler's marching
+///   structures over it (the coarsest level marches; ~39 MB on Spot, 184k faces);
+const MULTISCALE_FIELD_FACE: u64 = 210;
+/// - and a constant: the PCA that prunes the exact k-coherence lists fits the covariance
+///   of the 848-dimensional 9x9 + 5x5 vectors (f64 and an f32 block: 8.6 MB).
+const MULTISCALE_FIXED: u64 = 10 << 20;
 /// Texton analysis per pixel of every image of the sample (`example_pixels` counts them
-/// all for a BTF run): the decoded image, its filter responses and the k-means data, plus
-/// the search model of the embedding spread over the images.
-const TEXTON_IMAGE_PIXEL: u64 = 400;
+/// all for a BTF run): the filter responses and the k-means data, plus the search model
+/// of the one texton-embedding image spread over the images (8 images of 64²: ~100 B).
+const TEXTON_IMAGE_PIXEL: u64 = 100;
 /// `--scale-map`, per texel: the interpolated factor (f64, kept by the session) and
 /// geometry.exr's `scale` channel (f32, the requested local scale).
 const SCALE_MAP_TEXEL: u64 = 12;
@@ -495,23 +506,26 @@ pub fn estimate_texels(size: &MeshSize, count: &TexelCount, job: &Job) -> Estima
                 Method::Jump => {
                     parts.push(("jump map", sat(example_pixels as u64, JUMP_MAP_PIXEL)));
                 }
-                Method::Textons => {
-                    parts.push(("texton texel features", sat(texels, TEXTON_TEXEL)));
+                Method::Textons | Method::Multiscale => {
+                    parts.push(("multiscale levels", sat(texels, MULTISCALE_TEXEL)));
+                    // Textons search one embedding image, not every image of the sample.
+                    if method == Method::Multiscale {
+                        parts.push((
+                            "multiscale example model",
+                            sat(example_pixels as u64, MULTISCALE_PIXEL),
+                        ));
+                    }
                     parts.push((
-                        "texton analysis",
-                        sat(example_pixels as u64, TEXTON_IMAGE_PIXEL),
+                        "multiscale sampler",
+                        sat(field_faces(size.base_quads), MULTISCALE_FIELD_FACE)
+                            .saturating_add(MULTISCALE_FIXED),
                     ));
-                }
-                Method::Multiscale => {
-                    let c = channels.saturating_sub(2).max(1) as u64;
-                    parts.push((
-                        "multiscale texel features",
-                        sat(texels, MULTISCALE_TEXEL_PER_CHANNEL * c),
-                    ));
-                    parts.push((
-                        "multiscale example features",
-                        sat(example_pixels as u64, MULTISCALE_PIXEL_PER_CHANNEL * c),
-                    ));
+                    if method == Method::Textons {
+                        parts.push((
+                            "texton analysis",
+                            sat(example_pixels as u64, TEXTON_IMAGE_PIXEL),
+                        ));
+                    }
                 }
             }
             if scale_map {
@@ -828,12 +842,12 @@ pub fn example_estimate(pixels: u64, decode_bytes: u64, job: &Job) -> Estimate {
     } = *job
     {
         channels = c;
-        if method == Method::Multiscale {
-            let c = c.saturating_sub(2).max(1) as u64;
-            parts.push((
-                "multiscale example features",
-                sat(pixels, MULTISCALE_PIXEL_PER_CHANNEL * c),
-            ));
+        match method {
+            Method::Multiscale => {
+                parts.push(("multiscale example model", sat(pixels, MULTISCALE_PIXEL)))
+            }
+            Method::Textons => parts.push(("texton analysis", sat(pixels, TEXTON_IMAGE_PIXEL))),
+            _ => {}
         }
     }
     parts.sort_by_key(|p| std::cmp::Reverse(p.1));
@@ -1028,7 +1042,33 @@ mod tests {
         .into();
         assert_eq!(costs[0], b.bytes);
         assert!(costs.windows(2).all(|w| w[0] < w[1]), "{costs:?}");
-        assert!(costs[3] > b.bytes + 16 * 4096 * 3 * 200);
+        // Multiscale: its levels per texel, its model per example pixel, the sampler.
+        assert_eq!(
+            costs[3] - b.bytes,
+            16 * 4096 * MULTISCALE_TEXEL
+                + 128 * 128 * MULTISCALE_PIXEL
+                + field_faces(s.base_quads) * MULTISCALE_FIELD_FACE
+                + MULTISCALE_FIXED
+        );
+        // A scale map adds its factor and channel per texel (more for multiscale).
+        let scaled = |method| {
+            let job = Job::Synth {
+                channels: 5,
+                example_pixels: 128 * 128,
+                method,
+                displace: false,
+                scale_map: true,
+            };
+            estimate(&s, 64, &job).bytes
+        };
+        assert_eq!(
+            scaled(Method::Coherent) - costs[0],
+            16 * 4096 * SCALE_MAP_TEXEL
+        );
+        assert_eq!(
+            scaled(Method::Multiscale) - costs[3],
+            16 * 4096 * (SCALE_MAP_TEXEL + SCALE_MAP_LEVELS)
+        );
         // Absurd sizes saturate instead of overflowing.
         let huge = estimate(
             &MeshSize {

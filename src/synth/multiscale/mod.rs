@@ -726,7 +726,10 @@ fn continuous_sources(
     // Every neighbour of t over links in either direction, with the offset from t: links
     // first, then back links (whose offset is minus the other texel's).
     let around = |t: usize| {
-        let fwd = links.of(t).iter().map(move |&q| (q as usize, offset(t, q as usize)));
+        let fwd = links
+            .of(t)
+            .iter()
+            .map(move |&q| (q as usize, offset(t, q as usize)));
         let bwd = back.of(t).iter().map(move |&o| {
             let e = offset(o as usize, t);
             (o as usize, [-e[0], -e[1]])

@@ -701,7 +701,7 @@ fn dist_kernel(a: &[f32], b: &[f32], m: Option<&[f32]>, bound: f32) -> f32 {
 /// gathered one block at a time: the same blocks, lanes and early exit. `C` is the
 /// channel count when a block holds whole samples (`BLOCK % C == 0`: one fixed-length copy
 /// per sample), 0 for any other count (runs of channels split at block ends).
-#[inline(always)]
+#[inline]
 fn gather_kernel<const C: usize>(
     a: &[f32],
     m: Option<&[f32]>,
@@ -760,7 +760,7 @@ fn gather_kernel<const C: usize>(
 }
 
 /// [`gather_kernel`] for the channel count of `f`.
-#[inline(always)]
+#[inline]
 fn gather_any(a: &[f32], m: Option<&[f32]>, f: &Features, base: usize, bound: f32) -> f32 {
     match f.shape.channels {
         8 => gather_kernel::<8>(a, m, f, base, bound),
