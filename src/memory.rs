@@ -114,12 +114,14 @@ const MULTISCALE_FIXED: u64 = 10 << 20;
 /// all for a BTF run): the filter responses and the k-means data, plus the search model
 /// of the one texton-embedding image spread over the images (8 images of 64²: ~100 B).
 const TEXTON_IMAGE_PIXEL: u64 = 100;
-/// `--scale-map`, per texel: the interpolated factor (f64, kept by the session) and
-/// geometry.exr's `scale` channel (f32, the requested local scale).
-const SCALE_MAP_TEXEL: u64 = 12;
-/// `--scale-map` with the multiscale methods, per output texel: their own factor per
-/// texel of the level being synthesized and of the coarser one (f64, 1 + 1/4).
-const SCALE_MAP_LEVELS: u64 = 10;
+/// `--scale-map`, per texel: the interpolated factor (f64, kept by the session),
+/// geometry.exr's `scale` channel (f32, the requested local scale) and what computes them
+/// (measured on Spot: +45 B/texel at N = 64 with the coherent method).
+const SCALE_MAP_TEXEL: u64 = 40;
+/// `--scale-map` with the multiscale methods, per output texel, on top: their own factor
+/// per texel of every level they synthesize (f64; measured on Spot at N = 32: +95 B/texel
+/// in all).
+const SCALE_MAP_LEVELS: u64 = 50;
 /// `--displace`, per vertex of the tessellation: the limit mesh (its half-edge topology,
 /// f64 positions, normals and locations) and the displaced f32 copy with texture
 /// coordinates and quads. Measured: 341 MB peak with vs 108 MB without on Spot at N = 32

@@ -114,8 +114,8 @@ fn kcoherence_lists_match_exhaustive_ranking() {
             .filter(|&j| j != i)
             .map(|j| {
                 let d = surfsynth::synth::matching::search::dist_bounded(
-                    f0.vector(i),
-                    f0.vector(j),
+                    &f0.vector(i),
+                    &f0.vector(j),
                     f32::INFINITY,
                 );
                 (d, j as u32)

@@ -1155,7 +1155,7 @@ fn pass_one(
         .map(|d| {
             let mut w = Work::new(ctx.model, level, Pass::One);
             let mut src = vec![0u32; nn];
-            for li in 0..nn {
+            for (li, out) in src.iter_mut().enumerate() {
                 let t = d * nn + li;
                 coarse_block(ctx, level, fine, fine_fac, coarse, &view, t, &mut w);
                 if let Some(win) = ctx.kwindow {
@@ -1175,7 +1175,7 @@ fn pass_one(
                     );
                     w.seeds = seeds;
                 }
-                src[li] = ctx.choose(level, Pass::One, t, &mut w);
+                *out = ctx.choose(level, Pass::One, t, &mut w);
             }
             (src, w.counts())
         })

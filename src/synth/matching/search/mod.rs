@@ -719,8 +719,8 @@ fn gather_kernel<const C: usize>(
     let mut start = 0;
     while start < n {
         let end = (start + BLOCK).min(n);
-        if C > 0 {
-            let (s0, s1) = (start / C, end / C);
+        // (C = 0 takes the general path; checked_div folds away for a constant C.)
+        if let (Some(s0), Some(s1)) = (start.checked_div(C), end.checked_div(C)) {
             for ((o, &off), &w) in buf
                 .chunks_exact_mut(C)
                 .zip(&f.offsets[s0..s1])
