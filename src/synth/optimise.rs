@@ -30,9 +30,11 @@
 //! finer levels start from the coarser level's sources, doubled and continued to each texel
 //! (the rule of coherent synthesis).
 //!
-//! **Final pass**: every texel copies the example at one position — that of the patch with
-//! the largest weight at the texel (`z_p + l_p(t)`) — so `source.u/v` is exact and every
-//! channel (colour, alpha, height) comes from the same place, with no blur.
+//! **Final pass**: the last patches are pasted at their optimised positions and joined
+//! along minimum cuts (`patches::assemble`), so every texel copies the example at one
+//! position, `source.u/v` is exact and every channel (colour, alpha, height) comes from the
+//! same place, with no blur. Optionally ([`OptimiseParams::guided_assembly`]) a patch may
+//! continue a neighbour already pasted where that fits the optimised texture better.
 //!
 //! **Determinism**: patches and texels are independent within a step (E-steps read `X`,
 //! M-steps read the chosen positions), so parallel loops give the same result for any
@@ -75,6 +77,14 @@ pub struct OptimiseParams {
     /// E-step: the exhaustive search k-coherence is compared against (docs/synthesis.md, "E-step").
     /// `None` (the default) searches only the k-coherence candidates.
     pub exhaustive: Option<u32>,
+    /// Final assembly: a patch whose optimised position disagrees with the patches pasted
+    /// before it may continue one of them instead (see `patches::settle`). Off by
+    /// default until measured more widely: with `--orient up` it took the double torus's
+    /// seam case (scales, N = 16, seed 2) from 1.29 to 1.05 and lowered pf8 on 7 of 12
+    /// curved mesh × example pairs (by up to 6%, bricks most), raised it on 3 by ≤ 2%,
+    /// and raised the flat grid's pf8 by 0–5%
+    /// (docs/synthesis.md, "Guided final assembly").
+    pub guided_assembly: bool,
 }
 
 impl Default for OptimiseParams {
@@ -90,6 +100,7 @@ impl Default for OptimiseParams {
             proposers: 8,
             start: PatchParams::default(),
             exhaustive: None,
+            guided_assembly: false,
         }
     }
 }
@@ -235,13 +246,14 @@ pub fn run<const K: usize>(
             lstats.patches.push((size, res.patches));
             lstats.energy.push(res.energy);
             stats.candidates += res.candidates;
-            last = Some((res.footprints, res.positions));
+            last = Some((res.footprints, res.positions, res.texture));
         }
         stats.levels.push(lstats);
         if li == 0 {
             // Final pass: the last patches joined at their optimised positions by cuts.
-            if let Some((fp, z)) = last {
-                src = patches::assemble(&ex, level, &fp, &z, &src, target.seed);
+            if let Some((fp, z, x)) = last {
+                let guide = params.guided_assembly.then_some(&x[..]);
+                src = patches::assemble(&ex, level, &fp, &z, &src, guide, target.seed);
             }
             // Sources in level-j pixels, to level-0 example pixels.
             let up = (1u64 << j) as f32;
@@ -254,8 +266,10 @@ pub fn run<const K: usize>(
 }
 
 /// What one patch size of one level produced.
-struct SizeResult {
+struct SizeResult<const K: usize> {
     source: Vec<[f32; 2]>,
+    /// The optimised texture (appearance per texel) after the last M-step.
+    texture: Vec<[f32; K]>,
     footprints: Footprints,
     positions: Vec<[f32; 2]>,
     energy: f64,
@@ -272,7 +286,7 @@ fn optimise_size<const K: usize>(
     params: &OptimiseParams,
     key: u64,
     tick: &mut dyn FnMut(),
-) -> SizeResult {
+) -> SizeResult<K> {
     let n = level.len();
     let f = &ex.features;
     let half = size as f32 / 2.0;
@@ -433,6 +447,7 @@ fn optimise_size<const K: usize>(
     let energy = err.iter().map(|&e| e as f64).sum::<f64>() / np.max(1) as f64;
     SizeResult {
         source,
+        texture: x,
         footprints: fp,
         positions: z,
         energy,

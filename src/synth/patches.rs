@@ -148,8 +148,11 @@ struct Ctx<'a, const K: usize> {
     fp: &'a Footprints,
     params: &'a PatchParams,
     seed: u64,
-    /// Given patch positions (texture optimisation's): joined, not searched.
+    /// Given patch positions (texture optimisation's): joined, not searched — unless
+    /// [`Ctx::guide`] is given, see [`settle`].
     fixed: Option<&'a [[f32; 2]]>,
+    /// The optimised texture (appearance per texel) the given positions were chosen for.
+    guide: Option<&'a [[f32; K]]>,
     /// Valid patch centres: [lo, hi_x] × [lo, hi_y].
     lo: f32,
     hi_x: f32,
@@ -244,6 +247,7 @@ pub fn run<const K: usize>(
             params,
             seed: seed ^ pass.wrapping_mul(0x51ED),
             fixed: None,
+            guide: None,
             lo: 0.5 + half,
             hi_x: ex.width() as f32 - 0.5 - half,
             hi_y: ex.height() as f32 - 0.5 - half,
@@ -332,6 +336,7 @@ pub fn assemble<const K: usize>(
     fp: &Footprints,
     positions: &[[f32; 2]],
     fallback: &[[f32; 2]],
+    guide: Option<&[[f32; K]]>,
     seed: u64,
 ) -> Vec<[f32; 2]> {
     let n = level.len();
@@ -344,6 +349,7 @@ pub fn assemble<const K: usize>(
         params: &params,
         seed,
         fixed: Some(positions),
+        guide,
         lo: 0.5 + half,
         hi_x: ex.width() as f32 - 0.5 - half,
         hi_y: ex.height() as f32 - 0.5 - half,
@@ -434,7 +440,10 @@ fn paste<const K: usize>(
     s: &mut Scratch,
 ) -> Paste {
     let (z, candidates, seeded) = match c.fixed {
-        Some(zs) => (zs[p], 0, false),
+        Some(zs) => match c.guide {
+            Some(g) => settle(c, p, zs[p], g, src, set, app),
+            None => (zs[p], 0, false),
+        },
         None => choose(c, p, src, set, app, s),
     };
     let (texels, coords) = c.fp.get(p);
@@ -455,6 +464,65 @@ fn paste<const K: usize>(
         seeded: false,
         replaced,
     }
+}
+
+/// The position of patch `p` in a guided assembly: its optimised position `z0`, or a
+/// position continuing a neighbour already pasted, whichever matches best the texture the
+/// patch will sit in — the pasted texels where they are set, the optimised texture
+/// (`guide`) elsewhere. Where two optimised patches disagree in their overlap (each
+/// matched the blurred average, not the other), no cut joins them well; continuing the
+/// neighbour then joins seamlessly if the rest of the footprint allows it.
+fn settle<const K: usize>(
+    c: &Ctx<'_, K>,
+    p: usize,
+    z0: [f32; 2],
+    guide: &[[f32; K]],
+    src: &[[f32; 2]],
+    set: &[bool],
+    app: &[[f32; K]],
+) -> ([f32; 2], u64, bool) {
+    let (texels, coords) = c.fp.get(p);
+    let m = texels.len();
+    let f = &c.ex.features;
+    let known: Vec<usize> = (0..m).filter(|&i| set[texels[i] as usize]).collect();
+    if known.is_empty() {
+        return (z0, 0, false);
+    }
+    let valid = |z: [f32; 2]| z[0] >= c.lo && z[0] <= c.hi_x && z[1] >= c.lo && z[1] <= c.hi_y;
+    let mut cands = vec![z0];
+    let step = known
+        .len()
+        .div_ceil(c.params.proposers.max(1) as usize)
+        .max(1);
+    for &i in known.iter().step_by(step) {
+        let t = texels[i] as usize;
+        let z = [src[t][0] - coords[i][0], src[t][1] - coords[i][1]];
+        if valid(z)
+            && !cands
+                .iter()
+                .any(|o| (o[0] - z[0]).abs() < 0.5 && (o[1] - z[1]).abs() < 0.5)
+        {
+            cands.push(z);
+        }
+    }
+    let estep = m.div_ceil(c.params.eval_samples.max(1) as usize).max(1);
+    let mut best = (f32::INFINITY, z0);
+    for &z in &cands {
+        let mut e = 0.0f32;
+        for i in (0..m).step_by(estep) {
+            let t = texels[i] as usize;
+            let l = coords[i];
+            let want = if set[t] { &app[t] } else { &guide[t] };
+            e += dist2(want, &f.sample(z[0] + l[0], z[1] + l[1]));
+            if e >= best.0 {
+                break;
+            }
+        }
+        if e < best.0 {
+            best = (e, z);
+        }
+    }
+    (best.1, cands.len() as u64, false)
 }
 
 /// The position of patch `p` (001 step 3): the error over the overlap, among the
