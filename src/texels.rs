@@ -431,8 +431,11 @@ impl EdgeGraph {
         extra.par_sort_unstable();
         extra.dedup();
         // Texel t = (d, x, y)'s list: its grid neighbours and its walked edges, ascending,
-        // unique.
-        let list_of = |d: usize, i: usize, buf: &mut Vec<u32>| {
+        // unique. `lo` is where t's walked edges start in `extra` (sorted by texel): the
+        // callers visit a domain's texels in order and carry it from one to the next, so
+        // it is searched for once per domain.
+        let first = |d: usize| extra.partition_point(|p| (p.0 as usize) < layout.start(d));
+        let list_of = |d: usize, i: usize, lo: &mut usize, buf: &mut Vec<u32>| {
             buf.clear();
             let (nu, nv) = layout.dims(d);
             let base = layout.start(d);
@@ -444,13 +447,10 @@ impl EdgeGraph {
                     buf.push((base + yb as usize * nu + xa as usize) as u32);
                 }
             }
-            let lo = extra.partition_point(|p| (p.0 as usize) < t);
-            buf.extend(
-                extra[lo..]
-                    .iter()
-                    .take_while(|p| p.0 as usize == t)
-                    .map(|p| p.1),
-            );
+            let mine = extra[*lo..].iter().take_while(|p| p.0 as usize == t);
+            let before = buf.len();
+            buf.extend(mine.map(|p| p.1));
+            *lo += buf.len() - before;
             buf.sort_unstable();
             buf.dedup();
         };
@@ -462,8 +462,9 @@ impl EdgeGraph {
             .enumerate()
             .for_each(|(d, c)| {
                 let mut buf = Vec::with_capacity(16);
+                let mut lo = first(d);
                 for (i, o) in c.iter_mut().enumerate() {
-                    list_of(d, i, &mut buf);
+                    list_of(d, i, &mut lo, &mut buf);
                     *o = buf.len() as u32;
                 }
             });
@@ -483,8 +484,9 @@ impl EdgeGraph {
         chunks.into_par_iter().enumerate().for_each(|(d, out)| {
             let mut buf = Vec::with_capacity(16);
             let mut k = 0;
+            let mut lo = first(d);
             for i in 0..layout.count(d) {
-                list_of(d, i, &mut buf);
+                list_of(d, i, &mut lo, &mut buf);
                 out[k..k + buf.len()].copy_from_slice(&buf);
                 k += buf.len();
             }
@@ -514,6 +516,7 @@ fn domain_lists(surface: &Surface, geom: &TexelGeometry, d: usize) -> (Vec<u32>,
     let mut counts = vec![0u32; nu * nv];
     let mut list = Vec::new();
     let mut buf: Vec<u32> = Vec::with_capacity(64);
+    let mut keyed: Vec<(f32, u32)> = Vec::with_capacity(64);
     for y in 0..nv {
         for x in 0..nu {
             if TexelGraph::is_interior(nu, nv, x, y) {
@@ -559,14 +562,17 @@ fn domain_lists(surface: &Surface, geom: &TexelGeometry, d: usize) -> (Vec<u32>,
             buf.retain(|&u| u as usize != t);
             buf.sort_unstable();
             buf.dedup();
+            // Nearest first, ties by index: the keys are distinct (the indices are), so
+            // any sort gives this one order; distances are computed once per entry.
             let p = geom.pos[t];
-            buf.sort_by(|&a, &b| {
-                let da = p.distance_squared(geom.pos[a as usize]);
-                let db = p.distance_squared(geom.pos[b as usize]);
-                da.total_cmp(&db).then(a.cmp(&b))
-            });
-            counts[y * nu + x] = buf.len() as u32;
-            list.extend_from_slice(&buf);
+            keyed.clear();
+            keyed.extend(
+                buf.iter()
+                    .map(|&u| (p.distance_squared(geom.pos[u as usize]), u)),
+            );
+            keyed.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            counts[y * nu + x] = keyed.len() as u32;
+            list.extend(keyed.iter().map(|&(_, u)| u));
         }
     }
     (counts, list)

@@ -43,6 +43,7 @@ use crate::io::exr::FaceMaps;
 use glam::DVec3;
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 /// Neighbours within this many local texel spacings enter a texel's fit (its 5x5 block
 /// without the corners on a regular grid).
@@ -101,9 +102,11 @@ pub(crate) struct Cloud<'a> {
     /// Tree item → texel index.
     items: Vec<usize>,
     /// Per texel, the spacing that decides whether a point nearest to it is on the
-    /// surface: its own [`Cloud::local_spacing`], and at a face border the largest of
-    /// those of the texels across (see [`Cloud::build`]).
-    cover: Vec<f32>,
+    /// surface ([`Cloud::cover`]), computed on first use: 0 while unknown, else the f32
+    /// bits with bit 32 set. Only texels walked near are asked (a few per window); at
+    /// small N most texels are border texels, whose cover costs a radius query each, and
+    /// computing all of them took most of pf's time on a 200k-quad torus at N = 4.
+    cover: Vec<AtomicU64>,
     /// Median adjacent spacing h.
     pub h: f64,
     /// Surface length per example pixel.
@@ -171,7 +174,7 @@ impl<'a> Cloud<'a> {
         let tree = ImmutableKdTree::new_from_slice(&points).ok()?;
         let h = median_spacing(&pos, &valid, &layout)?;
         let scale = scale.filter(|s| s.is_finite() && *s > 0.0).unwrap_or(h);
-        let mut cloud = Self {
+        Some(Self {
             layout,
             pos,
             col,
@@ -180,60 +183,68 @@ impl<'a> Cloud<'a> {
             src,
             tree,
             items,
-            cover: Vec::new(),
+            cover: (0..total).map(|_| AtomicU64::new(0)).collect(),
             h,
             scale,
             local: geometry
                 .channel(crate::scale_field::CHANNEL)
                 .filter(|c| c.len() == total)
                 .map(|c| c.to_vec()),
+        })
+    }
+
+    /// The spacing that decides whether a point nearest to texel `i` is on the surface:
+    /// its own [`Cloud::local_spacing`], and at a face border the largest of those of the
+    /// texels across. Where faces of different texel density meet, the gap between their
+    /// outer texel rows is half of each spacing: a point in it may be farther from the
+    /// denser face's texel than that face's own spacing allows; around a vertex where many
+    /// faces meet, the vertex is farther from the corner texels than they are from each
+    /// other. So a border texel takes the largest of its spacing and, per other domain
+    /// within 4 of its spacings (none at an open boundary), the distance to that domain's
+    /// nearest texel and its spacing — the nearest domain for an edge texel, every domain
+    /// for a corner texel. The same value whichever thread computes it first.
+    fn cover(&self, i: usize) -> f32 {
+        let known = self.cover[i].load(Ordering::Relaxed);
+        if known != 0 {
+            return f32::from_bits(known as u32);
+        }
+        let c = self.cover_of(i);
+        self.cover[i].store((1 << 32) | c.to_bits() as u64, Ordering::Relaxed);
+        c
+    }
+
+    fn cover_of(&self, i: usize) -> f32 {
+        let l = &self.layout;
+        let own_i = self.local_spacing(i);
+        let (d, x, y) = l.coords(i);
+        let (nu, nv) = l.dims(d);
+        let (bx, by) = (x == 0 || x + 1 == nu, y == 0 || y + 1 == nv);
+        if !(bx || by) || !self.valid[i] {
+            return own_i as f32;
+        }
+        // Nearest texel of each other domain: (domain, distance, texel).
+        let mut per: Vec<(usize, f64, usize)> = Vec::new();
+        for j in self.within(self.pos[i], 4.0 * own_i) {
+            let dj = l.domain_of(j);
+            if dj == d {
+                continue;
+            }
+            let dist = (self.pos[j] - self.pos[i]).length();
+            match per.iter_mut().find(|e| e.0 == dj) {
+                Some(e) if dist < e.1 => *e = (dj, dist, j),
+                Some(_) => {}
+                None => per.push((dj, dist, j)),
+            }
+        }
+        let take = |e: &(usize, f64, usize)| e.1.max(self.local_spacing(e.2));
+        let c = if bx && by {
+            per.iter().map(take).fold(own_i, f64::max)
+        } else {
+            per.iter()
+                .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)))
+                .map_or(own_i, |e| own_i.max(take(e)))
         };
-        // Where faces of different texel density meet, the gap between their outer texel
-        // rows is half of each spacing: a point in it may be farther from the denser
-        // face's texel than that face's own spacing allows; around a vertex where many
-        // faces meet, the vertex is farther from the corner texels than they are from
-        // each other. So a border texel takes the largest of its spacing and, per other
-        // domain within 4 of its spacings (none at an open boundary), the distance to
-        // that domain's nearest texel and its spacing — the nearest domain for an edge
-        // texel, every domain for a corner texel.
-        let own: Vec<f64> = (0..total).map(|i| cloud.local_spacing(i)).collect();
-        let l = cloud.layout.clone();
-        let cover: Vec<f32> = (0..total)
-            .into_par_iter()
-            .map(|i| {
-                let (d, x, y) = l.coords(i);
-                let (nu, nv) = l.dims(d);
-                let (bx, by) = (x == 0 || x + 1 == nu, y == 0 || y + 1 == nv);
-                if !(bx || by) || !cloud.valid[i] {
-                    return own[i] as f32;
-                }
-                // Nearest texel of each other domain: (domain, distance, texel).
-                let mut per: Vec<(usize, f64, usize)> = Vec::new();
-                for j in cloud.within(cloud.pos[i], 4.0 * own[i]) {
-                    let dj = l.domain_of(j);
-                    if dj == d {
-                        continue;
-                    }
-                    let dist = (cloud.pos[j] - cloud.pos[i]).length();
-                    match per.iter_mut().find(|e| e.0 == dj) {
-                        Some(e) if dist < e.1 => *e = (dj, dist, j),
-                        Some(_) => {}
-                        None => per.push((dj, dist, j)),
-                    }
-                }
-                let take = |e: &(usize, f64, usize)| e.1.max(own[e.2]);
-                let c = if bx && by {
-                    per.iter().map(take).fold(own[i], f64::max)
-                } else {
-                    per.iter()
-                        .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)))
-                        .map_or(own[i], |e| own[i].max(take(e)))
-                };
-                c as f32
-            })
-            .collect();
-        cloud.cover = cover;
-        Some(cloud)
+        c as f32
     }
 
     /// Texels that can be window centres.
@@ -448,7 +459,7 @@ impl<'a> Cloud<'a> {
             let nk = self.nrm[k];
             let off = p - self.pos[k];
             let dn = off.dot(nk);
-            if (off - nk * dn).length() > OFF_SURFACE * self.cover[k] as f64 {
+            if (off - nk * dn).length() > OFF_SURFACE * self.cover(k) as f64 {
                 return None;
             }
             cur.p = p - nk * dn;

@@ -185,7 +185,6 @@ impl LevelTexels {
 /// local vectors are short") and every patch still overlaps its neighbours by the same
 /// share. Every texel (of `mask`, when given) lies within its own distance of some centre.
 pub fn centres(level: &LevelTexels, pixels: f64, seed: u64, mask: Option<&[bool]>) -> Vec<u32> {
-    use std::collections::HashMap;
     let pos = &level.geometry.pos;
     let n = pos.len();
     let mut order: Vec<(u64, u32)> = (0..n as u32)
@@ -196,45 +195,126 @@ pub fn centres(level: &LevelTexels, pixels: f64, seed: u64, mask: Option<&[bool]
     // The minimum distance at texel t; the grid's cells are the largest of them.
     let radius = |t: usize| (pixels * level.step_at(t)).max(1e-30);
     let cell = (pixels * level.max_step()).max(1e-30) as f32;
-    let key = |p: Vec3| -> (i64, i64, i64) {
-        (
+    let key = |p: Vec3| -> [i64; 3] {
+        [
             (p.x / cell).floor() as i64,
             (p.y / cell).floor() as i64,
             (p.z / cell).floor() as i64,
-        )
+        ]
     };
-    let mut grid: HashMap<(i64, i64, i64), Vec<u32>> = HashMap::new();
+    // The greedy pass below is serial (each decision depends on the earlier ones), so
+    // what it reads per visited texel is gathered beforehand, in parallel and in visiting
+    // order: the pass then streams through memory instead of jumping to a random texel.
+    let visits: Vec<Visit> = order
+        .par_iter()
+        .filter_map(|&(_, t)| {
+            let p = pos[t as usize];
+            p.is_finite().then(|| Visit {
+                p,
+                r: radius(t as usize),
+                cell: key(p),
+                t,
+            })
+        })
+        .collect();
+    drop(order);
+    let mut grid = CentreGrid::new();
     let mut out = Vec::new();
-    for &(_, t) in &order {
-        let p = pos[t as usize];
-        if !p.is_finite() {
-            continue;
-        }
-        let rt = radius(t as usize);
-        let (i, j, k) = key(p);
+    for v in &visits {
+        let [i, j, k] = v.cell;
         let mut free = true;
         'search: for a in i - 1..=i + 1 {
             for b in j - 1..=j + 1 {
                 for c in k - 1..=k + 1 {
-                    if let Some(v) = grid.get(&(a, b, c)) {
-                        // (r + r) / 2 is r exactly: one factor everywhere is one scale.
-                        if v.iter().any(|&q| {
-                            let r = 0.5 * (rt + radius(q as usize));
-                            pos[q as usize].distance_squared(p) < (r * r) as f32
-                        }) {
-                            free = false;
-                            break 'search;
-                        }
+                    // (r + r) / 2 is r exactly: one factor everywhere is one scale.
+                    if grid.any_in([a, b, c], |q| {
+                        let r = 0.5 * (v.r + q.r);
+                        q.p.distance_squared(v.p) < (r * r) as f32
+                    }) {
+                        free = false;
+                        break 'search;
                     }
                 }
             }
         }
         if free {
-            grid.entry((i, j, k)).or_default().push(t);
-            out.push(t);
+            grid.insert(*v);
+            out.push(v.t);
         }
     }
     out
+}
+
+/// A texel visited by [`centres`]: its position, minimum distance and grid cell.
+#[derive(Clone, Copy)]
+struct Visit {
+    p: Vec3,
+    r: f64,
+    cell: [i64; 3],
+    t: u32,
+}
+
+/// The centres chosen so far by grid cell: a hash table of chains, the cells hashed to
+/// `head.len()` (a power of two) buckets. A bucket may chain centres of other cells; only
+/// those of the asked cell are visited, so the answers are those of a map from cell to
+/// centres (it replaced a `HashMap` of `Vec`s, whose SipHash and allocations made the
+/// serial pass of [`centres`] the largest part of a 200k-quad torus run at N = 4).
+struct CentreGrid {
+    head: Vec<u32>,
+    next: Vec<u32>,
+    items: Vec<Visit>,
+}
+
+impl CentreGrid {
+    const NONE: u32 = u32::MAX;
+
+    fn new() -> Self {
+        Self {
+            head: vec![Self::NONE; 1 << 12],
+            next: Vec::new(),
+            items: Vec::new(),
+        }
+    }
+
+    #[inline]
+    fn bucket(&self, c: [i64; 3]) -> usize {
+        let h = (c[0] as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+            ^ (c[1] as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
+            ^ (c[2] as u64).wrapping_mul(0x1656_67B1_9E37_79F9);
+        ((h ^ (h >> 29)) as usize) & (self.head.len() - 1)
+    }
+
+    /// Whether `f` holds for a centre in cell `c`.
+    #[inline]
+    fn any_in(&self, c: [i64; 3], f: impl Fn(&Visit) -> bool) -> bool {
+        let mut e = self.head[self.bucket(c)];
+        while e != Self::NONE {
+            let q = &self.items[e as usize];
+            if q.cell == c && f(q) {
+                return true;
+            }
+            e = self.next[e as usize];
+        }
+        false
+    }
+
+    fn insert(&mut self, v: Visit) {
+        if self.items.len() >= self.head.len() / 2 {
+            // Grow: twice the buckets, every chain rebuilt.
+            let len = self.head.len() * 2;
+            self.head = vec![Self::NONE; len];
+            for e in 0..self.items.len() {
+                let b = self.bucket(self.items[e].cell);
+                self.next[e] = self.head[b];
+                self.head[b] = e as u32;
+            }
+        }
+        let e = self.items.len() as u32;
+        let b = self.bucket(v.cell);
+        self.items.push(v);
+        self.next.push(self.head[b]);
+        self.head[b] = e;
+    }
 }
 
 /// Cosine of the angle between neighbouring normals beyond which a step is taken to cross
@@ -323,28 +403,40 @@ impl PartialOrd for Entry {
 
 /// Per-thread flood state, indexed by texel, reset lazily by generation stamps.
 struct Flood {
-    stamp: Vec<u32>,
+    nodes: Vec<Node>,
     gen: u32,
-    dist: Vec<f32>,
-    coord: Vec<[f32; 2]>,
-    /// First axis of the frame transported from the centre.
-    e1: Vec<Vec3>,
-    parent: Vec<u32>,
-    done: Vec<bool>,
     heap: BinaryHeap<Entry>,
     reached: Vec<u32>,
+}
+
+/// One texel's flood state, kept together: a flood step reads all of it for the texel
+/// and each of its neighbours, one cache line each (five arrays were five lines).
+#[derive(Clone, Copy)]
+struct Node {
+    stamp: u32,
+    dist: f32,
+    parent: u32,
+    done: bool,
+    coord: [f32; 2],
+    /// First axis of the frame transported from the centre.
+    e1: Vec3,
 }
 
 impl Flood {
     fn new(n: usize) -> Self {
         Self {
-            stamp: vec![0; n],
+            nodes: vec![
+                Node {
+                    stamp: 0,
+                    dist: 0.0,
+                    parent: 0,
+                    done: false,
+                    coord: [0.0; 2],
+                    e1: Vec3::ZERO,
+                };
+                n
+            ],
             gen: 0,
-            dist: vec![0.0; n],
-            coord: vec![[0.0; 2]; n],
-            e1: vec![Vec3::ZERO; n],
-            parent: vec![0; n],
-            done: vec![false; n],
             heap: BinaryHeap::new(),
             reached: Vec::new(),
         }
@@ -433,7 +525,7 @@ impl Footprints {
 fn flood(level: &LevelTexels, fl: &mut Flood, c: usize, half: f32) -> (Vec<u32>, Vec<[f32; 2]>) {
     fl.gen = fl.gen.wrapping_add(1);
     if fl.gen == 0 {
-        fl.stamp.iter_mut().for_each(|s| *s = 0);
+        fl.nodes.iter_mut().for_each(|s| s.stamp = 0);
         fl.gen = 1;
     }
     let gen = fl.gen;
@@ -447,33 +539,35 @@ fn flood(level: &LevelTexels, fl: &mut Flood, c: usize, half: f32) -> (Vec<u32>,
     let keep = half + 1.0;
     fl.heap.clear();
     fl.reached.clear();
-    fl.stamp[c] = gen;
-    fl.dist[c] = 0.0;
-    fl.done[c] = false;
-    fl.parent[c] = c as u32;
+    let nc = &mut fl.nodes[c];
+    nc.stamp = gen;
+    nc.dist = 0.0;
+    nc.done = false;
+    nc.parent = c as u32;
     fl.heap.push(Entry(0.0, c as u32));
     while let Some(Entry(d, s)) = fl.heap.pop() {
         let s = s as usize;
-        if fl.done[s] || d > fl.dist[s] {
+        if fl.nodes[s].done || d > fl.nodes[s].dist {
             continue;
         }
         // Finalise s: frame transported from its parent, coordinates averaged over the
         // continuations from its finalised neighbours ("upwind averaging").
         if s == c {
-            fl.e1[s] = level.frames[c][0];
-            fl.coord[s] = [0.0, 0.0];
+            fl.nodes[s].e1 = level.frames[c][0];
+            fl.nodes[s].coord = [0.0, 0.0];
         } else {
-            let p = fl.parent[s] as usize;
+            let p = fl.nodes[s].parent as usize;
             // Steps into s are measured at s's local step (the scale map's factor there):
             // the coordinates are then the integral of the surface length over the local
             // step along the paths, so the example is laid at each texel's own scale.
             let inv_step = level.inv_step_at(s);
-            fl.e1[s] = transport(fl.e1[p], normal[p], normal[s]);
+            fl.nodes[s].e1 = transport(fl.nodes[p].e1, normal[p], normal[s]);
             let nb = edges.of(s);
             let (mut sx, mut sy, mut sw) = (0.0f32, 0.0f32, 0.0f32);
             for &q in nb {
                 let q = q as usize;
-                if fl.stamp[q] != gen || !fl.done[q] || !fl.coord[q][0].is_finite() {
+                let nq = &fl.nodes[q];
+                if nq.stamp != gen || !nq.done || !nq.coord[0].is_finite() {
                     continue;
                 }
                 let dp = unfolded(pos[s] - pos[q], normal[q], normal[s]);
@@ -481,33 +575,34 @@ fn flood(level: &LevelTexels, fl: &mut Flood, c: usize, half: f32) -> (Vec<u32>,
                 if len <= 0.0 {
                     continue;
                 }
-                let (e1, e2) = (fl.e1[q], normal[q].cross(fl.e1[q]));
+                let (e1, e2) = (nq.e1, normal[q].cross(nq.e1));
                 let w = 1.0 / len;
-                let lq = fl.coord[q];
+                let lq = nq.coord;
                 let cx = lq[0] + dp.dot(e1) * inv_step;
                 let cy = lq[1] - dp.dot(e2) * inv_step;
                 sx += w * cx;
                 sy += w * cy;
                 sw += w;
             }
-            fl.coord[s] = if sw > 0.0 {
+            fl.nodes[s].coord = if sw > 0.0 {
                 [sx / sw, sy / sw]
             } else {
-                fl.coord[p]
+                fl.nodes[p].coord
             };
             // Where paths around a strongly curved part (a thin fin, an ear, a saddle) meet
             // from two sides, their continuations disagree, and the averaged coordinates
             // are squeezed or stretched against the surface: the patch would fold or smear
             // there. Such texels end the patch (smaller patches cover them later).
-            let l = fl.coord[s];
+            let l = fl.nodes[s].coord;
             let mut bad = false;
             for &q in nb {
                 let q = q as usize;
-                if fl.stamp[q] != gen || !fl.done[q] || !fl.coord[q][0].is_finite() {
+                let nq = &fl.nodes[q];
+                if nq.stamp != gen || !nq.done || !nq.coord[0].is_finite() {
                     continue;
                 }
                 let dp = unfolded(pos[s] - pos[q], normal[q], normal[s]).length() * inv_step;
-                let lq = fl.coord[q];
+                let lq = nq.coord;
                 let dl = (l[0] - lq[0]).hypot(l[1] - lq[1]);
                 if dp > 0.0 && !(STRETCH_MIN..=STRETCH_MAX).contains(&(dl / dp)) {
                     bad = true;
@@ -515,14 +610,14 @@ fn flood(level: &LevelTexels, fl: &mut Flood, c: usize, half: f32) -> (Vec<u32>,
                 }
             }
             if bad {
-                fl.done[s] = true;
-                fl.coord[s] = [f32::INFINITY, f32::INFINITY];
+                fl.nodes[s].done = true;
+                fl.nodes[s].coord = [f32::INFINITY, f32::INFINITY];
                 continue;
             }
         }
-        fl.done[s] = true;
+        fl.nodes[s].done = true;
         fl.reached.push(s as u32);
-        let ls = fl.coord[s];
+        let ls = fl.nodes[s].coord;
         if ls[0].abs().max(ls[1].abs()) > keep {
             continue; // outside the patch: not expanded further
         }
@@ -532,14 +627,15 @@ fn flood(level: &LevelTexels, fl: &mut Flood, c: usize, half: f32) -> (Vec<u32>,
             if nd > limit || !nd.is_finite() {
                 continue;
             }
-            let fresh = fl.stamp[t] != gen;
-            if fresh || (!fl.done[t] && nd < fl.dist[t]) {
+            let nt = &mut fl.nodes[t];
+            let fresh = nt.stamp != gen;
+            if fresh || (!nt.done && nd < nt.dist) {
                 if fresh {
-                    fl.stamp[t] = gen;
-                    fl.done[t] = false;
+                    nt.stamp = gen;
+                    nt.done = false;
                 }
-                fl.dist[t] = nd;
-                fl.parent[t] = s as u32;
+                nt.dist = nd;
+                nt.parent = s as u32;
                 fl.heap.push(Entry(nd, t as u32));
             }
         }
@@ -548,7 +644,7 @@ fn flood(level: &LevelTexels, fl: &mut Flood, c: usize, half: f32) -> (Vec<u32>,
     let mut texels = Vec::new();
     let mut coords = Vec::new();
     for &t in &order {
-        let l = fl.coord[t as usize];
+        let l = fl.nodes[t as usize].coord;
         if l[0].abs() <= half && l[1].abs() <= half {
             texels.push(t);
             coords.push(l);
