@@ -1024,16 +1024,18 @@ mod tests {
         );
         // The other methods need more per texel (and multiscale per example pixel), in
         // the order measured: coherent < patches < optimise < multiscale.
-        let by = |method| {
+        let cost = |method, scale_map| {
             let job = Job::Synth {
                 channels: 5,
                 example_pixels: 128 * 128,
                 method,
                 displace: false,
-                scale_map: false,
+                scale_map,
             };
             estimate(&s, 64, &job).bytes
         };
+        let by = |method| cost(method, false);
+        let scaled = |method| cost(method, true);
         let costs: Vec<u64> = [
             Method::Coherent,
             Method::Patches,
@@ -1053,16 +1055,6 @@ mod tests {
                 + MULTISCALE_FIXED
         );
         // A scale map adds its factor and channel per texel (more for multiscale).
-        let scaled = |method| {
-            let job = Job::Synth {
-                channels: 5,
-                example_pixels: 128 * 128,
-                method,
-                displace: false,
-                scale_map: true,
-            };
-            estimate(&s, 64, &job).bytes
-        };
         assert_eq!(
             scaled(Method::Coherent) - costs[0],
             16 * 4096 * SCALE_MAP_TEXEL

@@ -142,17 +142,25 @@ pub fn effective_size(requested: Option<usize>, w: usize, h: usize) -> usize {
     (size.min(short.saturating_sub(2)) & !1).max(4)
 }
 
+/// Where a patch goes: searched (patch sampling), or given by texture optimisation —
+/// joined as given, or settled between the given position and continuations ([`settle`]).
+#[derive(Clone, Copy)]
+enum Placement<'a, const K: usize> {
+    Search,
+    Fixed(&'a [[f32; 2]]),
+    /// The given positions and the optimised texture (appearance per texel) they were
+    /// chosen for.
+    Guided(&'a [[f32; 2]], &'a [[f32; K]]),
+}
+
 struct Ctx<'a, const K: usize> {
     ex: &'a Exemplar<K>,
     level: &'a LevelTexels,
     fp: &'a Footprints,
     params: &'a PatchParams,
     seed: u64,
-    /// Given patch positions (texture optimisation's): joined, not searched — unless
-    /// [`Ctx::guide`] is given, see [`settle`].
-    fixed: Option<&'a [[f32; 2]]>,
-    /// The optimised texture (appearance per texel) the given positions were chosen for.
-    guide: Option<&'a [[f32; K]]>,
+    /// How each patch's position is found.
+    placement: Placement<'a, K>,
     /// Valid patch centres: [lo, hi_x] × [lo, hi_y].
     lo: f32,
     hi_x: f32,
@@ -246,8 +254,7 @@ pub fn run<const K: usize>(
             fp: &fp,
             params,
             seed: seed ^ pass.wrapping_mul(0x51ED),
-            fixed: None,
-            guide: None,
+            placement: Placement::Search,
             lo: 0.5 + half,
             hi_x: ex.width() as f32 - 0.5 - half,
             hi_y: ex.height() as f32 - 0.5 - half,
@@ -348,8 +355,10 @@ pub fn assemble<const K: usize>(
         fp,
         params: &params,
         seed,
-        fixed: Some(positions),
-        guide,
+        placement: match guide {
+            Some(g) => Placement::Guided(positions, g),
+            None => Placement::Fixed(positions),
+        },
         lo: 0.5 + half,
         hi_x: ex.width() as f32 - 0.5 - half,
         hi_y: ex.height() as f32 - 0.5 - half,
@@ -439,12 +448,10 @@ fn paste<const K: usize>(
     app: &[[f32; K]],
     s: &mut Scratch,
 ) -> Paste {
-    let (z, candidates, seeded) = match c.fixed {
-        Some(zs) => match c.guide {
-            Some(g) => settle(c, p, zs[p], g, src, set, app),
-            None => (zs[p], 0, false),
-        },
-        None => choose(c, p, src, set, app, s),
+    let (z, candidates, seeded) = match c.placement {
+        Placement::Fixed(zs) => (zs[p], 0, false),
+        Placement::Guided(zs, g) => settle(c, p, zs[p], g, src, set, app),
+        Placement::Search => choose(c, p, src, set, app, s),
     };
     let (texels, coords) = c.fp.get(p);
     if seeded {
@@ -464,6 +471,39 @@ fn paste<const K: usize>(
         seeded: false,
         replaced,
     }
+}
+
+impl<const K: usize> Ctx<'_, K> {
+    /// Whether `z` is a valid patch centre (the whole patch inside the example).
+    fn valid(&self, z: [f32; 2]) -> bool {
+        z[0] >= self.lo && z[0] <= self.hi_x && z[1] >= self.lo && z[1] <= self.hi_y
+    }
+}
+
+/// Whether `z` is within half a pixel of a position already in `list`.
+fn near_any(list: &[[f32; 2]], z: [f32; 2]) -> bool {
+    list.iter()
+        .any(|o| (o[0] - z[0]).abs() < 0.5 && (o[1] - z[1]).abs() < 0.5)
+}
+
+/// The positions continuing patch `p`'s overlapped texels (`known`: indices into its
+/// footprint), from at most [`PatchParams::proposers`] of them: texel `t` with source
+/// `s(t)` at coordinates `l(t)` proposes `s(t) − l(t)`.
+fn continuations<'a, const K: usize>(
+    c: &'a Ctx<'_, K>,
+    p: usize,
+    known: &'a [usize],
+    src: &'a [[f32; 2]],
+) -> impl Iterator<Item = [f32; 2]> + 'a {
+    let (texels, coords) = c.fp.get(p);
+    let step = known
+        .len()
+        .div_ceil(c.params.proposers.max(1) as usize)
+        .max(1);
+    known.iter().step_by(step).map(move |&i| {
+        let t = texels[i] as usize;
+        [src[t][0] - coords[i][0], src[t][1] - coords[i][1]]
+    })
 }
 
 /// The position of patch `p` in a guided assembly: its optimised position `z0`, or a
@@ -488,20 +528,9 @@ fn settle<const K: usize>(
     if known.is_empty() {
         return (z0, 0, false);
     }
-    let valid = |z: [f32; 2]| z[0] >= c.lo && z[0] <= c.hi_x && z[1] >= c.lo && z[1] <= c.hi_y;
     let mut cands = vec![z0];
-    let step = known
-        .len()
-        .div_ceil(c.params.proposers.max(1) as usize)
-        .max(1);
-    for &i in known.iter().step_by(step) {
-        let t = texels[i] as usize;
-        let z = [src[t][0] - coords[i][0], src[t][1] - coords[i][1]];
-        if valid(z)
-            && !cands
-                .iter()
-                .any(|o| (o[0] - z[0]).abs() < 0.5 && (o[1] - z[1]).abs() < 0.5)
-        {
+    for z in continuations(c, p, &known, src) {
+        if c.valid(z) && !near_any(&cands, z) {
             cands.push(z);
         }
     }
@@ -539,7 +568,7 @@ fn choose<const K: usize>(
     let (texels, coords) = c.fp.get(p);
     let m = texels.len();
     let f = &c.ex.features;
-    let valid = |z: [f32; 2]| z[0] >= c.lo && z[0] <= c.hi_x && z[1] >= c.lo && z[1] <= c.hi_y;
+    let valid = |z: [f32; 2]| c.valid(z);
     let random = |k: u64| -> [f32; 2] {
         let h = hash(c.seed, &[0x9A7C, p as u64, k]);
         let a = (h >> 40) as f32 / (1u64 << 24) as f32;
@@ -553,26 +582,13 @@ fn choose<const K: usize>(
     // Candidates.
     s.cands.clear();
     let push = |cands: &mut Vec<[f32; 2]>, z: [f32; 2]| {
-        if valid(z)
-            && !cands
-                .iter()
-                .any(|o| (o[0] - z[0]).abs() < 0.5 && (o[1] - z[1]).abs() < 0.5)
-        {
+        if valid(z) && !near_any(cands, z) {
             cands.push(z);
         }
     };
-    let step = known
-        .len()
-        .div_ceil(c.params.proposers.max(1) as usize)
-        .max(1);
     let mut conts: Vec<[f32; 2]> = Vec::new();
-    for &i in known.iter().step_by(step) {
-        let t = texels[i] as usize;
-        let z = [src[t][0] - coords[i][0], src[t][1] - coords[i][1]];
-        if !conts
-            .iter()
-            .any(|o| (o[0] - z[0]).abs() < 0.5 && (o[1] - z[1]).abs() < 0.5)
-        {
+    for z in continuations(c, p, &known, src) {
+        if !near_any(&conts, z) {
             conts.push(z);
         }
     }
