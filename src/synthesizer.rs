@@ -294,8 +294,7 @@ pub struct Synthesizer {
     scale: Option<f64>,
     /// `--scale-map`: a file, read in the load stage, or constraints given in memory.
     scale_map: Option<ScaleMapInput>,
-    /// `None`: the method's own ([`Method::default_orientation`]).
-    orientation: Option<Orientation>,
+    orientation: Orientation,
     seed: u64,
     threads: Option<usize>,
     displace: Option<f64>,
@@ -356,8 +355,7 @@ pub struct SynthResult {
 impl Synthesizer {
     /// A run on `mesh` (an OBJ path or a [`Surface`]) with `example` (a PNG/JPEG path or an
     /// [`Example`]). Defaults: [`Method::DEFAULT`], resolution 32, scale = median texel spacing,
-    /// the method's orientation ([`Method::default_orientation`]: `up` for optimise),
-    /// seed 1, all threads of the current rayon pool.
+    /// orientation `auto`, seed 1, all threads of the current rayon pool.
     pub fn new(mesh: impl Into<MeshSource>, example: impl Into<ExampleSource>) -> Self {
         Self {
             mesh: mesh.into(),
@@ -369,7 +367,7 @@ impl Synthesizer {
             texel_size: None,
             scale: None,
             scale_map: None,
-            orientation: None,
+            orientation: Orientation::Auto,
             seed: 1,
             threads: None,
             displace: None,
@@ -434,18 +432,10 @@ impl Synthesizer {
         self.scale_map = Some(ScaleMapInput::Map(map));
         self
     }
-    /// Orientation field (`--orient`); `None` gives the method's own
-    /// ([`Method::default_orientation`]).
-    pub fn orientation(mut self, o: impl Into<Option<Orientation>>) -> Self {
-        self.orientation = o.into();
+    /// Orientation field (`--orient`).
+    pub fn orientation(mut self, o: Orientation) -> Self {
+        self.orientation = o;
         self
-    }
-
-    /// The orientation this run uses: the one given, else the method's.
-    fn resolved_orientation(&self) -> Orientation {
-        self.orientation
-            .clone()
-            .unwrap_or_else(|| self.settings.method.default_orientation())
     }
     /// Random seed; the same seed gives bit-identical maps for any thread count.
     pub fn seed(mut self, seed: u64) -> Self {
@@ -666,7 +656,6 @@ impl Synthesizer {
         };
         let mesh_label = self.mesh_label();
         let example_label = self.example_label();
-        let orientation = self.resolved_orientation();
         let n = self.resolution;
 
         // Load: example first (cheap, most likely to be wrong), then the mesh.
@@ -866,7 +855,7 @@ impl Synthesizer {
             resolution: n,
             texel_size: self.texel_size,
             scale: self.scale,
-            orientation,
+            orientation: self.orientation.clone(),
             scale_map,
         };
         let loaded = session::Loaded {
@@ -1234,8 +1223,7 @@ pub struct SynthCommand {
     pub scale: Option<f64>,
     /// `--scale-map FILE`.
     pub scale_map: Option<PathBuf>,
-    /// `--orient` (`None`: the method's own).
-    pub orientation: Option<Orientation>,
+    pub orientation: Orientation,
     pub seed: u64,
     /// `--search` (multiscale only; `None` = the default, k-coherence).
     pub search: Option<Search>,
