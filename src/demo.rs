@@ -8,7 +8,6 @@
 //! public domain, the gravel example CC0).
 
 use crate::error::Error;
-use crate::field::Orientation;
 use crate::io::atomic::{prepare_out_dir, write_bytes_atomic};
 use crate::report::Report;
 use crate::synthesizer::{run_command, Method, SynthCommand};
@@ -50,7 +49,7 @@ pub fn command(out: &Path) -> SynthCommand {
         texel_size: None,
         scale: None,
         scale_map: None,
-        orientation: Orientation::Auto,
+        orientation: None,
         seed: SEED,
         search: None,
         displace: None,

@@ -294,7 +294,8 @@ pub struct Synthesizer {
     scale: Option<f64>,
     /// `--scale-map`: a file, read in the load stage, or constraints given in memory.
     scale_map: Option<ScaleMapInput>,
-    orientation: Orientation,
+    /// `None`: the method's own ([`Method::default_orientation`]).
+    orientation: Option<Orientation>,
     seed: u64,
     threads: Option<usize>,
     displace: Option<f64>,
@@ -355,7 +356,8 @@ pub struct SynthResult {
 impl Synthesizer {
     /// A run on `mesh` (an OBJ path or a [`Surface`]) with `example` (a PNG/JPEG path or an
     /// [`Example`]). Defaults: [`Method::DEFAULT`], resolution 32, scale = median texel spacing,
-    /// orientation `auto`, seed 1, all threads of the current rayon pool.
+    /// the method's orientation ([`Method::default_orientation`]: `up` for optimise),
+    /// seed 1, all threads of the current rayon pool.
     pub fn new(mesh: impl Into<MeshSource>, example: impl Into<ExampleSource>) -> Self {
         Self {
             mesh: mesh.into(),
@@ -367,7 +369,7 @@ impl Synthesizer {
             texel_size: None,
             scale: None,
             scale_map: None,
-            orientation: Orientation::Auto,
+            orientation: None,
             seed: 1,
             threads: None,
             displace: None,
@@ -432,10 +434,18 @@ impl Synthesizer {
         self.scale_map = Some(ScaleMapInput::Map(map));
         self
     }
-    /// Orientation field (`--orient`).
-    pub fn orientation(mut self, o: Orientation) -> Self {
-        self.orientation = o;
+    /// Orientation field (`--orient`); `None` gives the method's own
+    /// ([`Method::default_orientation`]).
+    pub fn orientation(mut self, o: impl Into<Option<Orientation>>) -> Self {
+        self.orientation = o.into();
         self
+    }
+
+    /// The orientation this run uses: the one given, else the method's.
+    fn resolved_orientation(&self) -> Orientation {
+        self.orientation
+            .clone()
+            .unwrap_or_else(|| self.settings.method.default_orientation())
     }
     /// Random seed; the same seed gives bit-identical maps for any thread count.
     pub fn seed(mut self, seed: u64) -> Self {
@@ -656,6 +666,7 @@ impl Synthesizer {
         };
         let mesh_label = self.mesh_label();
         let example_label = self.example_label();
+        let orientation = self.resolved_orientation();
         let n = self.resolution;
 
         // Load: example first (cheap, most likely to be wrong), then the mesh.
@@ -855,7 +866,7 @@ impl Synthesizer {
             resolution: n,
             texel_size: self.texel_size,
             scale: self.scale,
-            orientation: self.orientation.clone(),
+            orientation,
             scale_map,
         };
         let loaded = session::Loaded {
@@ -1223,7 +1234,8 @@ pub struct SynthCommand {
     pub scale: Option<f64>,
     /// `--scale-map FILE`.
     pub scale_map: Option<PathBuf>,
-    pub orientation: Orientation,
+    /// `--orient` (`None`: the method's own).
+    pub orientation: Option<Orientation>,
     pub seed: u64,
     /// `--search` (multiscale only; `None` = the default, k-coherence).
     pub search: Option<Search>,

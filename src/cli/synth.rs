@@ -150,9 +150,10 @@ pub struct SynthArgs {
     pub scale_map: Option<PathBuf>,
     /// Orientation field: auto (the smoothest field), up[+-AXIS] (the example upright
     /// along an axis, +y by default: level brick courses), straight, +x|-x|+y|-y|+z|-z (the
-    /// example's x along an axis), or a constraints file.
-    #[arg(long, value_name = "auto|up|AXIS|FILE", default_value = "auto", value_parser = parse_orient, allow_hyphen_values = true)]
-    pub orient: Orientation,
+    /// example's x along an axis), or a constraints file. Default: `up` for optimise (the
+    /// default method), `auto` for the others.
+    #[arg(long, value_name = "auto|up|AXIS|FILE", value_parser = parse_orient, allow_hyphen_values = true)]
+    pub orient: Option<Orientation>,
     /// Random seed; the same seed gives the same files for any thread count.
     #[arg(
         long,

@@ -102,6 +102,21 @@ impl Method {
         Method::Jump,
     ];
 
+    /// The orientation field a run of this method gets without `--orient`.
+    ///
+    /// Texture optimisation copies whole patches, so it shows the example as it is — upright
+    /// bricks stay level only if the field keeps the example's up along the world's
+    /// (`up`, +y); with guided final assembly its seams stay within the bar there
+    /// (docs/synthesis.md, "The `up` field"). The per-texel methods keep the smoothest field
+    /// (`auto`): `up` raised patch sampling's seams on the double torus (1.31) and gains
+    /// them nothing measured.
+    pub fn default_orientation(self) -> crate::field::Orientation {
+        match self {
+            Method::Optimise => crate::field::Orientation::Up(glam::DVec3::Y),
+            _ => crate::field::Orientation::Auto,
+        }
+    }
+
     /// The name used on the command line and in report.json.
     pub fn name(self) -> &'static str {
         match self {

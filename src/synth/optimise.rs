@@ -78,11 +78,11 @@ pub struct OptimiseParams {
     /// `None` (the default) searches only the k-coherence candidates.
     pub exhaustive: Option<u32>,
     /// Final assembly: a patch whose optimised position disagrees with the patches pasted
-    /// before it may continue one of them instead (see `patches::settle`). Off by
-    /// default until measured more widely: with `--orient up` it took the double torus's
-    /// seam case (scales, N = 16, seed 2) from 1.29 to 1.05 and lowered pf8 on 7 of 12
-    /// curved mesh × example pairs (by up to 6%, bricks most), raised it on 3 by ≤ 2%,
-    /// and raised the flat grid's pf8 by 0–5%
+    /// before it may continue one of them instead (see `patches::settle`). On by default,
+    /// with the `up` field ([`super::Method::default_orientation`]): with `--orient up` it
+    /// took the double torus's seam case (scales, N = 16, seed 2) from 1.29 to 1.05 and
+    /// lowered pf8 on 7 of 12 curved mesh × example pairs (by up to 6%, bricks most),
+    /// raised it on 3 by ≤ 2%, and raised the flat grid's pf8 by 0–5%
     /// (docs/synthesis.md, "Guided final assembly").
     pub guided_assembly: bool,
 }
@@ -100,7 +100,7 @@ impl Default for OptimiseParams {
             proposers: 8,
             start: PatchParams::default(),
             exhaustive: None,
-            guided_assembly: false,
+            guided_assembly: true,
         }
     }
 }

@@ -75,14 +75,15 @@ pub struct MeshSettings {
 }
 
 impl Default for MeshSettings {
-    /// Resolution 32, the median texel spacing as scale, orientation `auto` (as
-    /// [`super::Synthesizer::new`]).
+    /// Resolution 32, the median texel spacing as scale, the default method's orientation
+    /// (`up`; as [`super::Synthesizer::new`] with that method). A prepared mesh serves every
+    /// method with one field: give `Orientation::Auto` for the per-texel methods' own.
     fn default() -> Self {
         Self {
             resolution: 32,
             texel_size: None,
             scale: None,
-            orientation: Orientation::Auto,
+            orientation: crate::synth::Method::DEFAULT.default_orientation(),
             scale_map: None,
         }
     }
