@@ -288,6 +288,7 @@ fn a_session_with_the_sample_equals_the_one_shot_btf_run() {
     let (s, _) = generate::sample(&hf, &generate::light_directions(8));
     let json = generate::write(&tmp.path().join("s"), &s, serde_json::json!({})).unwrap();
     let one_shot = Synthesizer::new(data(SPOT), ExampleSource::Btf(json.clone()))
+        .orientation(MeshSettings::default().orientation)
         .resolution(8)
         .seed(5)
         .method(Method::Textons)

@@ -260,6 +260,8 @@ fn a_session_with_a_scale_map_equals_the_one_shot_run() {
     let settings = MeshSettings {
         resolution: 8,
         scale_map: Some(spot_ramp()),
+        // The field of the per-texel methods compared below (the one-shot runs take it).
+        orientation: surfsynth::field::Orientation::Auto,
         ..MeshSettings::default()
     };
     let session = Session::prepare(spot(), &settings)

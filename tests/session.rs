@@ -43,8 +43,10 @@ fn mesh() -> PathBuf {
 fn one_shot(method: Method, seed: u64) -> SynthResult {
     static ANALYSES: std::sync::OnceLock<Arc<Analyses>> = std::sync::OnceLock::new();
     let analyses = ANALYSES.get_or_init(|| Arc::new(Analyses::new(&CacheDir::Off)));
+    // The session's field (a prepared mesh has one, whatever the method), not the method's own.
     Synthesizer::new(mesh(), example())
         .method(method)
+        .orientation(MeshSettings::default().orientation)
         .resolution(N)
         .seed(seed)
         .analyses(analyses.clone())
@@ -227,6 +229,7 @@ fn a_mesh_far_from_unit_size_gives_the_one_shot_result_in_its_own_units() {
     let a = s.synthesize(&example(), &params).unwrap();
     let b = Synthesizer::new(big.as_path(), example())
         .method(Method::Jump)
+        .orientation(settings.orientation.clone())
         .resolution(N)
         .cache(CacheDir::Off)
         .run()
@@ -282,6 +285,7 @@ fn texel_size_sessions_equal_one_shot_runs() {
             let a = s.synthesize(&example, &params).unwrap();
             let b = Synthesizer::new(mesh.as_path(), example.clone())
                 .method(method)
+                .orientation(settings.orientation.clone())
                 .texel_size(l)
                 .seed(5)
                 .cache(CacheDir::Off)
