@@ -137,6 +137,7 @@ fn structure_methods_beat_the_peer_on_the_flat_grid() {
             .resolution(32)
             .orientation(Orientation::Axis(glam::DVec3::X))
             .seed(1)
+            .analyses(common::analyses())
             .run()
             .unwrap();
             let m = measure(&r);
@@ -183,6 +184,7 @@ fn every_method_meets_the_bar_on_curved_meshes() {
                 .method(method)
                 .resolution(n)
                 .seed(2)
+                .analyses(common::analyses())
                 .run()
                 .unwrap();
             let m = measure(&r);
@@ -212,6 +214,7 @@ fn every_method_meets_the_bar_on_curved_meshes() {
             .method(Method::DEFAULT)
             .resolution(32)
             .seed(1)
+            .analyses(common::analyses())
             .run()
             .unwrap();
         let m = measure(&r);
@@ -238,6 +241,7 @@ fn structure_methods_do_not_depend_on_the_thread_count() {
                 .resolution(12)
                 .seed(4)
                 .threads(threads)
+                .analyses(common::analyses())
                 .run()
                 .unwrap()
                 .maps

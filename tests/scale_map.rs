@@ -118,7 +118,7 @@ fn run(method: Method, n: usize, map: Option<ScaleMap>, scale: Option<f64>) -> S
         .resolution(n)
         .scale(scale)
         .seed(1)
-        .cache(surfsynth::synthesizer::CacheDir::Off);
+        .analyses(common::analyses());
     if let Some(m) = map {
         s = s.scale_map_constraints(m);
     }
@@ -239,7 +239,7 @@ fn varying_scale_is_deterministic_for_any_thread_count() {
                 .resolution(8)
                 .threads(t)
                 .scale_map_constraints(spot_ramp())
-                .cache(surfsynth::synthesizer::CacheDir::Off)
+                .analyses(common::analyses())
                 .run()
                 .unwrap()
         };

@@ -137,3 +137,19 @@ pub fn spacing(p: &[Option<DVec3>], k: usize, delta: f64) -> (f64, usize, usize)
     }
     (w, n, over)
 }
+
+/// One in-memory analysis store for the whole test binary: runs with the same example
+/// (and parameters) share its appearance space, jump maps, k-coherence lists and multiscale
+/// models instead of rebuilding them per run, and nothing touches the user's cache folder.
+/// Results are bit-identical with or without it (tests/jump.rs and tests/session.rs check
+/// cache hits against fresh analyses).
+#[allow(dead_code)]
+pub fn analyses() -> std::sync::Arc<surfsynth::synth::Analyses> {
+    use std::sync::{Arc, OnceLock};
+    use surfsynth::synth::Analyses;
+    use surfsynth::synthesizer::CacheDir;
+    static STORE: OnceLock<Arc<Analyses>> = OnceLock::new();
+    STORE
+        .get_or_init(|| Arc::new(Analyses::new(&CacheDir::Off)))
+        .clone()
+}
