@@ -1522,4 +1522,27 @@ mod tests {
         assert_eq!(plan(512, 64, 0.01, 0.01, 2), (0, vec![64, 32]));
         assert!(plan_levels(64, 64, 8, 0.0, 0.01, 0).is_err());
     }
+
+    #[test]
+    fn per_face_levels_halve_every_face() {
+        use crate::layout::Resolution;
+        let r = |a, b| Resolution::new(a, b).unwrap();
+        let out = Arc::new(TexelLayout::per_face(vec![r(5, 3), r(1, 1), r(4, 4)]));
+        // (16·16 + 4 + 256) / 3 texels per face: typical side 13.
+        assert_eq!(typical_side(&out), 13);
+        let (j0, res) = plan_levels(64, 64, 13, 0.01, 0.01, 0).unwrap();
+        assert_eq!((j0, res.len()), (0, 3));
+        let ls = level_layouts(&out, &res, j0, 0.01, 0.01);
+        assert!(Arc::ptr_eq(&ls[0], &out), "the finest level is the output");
+        assert_eq!(ls[1].dims(0), (16, 4));
+        assert_eq!(ls[2].dims(0), (8, 2));
+        assert_eq!(ls[2].dims(1), (1, 1), "never below one texel");
+        // A texture twice as large (S = 2h) starts one halving down.
+        let ls = level_layouts(&out, &res, 0, 0.01, 0.02);
+        assert_eq!(ls[0].dims(2), (8, 8));
+        // One N: the plan's sides.
+        let u = Arc::new(TexelLayout::uniform(3, 16));
+        let ls = level_layouts(&u, &[16, 8, 4], 0, 0.01, 0.01);
+        assert_eq!(ls[2].uniform_n(), Some(4));
+    }
 }
