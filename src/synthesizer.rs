@@ -565,11 +565,6 @@ impl Synthesizer {
 
     /// Checks parameters that need no file (cheap; `run` calls it first).
     pub fn validate(&self) -> Result<()> {
-        if self.texel_size.is_some()
-            && matches!(self.settings.method, Method::Multiscale | Method::Textons)
-        {
-            return Err(Error::invalid(MULTISCALE_TEXEL_SIZE));
-        }
         MeshSettings {
             resolution: self.resolution,
             texel_size: self.texel_size,
@@ -933,10 +928,6 @@ fn orientation_label(o: &Orientation) -> String {
         Orientation::Constraints(p) => p.display().to_string(),
     }
 }
-
-/// Why the multiscale method refuses per-face resolutions.
-pub(crate) const MULTISCALE_TEXEL_SIZE: &str =
-    "the multiscale and textons methods need one resolution for all faces: use --resolution, not --texel-size";
 
 /// [`check_size`] for a per-face layout.
 fn check_texels(what: &str, layout: &crate::layout::TexelLayout) -> Result<()> {

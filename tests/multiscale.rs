@@ -55,7 +55,7 @@ fn run(
         appearance: surfsynth::synth::matching::appearance::AppearanceMode::Rgb,
         surface,
         field: &field,
-        resolution: n,
+        layout: &geom.layout,
         spacing,
         scale,
         scale_field: None,
@@ -241,13 +241,14 @@ fn output_is_identical_for_any_thread_count() {
     let surface = Surface::new(surfsynth::bench::torus_mesh(8));
     let ex = texture("gimp_coffee_beans.png", 48);
     let field = OrientationField::compute(&surface, &Orientation::Auto).unwrap();
-    let spacing = TexelGeometry::compute(&surface, n).median_spacing(&surface);
+    let geom = TexelGeometry::compute(&surface, n);
+    let spacing = geom.median_spacing(&surface);
     let weights = [1.0f32; 3];
     let inputs = Inputs {
         appearance: surfsynth::synth::matching::appearance::AppearanceMode::Rgb,
         surface: &surface,
         field: &field,
-        resolution: n,
+        layout: &geom.layout,
         spacing,
         scale: spacing,
         scale_field: None,

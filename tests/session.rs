@@ -240,9 +240,9 @@ fn a_mesh_far_from_unit_size_gives_the_one_shot_result_in_its_own_units() {
     assert!(a.geometry.pos.iter().any(|p| p.x.abs() > 1e5), "user units");
 }
 
-/// Per-face resolutions (`--texel-size`) flow through the session: every method that
-/// takes them gives the one-shot run's maps and files bit for bit, in the user's units
-/// for a mesh far from unit size too; multiscale refuses them, as the one-shot builder.
+/// Per-face resolutions (`--texel-size`) flow through the session: every method gives the
+/// one-shot run's maps and files bit for bit, in the user's units for a mesh far from unit
+/// size too.
 #[test]
 fn texel_size_sessions_equal_one_shot_runs() {
     const L: f64 = 0.15;
@@ -277,6 +277,8 @@ fn texel_size_sessions_equal_one_shot_runs() {
             Method::Coherent,
             Method::Patches,
             Method::Optimise,
+            Method::Multiscale,
+            Method::Textons,
         ] {
             let params = SynthParams {
                 seed: 5,
@@ -322,13 +324,6 @@ fn texel_size_sessions_equal_one_shot_runs() {
                 }
             }
         }
-        let e = s
-            .synthesize(&example, &SynthParams::new(Method::Multiscale))
-            .unwrap_err();
-        assert!(
-            e.to_string().contains("one resolution for all faces"),
-            "{e}"
-        );
     }
     let e = Session::prepare(
         mesh(),

@@ -373,15 +373,10 @@ pub fn synthesize(
         }
         Method::Multiscale => {
             let weights = settings.weights.per_channel(example);
-            let Some(resolution) = target.texels.layout().uniform_n() else {
-                return Err(crate::Error::invalid(
-                    "the multiscale method needs one resolution for all faces: use --resolution, not --texel-size",
-                ));
-            };
             let inputs = multiscale::Inputs {
                 surface: target.surface,
                 field: target.field,
-                resolution,
+                layout: target.texels.layout(),
                 spacing: target.spacing,
                 scale: target.scale(),
                 scale_field: target.scale_field,

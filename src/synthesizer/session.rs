@@ -625,11 +625,6 @@ impl Session {
         let settings = &params.settings;
         let n = self.resolution;
         let faces = self.faces();
-        if self.layout.uniform_n().is_none()
-            && matches!(settings.method, Method::Multiscale | Method::Textons)
-        {
-            return Err(Error::invalid(super::MULTISCALE_TEXEL_SIZE));
-        }
         settings.weights.check(example)?;
         let has_height = example.height_map().is_some();
         if params.displace.is_some() && !has_height {

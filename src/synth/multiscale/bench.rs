@@ -93,11 +93,12 @@ pub fn bench_surface(
     let spacing = geom.median_spacing(surface);
     let setup_seconds = t0.elapsed().as_secs_f64();
     let weights = crate::synth::Weights::default().per_channel(example);
+    let layout = geom.layout.clone();
     let inputs = Inputs {
         appearance: Default::default(),
         surface,
         field: &field,
-        resolution: n,
+        layout: &layout,
         spacing,
         scale: spacing,
         scale_field: None,

@@ -1,7 +1,9 @@
-//! One synthesis level on the surface: texel geometry at that level's resolution, K×K
-//! neighbourhood patterns, and fetches that respect what is generated so far.
+//! One synthesis level on the surface: texel geometry at that level's resolution (one N,
+//! or per-face resolutions: [`TexelLayout`]), K×K neighbourhood patterns, and fetches that
+//! respect what is generated so far.
 
 use crate::field::{Frame, OrientationField};
+use crate::layout::TexelLayout;
 use crate::maps::{MapLayout, Taps};
 use crate::sampling::{Sampler, SamplerKind};
 use glam::Vec3;
@@ -9,9 +11,9 @@ use rayon::prelude::*;
 use std::sync::Arc;
 use subdiv::{DomainId, DomainLocation, LimitSample, Surface};
 
-/// Geometry of the texels of one level (resolution `r`).
+/// Geometry of the texels of one level (its [`TexelLayout`]: one N, or every face's own
+/// resolution).
 pub struct LevelGeometry {
-    pub r: usize,
     pub layout: Arc<MapLayout>,
     /// Limit position per texel.
     pub pos: Vec<Vec3>,
@@ -31,22 +33,28 @@ pub struct LevelGeometry {
 }
 
 /// Christoffel symbols `[Γᵘ_uu, Γᵘ_uv, Γᵘ_vv, Γᵛ_uu, Γᵛ_uv, Γᵛ_vv]` at texel `i` of one
-/// domain's `r x r` limit samples: Γᵏ_ij = gᵏˡ⟨∂ᵢ∂ⱼP, ∂ₗP⟩ with the second derivatives
-/// from differences of the first ones between adjacent texels (central inside the domain,
-/// one-sided at its rim; over one texel, the scale of the patterns that use them).
-/// `g` = (E, F, G, EG − F²) of the texel.
-fn christoffel_at(buf: &[LimitSample], r: usize, i: usize, g: (f64, f64, f64, f64)) -> [f32; 6] {
-    if r < 2 {
+/// domain's `nu x nv` limit samples (rows of `nu`): Γᵏ_ij = gᵏˡ⟨∂ᵢ∂ⱼP, ∂ₗP⟩ with the second
+/// derivatives from differences of the first ones between adjacent texels (central inside
+/// the domain, one-sided at its rim; over one texel, the scale of the patterns that use
+/// them). Zero for a domain one texel wide either way. `g` = (E, F, G, EG − F²) of the
+/// texel.
+fn christoffel_at(
+    buf: &[LimitSample],
+    (nu, nv): (usize, usize),
+    i: usize,
+    g: (f64, f64, f64, f64),
+) -> [f32; 6] {
+    if nu < 2 || nv < 2 {
         return [0.0; 6];
     }
-    let (x, y) = (i % r, i / r);
-    let h = 1.0 / r as f64;
-    let (xa, xb) = (x.saturating_sub(1), (x + 1).min(r - 1));
-    let (ya, yb) = (y.saturating_sub(1), (y + 1).min(r - 1));
-    let su = (xb - xa) as f64 * h;
-    let sv = (yb - ya) as f64 * h;
-    let (ea, eb) = (&buf[y * r + xa], &buf[y * r + xb]);
-    let (na, nb) = (&buf[ya * r + x], &buf[yb * r + x]);
+    let (x, y) = (i % nu, i / nu);
+    let (hu, hv) = (1.0 / nu as f64, 1.0 / nv as f64);
+    let (xa, xb) = (x.saturating_sub(1), (x + 1).min(nu - 1));
+    let (ya, yb) = (y.saturating_sub(1), (y + 1).min(nv - 1));
+    let su = (xb - xa) as f64 * hu;
+    let sv = (yb - ya) as f64 * hv;
+    let (ea, eb) = (&buf[y * nu + xa], &buf[y * nu + xb]);
+    let (na, nb) = (&buf[ya * nu + x], &buf[yb * nu + x]);
     let p_uu = (eb.du - ea.du) / su;
     let p_uv = ((eb.dv - ea.dv) / su + (nb.du - na.du) / sv) * 0.5;
     let p_vv = (nb.dv - na.dv) / sv;
@@ -95,31 +103,68 @@ pub fn regular_corners(surface: &Surface) -> Vec<[bool; 4]> {
 }
 
 impl LevelGeometry {
-    /// Evaluates everything at resolution `r` (parallel over domains; deterministic).
+    /// Evaluates everything at resolution `r` on every domain (parallel over domains;
+    /// deterministic).
     pub fn new(
         surface: &Surface,
         field: &OrientationField,
         r: usize,
         regular_corners: Arc<Vec<[bool; 4]>>,
     ) -> Self {
-        let layout = Arc::new(MapLayout::new(surface, r));
-        let frames = field.texel_frames(surface, r);
-        let nn = r * r;
-        let faces = surface.num_domains();
-        let mut pos = vec![Vec3::ZERO; faces * nn];
-        let mut axes = vec![[0.0f64; 4]; faces * nn];
-        let mut christoffel = vec![[0.0f32; 6]; faces * nn];
-        pos.par_chunks_mut(nn)
-            .zip(axes.par_chunks_mut(nn))
-            .zip(christoffel.par_chunks_mut(nn))
+        let texels = Arc::new(TexelLayout::uniform(surface.num_domains(), r));
+        Self::with_layout(surface, field, texels, regular_corners)
+    }
+
+    /// Evaluates everything at the texels of `texels` (one N, or per-face resolutions;
+    /// parallel over domains; deterministic). A uniform layout gives exactly what
+    /// [`LevelGeometry::new`] always gave.
+    pub fn with_layout(
+        surface: &Surface,
+        field: &OrientationField,
+        texels: Arc<TexelLayout>,
+        regular_corners: Arc<Vec<[bool; 4]>>,
+    ) -> Self {
+        let frames = match texels.uniform_n() {
+            Some(r) => field.texel_frames(surface, r),
+            None => (0..texels.len())
+                .into_par_iter()
+                .map(|t| {
+                    let l = texels.location(t);
+                    field.frame(surface, l.domain, l.u, l.v)
+                })
+                .collect(),
+        };
+        let total = texels.len();
+        let mut pos = vec![Vec3::ZERO; total];
+        let mut axes = vec![[0.0f64; 4]; total];
+        let mut christoffel = vec![[0.0f32; 6]; total];
+        let lay = &texels;
+        lay.split_mut(&mut pos, 1)
+            .into_par_iter()
+            .zip(lay.split_mut(&mut axes, 1))
+            .zip(lay.split_mut(&mut christoffel, 1))
             .enumerate()
             .for_each_init(
-                || vec![LimitSample::default(); nn],
-                |buf, (d, ((p, ax), gam))| {
-                    surface.eval_texels(DomainId::from_idx(d), r, buf);
+                Vec::new,
+                |buf: &mut Vec<LimitSample>, (d, ((p, ax), gam))| {
+                    let (nu, nv) = lay.dims(d);
+                    let id = DomainId::from_idx(d);
+                    if nu == nv {
+                        buf.resize(nu * nu, LimitSample::default());
+                        surface.eval_texels(id, nu, buf);
+                    } else {
+                        buf.clear();
+                        for y in 0..nv {
+                            let v = (y as f64 + 0.5) / nv as f64;
+                            for x in 0..nu {
+                                buf.push(surface.eval(id, (x as f64 + 0.5) / nu as f64, v));
+                            }
+                        }
+                    }
+                    let start = lay.start(d);
                     for (i, s) in buf.iter().enumerate() {
                         p[i] = s.p.as_vec3();
-                        let f = &frames[d * nn + i];
+                        let f = &frames[start + i];
                         // (JᵀJ)⁻¹ Jᵀ v: the parameter step that moves along v to first order.
                         let (a, b, c) = (s.du.dot(s.du), s.du.dot(s.dv), s.dv.dot(s.dv));
                         let det = a * c - b * b;
@@ -131,7 +176,7 @@ impl LevelGeometry {
                             let (w1u, w1v) = solve(f.v1);
                             let (w2u, w2v) = solve(f.v2);
                             ax[i] = [w1u, w1v, w2u, w2v];
-                            gam[i] = christoffel_at(buf, r, i, (a, b, c, det));
+                            gam[i] = christoffel_at(buf, (nu, nv), i, (a, b, c, det));
                         } else {
                             // Degenerate derivatives (never at texel centres in practice):
                             // mark unusable so patterns go through the sampler.
@@ -140,8 +185,8 @@ impl LevelGeometry {
                     }
                 },
             );
+        let layout = Arc::new(MapLayout::with_layout(surface, texels));
         Self {
-            r,
             layout,
             pos,
             frames,
@@ -161,9 +206,10 @@ impl LevelGeometry {
         self.pos.is_empty()
     }
 
-    /// Texels per domain.
-    pub fn per_domain(&self) -> usize {
-        self.r * self.r
+    /// Where the texels are: every domain's resolution and first texel.
+    #[inline]
+    pub fn texels(&self) -> &TexelLayout {
+        self.layout.texels_layout()
     }
 
     /// Centre of texel `t`.
@@ -176,18 +222,18 @@ impl LevelGeometry {
     /// domain edges through the map layout's ring).
     #[inline]
     pub fn position_at(&self, loc: DomainLocation) -> Vec3 {
-        let n = self.r;
-        let fx = loc.u * n as f64 - 0.5;
-        let fy = loc.v * n as f64 - 0.5;
+        let (nu, nv) = self.layout.dims(loc.domain.idx());
+        let fx = loc.u * nu as f64 - 0.5;
+        let fy = loc.v * nv as f64 - 0.5;
         let (x0, y0) = (fx.floor(), fy.floor());
-        if x0 >= 0.0 && y0 >= 0.0 && x0 + 1.0 < n as f64 && y0 + 1.0 < n as f64 {
+        if x0 >= 0.0 && y0 >= 0.0 && x0 + 1.0 < nu as f64 && y0 + 1.0 < nv as f64 {
             let (ax, ay) = ((fx - x0) as f32, (fy - y0) as f32);
             let base = self
                 .layout
                 .texel_index(loc.domain, x0 as usize, y0 as usize);
             let p = &self.pos;
             let top = p[base] * (1.0 - ax) + p[base + 1] * ax;
-            let bottom = p[base + n] * (1.0 - ax) + p[base + n + 1] * ax;
+            let bottom = p[base + nu] * (1.0 - ax) + p[base + nu + 1] * ax;
             return top * (1.0 - ay) + bottom * ay;
         }
         let mut out = Vec3::ZERO;
@@ -312,14 +358,16 @@ pub fn pattern(
             st.rejected += 1;
         }
         // The anchor (centre texel) of t's 3x3 block: its sampler pattern, moved to t.
-        let r = geo.r;
-        let li = t % (r * r);
-        let (x, y) = (li % r, li / r);
-        let (ax, ay) = ((3 * (x / 3) + 1).min(r - 1), (3 * (y / 3) + 1).min(r - 1));
-        let a = t - li + ay * r + ax;
+        let texels = geo.texels();
+        let d = texels.domain_of(t);
+        let (nu, nv) = texels.dims(d);
+        let li = t - texels.start(d);
+        let (x, y) = (li % nu, li / nu);
+        let (ax, ay) = ((3 * (x / 3) + 1).min(nu - 1), (3 * (y / 3) + 1).min(nv - 1));
+        let a = t - li + ay * nu + ax;
         let kk = k * k;
         let slot = x / 3;
-        let slots = r.div_ceil(3);
+        let slots = nu.div_ceil(3);
         if scratch.anchor_of.len() != slots || scratch.anchor_k != kk {
             scratch.anchor_of = vec![usize::MAX; slots];
             scratch.anchors = vec![None; slots * kk];
@@ -400,15 +448,14 @@ pub fn shift_pattern(
     locs: &mut [Option<DomainLocation>],
 ) -> bool {
     let tau = (geo.pos[t] - geo.pos[a]).as_dvec3();
-    let r = geo.r;
-    let rf = r as f64;
     for (o, s) in locs.iter_mut().zip(src) {
         let Some(l) = *s else {
             *o = None;
             continue;
         };
-        let x = ((l.u * rf) as usize).min(r - 1);
-        let y = ((l.v * rf) as usize).min(r - 1);
+        let (nu, nv) = geo.layout.dims(l.domain.idx());
+        let x = ((l.u * nu as f64) as usize).min(nu - 1);
+        let y = ((l.v * nv as f64) as usize).min(nv - 1);
         let q = geo.layout.texel_index(l.domain, x, y);
         let f = &geo.frames[q];
         let (a1, a2) = (tau.dot(f.v1), tau.dot(f.v2));
@@ -609,8 +656,8 @@ impl<'a> Lookup<'a> {
 /// held as the example features they copied, read through `lookup`.
 pub struct View<'a> {
     pub channels: usize,
-    /// Texels per domain.
-    pub per_domain: usize,
+    /// The level's texels (which domain a texel is in, and where that domain starts).
+    pub texels: &'a TexelLayout,
     pub lookup: Lookup<'a>,
     pub before: &'a [u32],
     pub before_generated: bool,
@@ -640,11 +687,13 @@ impl View<'_> {
                 return (o.src, i - o.start, g);
             }
         }
-        let e = i / self.per_domain;
-        match self.finished.get(e) {
-            Some(Some(v)) => (v, i - e * self.per_domain, Some(true)),
-            _ => (self.before, i, Some(self.before_generated)),
+        if !self.finished.is_empty() {
+            let e = self.texels.domain_of(i);
+            if let Some(Some(v)) = self.finished.get(e) {
+                return (v, i - self.texels.start(e), Some(true));
+            }
         }
+        (self.before, i, Some(self.before_generated))
     }
 
     #[inline]

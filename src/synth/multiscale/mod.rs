@@ -11,6 +11,14 @@
 //! plain pyramid: `R_i = N / 2^i`, example level `i`, sampling step δ_i = h·2^i — the step
 //! doubles per level. `docs/multiscale.md` has worked examples.
 //!
+//! **Per-face resolutions** (`--texel-size`, [`TexelLayout`] per face): the plan above is
+//! made for the typical side (the root mean square side, [`typical_side`]), and level i
+//! halves *every* face's resolution, per side, as often as that plan's level i halves N
+//! (never below one texel: [`TexelLayout::coarsened`]; [`level_layouts`]). Texel sets,
+//! patterns, fetches, the schedule's domain ranges and the resampling to the output texels
+//! all go through the level's layout, so one N is just the layout with every face alike
+//! (and gives exactly the results it always gave).
+//!
 //! **Coarsest level**: domains in breadth-first order, texels in scan-line order;
 //! neighbourhoods marched on the surface (000 §4.1; patterns do not fit charts at coarse
 //! levels); exhaustive search under the Gaussian-weighted l2 over the generated samples,
@@ -40,6 +48,7 @@ pub mod level;
 use crate::error::{Error, Result};
 use crate::example::Example;
 use crate::field::OrientationField;
+use crate::layout::TexelLayout;
 use crate::pyramid::{levels_for, Image};
 use crate::sampling::{Sampler, SamplerKind, SamplerStats};
 use crate::synth::matching::appearance::{
@@ -54,7 +63,7 @@ use level::{
 use rayon::prelude::*;
 use serde::Serialize;
 use std::sync::atomic::{AtomicUsize, Ordering::AcqRel};
-use std::sync::OnceLock;
+use std::sync::{Arc, OnceLock};
 use std::time::Instant;
 use subdiv::{DomainLocation, Surface};
 
@@ -95,9 +104,10 @@ impl Default for MultiscaleParams {
 pub struct Inputs<'a> {
     pub surface: &'a Surface,
     pub field: &'a OrientationField,
-    /// Output texels per domain side (N).
-    pub resolution: usize,
-    /// Median texel spacing at N (h).
+    /// The output texels: N per side on every domain (`--resolution`), or every face's own
+    /// resolution (`--texel-size`).
+    pub layout: &'a Arc<TexelLayout>,
+    /// Median texel spacing of the output texels (h).
     pub spacing: f64,
     /// Surface length of one example pixel (S).
     pub scale: f64,
@@ -119,7 +129,8 @@ pub struct LevelPlan {
     pub example_level: usize,
     /// Its size in pixels.
     pub example_size: [usize; 2],
-    /// Face-map texels per side.
+    /// Face-map texels per side (per-face resolutions: the root mean square side,
+    /// [`typical_side`]).
     pub resolution: usize,
     /// Sampling step δ (surface length of one pixel of that example level).
     pub step: f64,
@@ -199,6 +210,53 @@ pub fn plan_levels(
         }
     }
     Ok((j0, res))
+}
+
+/// The typical texels per side of `layout`: N for one N, else the root mean square side
+/// (√(texels / faces), rounded), what the level plan of per-face resolutions halves (as
+/// texture optimisation's does).
+pub fn typical_side(layout: &TexelLayout) -> usize {
+    layout.uniform_n().unwrap_or_else(|| {
+        ((layout.len() as f64 / layout.faces().max(1) as f64)
+            .sqrt()
+            .round() as usize)
+            .max(1)
+    })
+}
+
+/// The texels of every synthesis level, finest first, for the output texels `out` and the
+/// plan `res` of [`plan_levels`] (made for the typical side, [`typical_side`]). One N:
+/// `res[i]` per side on every domain, as always. Per-face resolutions: every face's own
+/// resolution halved per level and per side (never below one texel: [`TexelLayout::coarsened`]);
+/// the finest synthesis level is the output halved k₀ times, k₀ = round(log2(S·2^j0 / h))
+/// (0 at the default scale; more for a texture larger than the texels), so that level i's
+/// texels cover about one pixel of example level j0 + i on every face, as `res[i]` does for
+/// one N.
+pub fn level_layouts(
+    out: &Arc<TexelLayout>,
+    res: &[usize],
+    j0: usize,
+    spacing: f64,
+    scale: f64,
+) -> Vec<Arc<TexelLayout>> {
+    match out.uniform_n() {
+        Some(_) => res
+            .iter()
+            .map(|&r| Arc::new(TexelLayout::uniform(out.faces(), r)))
+            .collect(),
+        None => {
+            let k0 = (scale * (1u64 << j0) as f64 / spacing)
+                .log2()
+                .round()
+                .max(0.0) as u32;
+            (0..res.len() as u32)
+                .map(|i| match k0 + i {
+                    0 => out.clone(),
+                    k => Arc::new(out.coarsened(k)),
+                })
+                .collect()
+        }
+    }
 }
 
 /// Domains sharing an edge, or an edge with a domain that does: the domains whose texels
@@ -464,11 +522,18 @@ pub fn run_on_model(
     build: &ModelBuilder<'_>,
     progress: &(dyn Fn(u64, u64) + Sync),
 ) -> Result<Output> {
-    let n = inputs.resolution;
-    if n == 0 {
-        return Err(Error::invalid("resolution must be at least 1"));
-    }
+    let out_layout = inputs.layout;
     let surface = inputs.surface;
+    if out_layout.faces() != surface.num_domains() || out_layout.is_empty() {
+        return Err(Error::invalid(format!(
+            "multiscale synthesis: a texel layout of {} domains ({} texels) for a surface of {}",
+            out_layout.faces(),
+            out_layout.len(),
+            surface.num_domains()
+        )));
+    }
+    // N, or with per-face resolutions the typical side: what the level plan halves.
+    let n = typical_side(out_layout);
     let reference = match inputs.scale_field {
         None => inputs.scale,
         Some(f) => inputs.scale * f.range().0,
@@ -482,6 +547,7 @@ pub fn run_on_model(
         params.max_levels,
     )?;
     let n_levels = res.len();
+    let layouts = level_layouts(out_layout, &res, j0, inputs.spacing, reference);
     let t0 = Instant::now();
     let built = build(j0, n_levels)?;
     let (model, appearance) = (&built.model, built.appearance);
@@ -507,24 +573,23 @@ pub fn run_on_model(
     let conflicts = conflicts(&adj);
     let schedule = Schedule::plan(&adj, &conflicts);
     let order = DomainOrder::new(&schedule, &conflicts);
-    let faces = surface.num_domains();
-    let total: u64 = res
+    let total: u64 = layouts
         .iter()
         .enumerate()
-        .map(|(i, &r)| (faces * r * r) as u64 * if i + 1 == n_levels { 1 } else { 2 })
+        .map(|(i, l)| l.len() as u64 * if i + 1 == n_levels { 1 } else { 2 })
         .sum();
     let mut done = 0u64;
     let mut stats = Stats {
         search: params.model.method.name().into(),
-        levels: res
+        levels: layouts
             .iter()
             .enumerate()
-            .map(|(i, &r)| {
+            .map(|(i, l)| {
                 let im = model.pyramid.level(i);
                 LevelPlan {
                     example_level: j0 + i,
                     example_size: [im.width, im.height],
-                    resolution: r,
+                    resolution: typical_side(l),
                     step: ctx.steps[i],
                 }
             })
@@ -539,7 +604,8 @@ pub fn run_on_model(
     let top = n_levels - 1;
     let t0 = Instant::now();
     let corners = std::sync::Arc::new(level::regular_corners(surface));
-    let mut geo = LevelGeometry::new(surface, inputs.field, res[top], corners.clone());
+    let mut geo =
+        LevelGeometry::with_layout(surface, inputs.field, layouts[top].clone(), corners.clone());
     let mut fac = Factors::of(inputs, &geo);
     geometry_seconds += t0.elapsed().as_secs_f64();
     let t0 = Instant::now();
@@ -549,7 +615,8 @@ pub fn run_on_model(
     progress(done, total);
     for i in (0..top).rev() {
         let t0 = Instant::now();
-        let fine = LevelGeometry::new(surface, inputs.field, res[i], corners.clone());
+        let fine =
+            LevelGeometry::with_layout(surface, inputs.field, layouts[i].clone(), corners.clone());
         let fine_fac = Factors::of(inputs, &fine);
         geometry_seconds += t0.elapsed().as_secs_f64();
         let t0 = Instant::now();
@@ -580,11 +647,12 @@ pub fn run_on_model(
     drop(src);
     let finest = continuous_sources(surface, &geo, &fac, &discrete, inputs.scale, up, &mut stats);
     drop(discrete);
-    let source = if geo.r == n && j0 == 0 {
+    let source = if geo.texels() == &**out_layout && j0 == 0 {
         finest
     } else {
         let t0 = Instant::now();
-        let out_geo = LevelGeometry::new(surface, inputs.field, n, corners.clone());
+        let out_geo =
+            LevelGeometry::with_layout(surface, inputs.field, out_layout.clone(), corners.clone());
         let out_fac = Factors::of(inputs, &out_geo);
         geometry_seconds += t0.elapsed().as_secs_f64();
         stats.resampled = out_geo.len() as u64;
@@ -631,7 +699,7 @@ fn continuous_sources(
     up: f32,
     stats: &mut Stats,
 ) -> Vec<[f32; 2]> {
-    let r = geo.r;
+    let texels = geo.texels();
     let tol = PATCH_TOLERANCE * up;
     let tol2 = tol * tol;
     let n_t = geo.len();
@@ -651,6 +719,7 @@ fn continuous_sources(
         .enumerate()
         .for_each(|(t, (out, count))| {
             let loc = geo.location(t);
+            let (nu, nv) = texels.dims(loc.domain.idx());
             let p = src[t];
             let mut len = 0;
             for b in -1i32..=1 {
@@ -658,7 +727,7 @@ fn continuous_sources(
                     if a == 0 && b == 0 {
                         continue;
                     }
-                    let (du, dv) = (a as f64 / r as f64, b as f64 / r as f64);
+                    let (du, dv) = (a as f64 / nu as f64, b as f64 / nv as f64);
                     let Some(l) = surface.walk(loc, du, dv) else {
                         continue;
                     };
@@ -979,13 +1048,13 @@ fn coarsest(
     stats: &mut Stats,
 ) -> State {
     let c = ctx.channels;
-    let nn = geo.per_domain();
+    let texels = geo.texels();
     let shape = ctx.model.shape(level, Pass::Coarsest);
     let k = shape.fine;
     let delta = ctx.steps[level];
     let lookup = ctx.lookup(level);
     let outs = order.run(&|d, done| {
-        let start = d * nn;
+        let (start, nn) = (texels.start(d), texels.count(d));
         let finished = order.visible(d, done);
         let mut w = Work::new(ctx.model, level, Pass::Coarsest);
         let mut own_gen = vec![false; nn];
@@ -995,7 +1064,7 @@ fn coarsest(
             ctx.pattern(geo, t, fac.step(delta, t), k, SamplerKind::March, &mut w);
             let view = View {
                 channels: c,
-                per_domain: nn,
+                texels,
                 lookup,
                 before: &[],
                 before_generated: false,
@@ -1033,8 +1102,7 @@ fn coarsest(
     });
     let mut src = vec![0u32; geo.len()];
     for (d, o) in outs.iter().enumerate() {
-        let start = d * nn;
-        src[start..start + nn].copy_from_slice(&o.src);
+        src[texels.range(d)].copy_from_slice(&o.src);
         absorb(stats, &o.counts);
     }
     State { src }
@@ -1121,12 +1189,12 @@ fn coarse_block(
 fn finished_view<'a>(
     ctx: &'a Ctx<'_>,
     level: usize,
-    coarse: &LevelGeometry,
+    coarse: &'a LevelGeometry,
     cstate: &'a State,
 ) -> View<'a> {
     View {
         channels: ctx.channels,
-        per_domain: coarse.per_domain(),
+        texels: coarse.texels(),
         lookup: ctx.lookup(level + 1),
         before: &cstate.src,
         before_generated: true,
@@ -1146,17 +1214,17 @@ fn pass_one(
     stats: &mut Stats,
 ) -> State {
     let k = ctx.model.shape(level, Pass::One).coarse;
-    let nn = fine.per_domain();
-    let faces = fine.len() / nn;
+    let texels = fine.texels();
     let view = finished_view(ctx, level, coarse, cstate);
     // Per domain: chosen features, counters.
-    let results: Vec<(Vec<u32>, Counts)> = (0..faces)
+    let results: Vec<(Vec<u32>, Counts)> = (0..texels.faces())
         .into_par_iter()
         .map(|d| {
             let mut w = Work::new(ctx.model, level, Pass::One);
-            let mut src = vec![0u32; nn];
+            let start = texels.start(d);
+            let mut src = vec![0u32; texels.count(d)];
             for (li, out) in src.iter_mut().enumerate() {
-                let t = d * nn + li;
+                let t = start + li;
                 coarse_block(ctx, level, fine, fine_fac, coarse, &view, t, &mut w);
                 if let Some(win) = ctx.kwindow {
                     let mut seeds = std::mem::take(&mut w.seeds);
@@ -1207,14 +1275,18 @@ fn pass_two(
     let shape = ctx.model.shape(level, Pass::Two);
     let k = shape.fine;
     let nf = k * k;
-    let nn = geo.per_domain();
+    let texels = geo.texels();
     let coarse_view = finished_view(ctx, level, coarse, cstate);
     let lookup = ctx.lookup(level);
     let delta = ctx.steps[level];
-    let all_gen = vec![true; nn];
+    let largest = (0..texels.faces())
+        .map(|d| texels.count(d))
+        .max()
+        .unwrap_or(0);
+    let all_gen = vec![true; largest];
     let before = &state;
     let outs = order.run(&|d, done| {
-        let start = d * nn;
+        let (start, nn) = (texels.start(d), texels.count(d));
         let finished = order.visible(d, done);
         let mut w = Work::new(ctx.model, level, Pass::Two);
         // Pass 1's pattern calls again, with a scratch (and counters) of their own.
@@ -1226,7 +1298,7 @@ fn pass_two(
             ctx.pattern(geo, t, delta, k, SamplerKind::Chart, &mut w);
             let view = View {
                 channels: c,
-                per_domain: nn,
+                texels,
                 lookup,
                 before: &before.src,
                 before_generated: true,
@@ -1235,7 +1307,7 @@ fn pass_two(
                     start,
                     len: nn,
                     src: &own_src,
-                    generated: &all_gen,
+                    generated: &all_gen[..nn],
                     all_generated: true,
                 }),
             };
@@ -1270,11 +1342,11 @@ fn pass_two(
                         let Some(q) = nearest_texel(&geo.layout.taps(loc)) else {
                             continue;
                         };
-                        let e = q / nn;
+                        let e = texels.domain_of(q);
                         let sq = if e == d {
                             own_src[q - start]
                         } else if finished[e].is_some() {
-                            done[e].get().expect("finished").src[q - e * nn]
+                            done[e].get().expect("finished").src[q - texels.start(e)]
                         } else {
                             before.src[q]
                         };
@@ -1294,8 +1366,7 @@ fn pass_two(
         }
     });
     for (d, o) in outs.iter().enumerate() {
-        let start = d * nn;
-        state.src[start..start + nn].copy_from_slice(&o.src);
+        state.src[texels.range(d)].copy_from_slice(&o.src);
         absorb(stats, &o.counts);
     }
     state
@@ -1450,5 +1521,28 @@ mod tests {
         assert_eq!(plan(128, 12, 0.01, 0.01, 0), (0, vec![12, 6, 3]));
         assert_eq!(plan(512, 64, 0.01, 0.01, 2), (0, vec![64, 32]));
         assert!(plan_levels(64, 64, 8, 0.0, 0.01, 0).is_err());
+    }
+
+    #[test]
+    fn per_face_levels_halve_every_face() {
+        use crate::layout::Resolution;
+        let r = |a, b| Resolution::new(a, b).unwrap();
+        let out = Arc::new(TexelLayout::per_face(vec![r(5, 3), r(1, 1), r(4, 4)]));
+        // (16·16 + 4 + 256) / 3 texels per face: typical side 13.
+        assert_eq!(typical_side(&out), 13);
+        let (j0, res) = plan_levels(64, 64, 13, 0.01, 0.01, 0).unwrap();
+        assert_eq!((j0, res.len()), (0, 3));
+        let ls = level_layouts(&out, &res, j0, 0.01, 0.01);
+        assert!(Arc::ptr_eq(&ls[0], &out), "the finest level is the output");
+        assert_eq!(ls[1].dims(0), (16, 4));
+        assert_eq!(ls[2].dims(0), (8, 2));
+        assert_eq!(ls[2].dims(1), (1, 1), "never below one texel");
+        // A texture twice as large (S = 2h) starts one halving down.
+        let ls = level_layouts(&out, &res, 0, 0.01, 0.02);
+        assert_eq!(ls[0].dims(2), (8, 8));
+        // One N: the plan's sides.
+        let u = Arc::new(TexelLayout::uniform(3, 16));
+        let ls = level_layouts(&u, &[16, 8, 4], 0, 0.01, 0.01);
+        assert_eq!(ls[2].uniform_n(), Some(4));
     }
 }

@@ -78,11 +78,7 @@ pub fn run(
     let inputs = multiscale::Inputs {
         surface: target.surface,
         field: target.field,
-        resolution: target
-            .texels
-            .layout()
-            .uniform_n()
-            .ok_or_else(|| crate::Error::invalid(crate::synthesizer::MULTISCALE_TEXEL_SIZE))?,
+        layout: target.texels.layout(),
         spacing: target.spacing,
         scale: target.scale(),
         scale_field: target.scale_field,
