@@ -948,6 +948,8 @@ pub struct RenderJob {
     pub height: u32,
     /// `--light`: the texels are lit first.
     pub light: bool,
+    /// `--displace`: the tessellation is at texel resolution.
+    pub displace: bool,
 }
 
 /// Peak-memory estimate of a `render` of maps described by `job` on a mesh of `size`:
@@ -1002,12 +1004,18 @@ pub fn render_estimate(size: &MeshSize, job: &RenderJob) -> Estimate {
 /// Refuses a `render` of `what` (the result directory) whose estimate `e` is above the
 /// limit: one line with the estimate, its largest part and the limit.
 pub fn check_render(what: &str, job: &RenderJob, e: &Estimate) -> Result<()> {
+    // Advice for what the user can change: the picture size, the displacement.
+    let advice = match e.parts.first().map(|p| p.0) {
+        Some("picture" | "ray-casting scene") => "lower --width/--height or raise --max-memory",
+        Some("tessellation") if job.displace => "render without --displace or raise --max-memory",
+        _ => "raise --max-memory",
+    };
     refuse(
         &limit(),
         &format!("{what}: render at {}x{}", job.width, job.height),
         "",
         e,
-        "lower --width/--height or raise --max-memory",
+        advice,
     )
 }
 

@@ -750,6 +750,7 @@ fn render_job(
         width: opts.width,
         height: opts.height,
         light: opts.light.is_some(),
+        displace: opts.displace.is_some(),
     }
 }
 
