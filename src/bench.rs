@@ -7,6 +7,7 @@
 use crate::bake::{bake_to_file, eval_only, GEOMETRY_FILE};
 use crate::error::{Error, Result};
 use crate::io::exr::Compression;
+use crate::memory::{self, Estimate, MeshSize};
 use glam::DVec3;
 use indicatif::ProgressBar;
 use serde::Serialize;
@@ -111,6 +112,108 @@ pub fn refine_to(mut mesh: ControlMesh, min_domains: usize) -> ControlMesh {
         mesh = mesh.refined();
     }
     mesh
+}
+
+/// The size of [`torus_mesh`]`(min_domains)` for the memory guard, without building it.
+pub fn torus_size(min_domains: usize) -> MeshSize {
+    let rows = ((min_domains as f64 / 2.0).sqrt().ceil() as usize).max(3);
+    let domains = rows.saturating_mul(rows.saturating_mul(2));
+    MeshSize {
+        domains,
+        base_quads: domains.saturating_mul(4),
+        irregular_base_quads: 0,
+        semi_sharp_base_quads: 0,
+        semi_sharp_levels: 0,
+    }
+}
+
+/// The size of a mesh of `size` after [`refine_to`]`(.., min_domains)`: every step makes
+/// each base quad a face of four base quads; the quads at extraordinary vertices stay as
+/// many (a vertex keeps its valence, an n-gon's centre becomes a vertex of valence n),
+/// semi-sharp values decay a level per step.
+pub fn refined_size(mut size: MeshSize, min_domains: usize) -> MeshSize {
+    while size.domains < min_domains && size.domains > 0 {
+        size.domains = size.base_quads;
+        size.base_quads = size.base_quads.saturating_mul(4);
+        size.semi_sharp_levels = size
+            .semi_sharp_levels
+            .saturating_sub(size.semi_sharp_base_quads);
+        if size.semi_sharp_levels == 0 {
+            size.semi_sharp_base_quads = 0;
+        }
+    }
+    size
+}
+
+/// `bench exr`, per texel: the geometry maps (6 channels) and the colour maps (5) held
+/// together, one read back at a time (up to 6 more) and the compressor's buffers; and per
+/// tile the reader has in flight (each a compressed chunk and a decoded block with their
+/// allocations; all of them at N = 4). Fitted to the peaks of 20,000 domains at N = 16,
+/// 2,048 at N = 64 and 50,562 at N = 4 (511 / 657 / 427 MiB): 80 B and 3.6 KB.
+const EXR_BENCH_TEXEL: u64 = 80;
+const EXR_BENCH_TILE: u64 = 3600;
+
+/// Peak-memory estimate of [`bake_bench`] on a mesh of `size` (after refinement) at `n`:
+/// the streamed bake's ([`crate::memory::estimate`] for `bake`).
+pub fn bake_bench_estimate(size: &MeshSize, n: usize) -> Estimate {
+    let threads = rayon::current_num_threads();
+    let mut e = memory::estimate(size, n, &memory::Job::Bake { threads });
+    // Plus the evaluation-only pass before it: per thread the six channels of a domain
+    // and, up to N = 512, its own whole-domain scratch (the bake's stays with its threads).
+    let nn = (n as u64).saturating_mul(n as u64);
+    let per_texel = if n <= 512 { 24 + 96 } else { 24 };
+    e.parts.push((
+        "evaluation-only pass",
+        (threads as u64).saturating_mul(nn.saturating_mul(per_texel)),
+    ));
+    e.parts.sort_by_key(|p| std::cmp::Reverse(p.1));
+    e.bytes = e.parts.iter().fold(0u64, |s, p| s.saturating_add(p.1));
+    e
+}
+
+/// Peak-memory estimate of [`exr_bench`]`(min_domains, n, ..)`: the surface and the maps
+/// held, written and read back.
+pub fn exr_bench_estimate(min_domains: usize, n: usize) -> Estimate {
+    let size = torus_size(min_domains);
+    let mut e = bake_bench_estimate(&size, n);
+    let texels = (size.domains as u64).saturating_mul((n as u64).saturating_mul(n as u64));
+    let in_flight = crate::io::exr::read_batch_tiles(6, (n, n)).min(size.domains) as u64;
+    e.parts.retain(|p| p.0 == "process" || p.0 == "surface");
+    e.parts
+        .push(("maps held", texels.saturating_mul(EXR_BENCH_TEXEL)));
+    e.parts.push((
+        "tiles read at once",
+        in_flight.saturating_mul(EXR_BENCH_TILE),
+    ));
+    e.parts.sort_by_key(|p| std::cmp::Reverse(p.1));
+    e.bytes = e.parts.iter().fold(0u64, |s, p| s.saturating_add(p.1));
+    e.shape = format!("{} domains x {n}² texels x 17 channels", size.domains);
+    e
+}
+
+/// `bench sampling`, per face of the orientation field's limit mesh on top of the field
+/// itself: the chart sampler's and the marching sampler's structures over it (Spot,
+/// 187,392 field faces: 189 MiB peak at N = 32, 192 MiB at N = 128).
+const SAMPLING_FIELD_FACE: u64 = 480;
+
+/// Peak-memory estimate of `bench sampling` on a mesh of `size` at `n`: the surface, the
+/// orientation field and the samplers over its limit mesh.
+pub fn sampling_bench_estimate(size: &MeshSize, n: usize) -> Estimate {
+    let faces = memory::field_faces(size.base_quads);
+    let mut parts = vec![
+        ("process", memory::BASELINE),
+        ("surface", memory::surface_bytes(size, n)),
+        (
+            "orientation field and samplers",
+            faces.saturating_mul(memory::FIELD_FACE + SAMPLING_FIELD_FACE),
+        ),
+    ];
+    parts.sort_by_key(|p| std::cmp::Reverse(p.1));
+    Estimate {
+        bytes: parts.iter().fold(0u64, |s, p| s.saturating_add(p.1)),
+        parts,
+        shape: format!("{} domains, {faces} field faces", size.domains),
+    }
 }
 
 /// Where the benchmark mesh comes from.

@@ -43,7 +43,7 @@ pub const DEFAULT_FRACTION: f64 = 0.75;
 
 /// Process baseline: binary, thread stacks, allocator arenas (measured: 5–7 MB for a
 /// one-quad bake).
-const BASELINE: u64 = 8 << 20;
+pub const BASELINE: u64 = 8 << 20;
 /// Surface cost of a base quad whose four corners are regular (one bicubic patch, its
 /// node, the control mesh's share), at the peak of reading and building it (the OBJ text,
 /// the parsed mesh, the refined level and vectors growing by doubling): `bake` at N = 4 of
@@ -58,7 +58,7 @@ const IRREGULAR_QUAD: u64 = 1536;
 const IRREGULAR_QUAD_PER_LEVEL: u64 = 2867;
 /// Orientation field: per face of its limit mesh (positions, normals, locations, the
 /// solver's arrays; most of it is kept for the texel frames), measured ~430 B.
-const FIELD_FACE: u64 = 430;
+pub const FIELD_FACE: u64 = 430;
 /// `synth`, per texel, besides 4 bytes per map channel: position + normal (24), frames,
 /// graph starts, source positions, geometry maps (24), atlas and tessellation shares,
 /// the appearance-space image of the texels, and the transient copies of the stages
@@ -454,6 +454,27 @@ impl TexelCount {
     }
 }
 
+/// The subdivision surface of a mesh of `size` with the patch depth maps of side `n` need
+/// (reading the control mesh and building its surface, at their peak).
+pub fn surface_bytes(size: &MeshSize, n: usize) -> u64 {
+    let sat = |a: u64, b: u64| a.saturating_mul(b);
+    let depth = crate::bake::patch_depth_for(n) as u64;
+    let irregular = size.irregular_base_quads as u64;
+    let semi = size.semi_sharp_base_quads as u64;
+    // Semi-sharp trees stop where the value has decayed (or at the stored depth).
+    let semi_levels = (size.semi_sharp_levels as u64).min(sat(semi, depth));
+    sat(
+        (size.base_quads as u64).saturating_sub(irregular + semi),
+        REGULAR_QUAD,
+    )
+    .saturating_add(sat(
+        irregular,
+        IRREGULAR_QUAD + IRREGULAR_QUAD_PER_LEVEL * depth,
+    ))
+    .saturating_add(sat(semi, IRREGULAR_QUAD))
+    .saturating_add(sat(semi_levels, IRREGULAR_QUAD_PER_LEVEL))
+}
+
 /// Peak-memory estimate of `job` on a mesh of `size` at resolution `n`.
 pub fn estimate(size: &MeshSize, n: usize, job: &Job) -> Estimate {
     estimate_texels(size, &TexelCount::uniform(size.domains, n), job)
@@ -466,22 +487,7 @@ pub fn estimate_texels(size: &MeshSize, count: &TexelCount, job: &Job) -> Estima
     let n64 = n as u64;
     let domains = size.domains as u64;
     let texels = count.total;
-    let depth = crate::bake::patch_depth_for(n) as u64;
-    let irregular = size.irregular_base_quads as u64;
-    let semi = size.semi_sharp_base_quads as u64;
-    // Semi-sharp trees stop where the value has decayed (or at the stored depth).
-    let semi_levels = (size.semi_sharp_levels as u64).min(sat(semi, depth));
-    let surface = sat(
-        (size.base_quads as u64).saturating_sub(irregular + semi),
-        REGULAR_QUAD,
-    )
-    .saturating_add(sat(
-        irregular,
-        IRREGULAR_QUAD + IRREGULAR_QUAD_PER_LEVEL * depth,
-    ))
-    .saturating_add(sat(semi, IRREGULAR_QUAD))
-    .saturating_add(sat(semi_levels, IRREGULAR_QUAD_PER_LEVEL));
-    let mut parts = vec![("process", BASELINE), ("surface", surface)];
+    let mut parts = vec![("process", BASELINE), ("surface", surface_bytes(size, n))];
     let channels = match *job {
         Job::Synth {
             channels,
@@ -887,6 +893,136 @@ pub fn check_surface(surface: &Surface, n: usize, job: &Job) -> Result<()> {
         job,
         &estimate(&MeshSize::of(&surface.control), n, job),
     )
+}
+
+// ------------------------------------------------------------------------------- render
+
+/// `render`, per texel of the maps read (on top of 4 bytes per channel of facemaps.exr
+/// while it is read): the five interleaved map values (R G B A height) the tracer
+/// fetches from.
+const RENDER_TEXEL: u64 = 20;
+/// `render`, per slot of the cross-face fetch's border ring (2(u + 2) + 2v per domain of
+/// u x v texels): 4 texel indices and 4 weights.
+const RENDER_RING_TEXEL: u64 = 32;
+/// `render`, per triangle of the tessellation, while it is built: the limit mesh
+/// (topology, f64 positions and normals), the domain corners of its quads, the f32
+/// copies, the BVH build. Measured: the cube at level 6 (49k triangles) 25 MB, Spot
+/// displaced at level 5 (375k) 185 MB, a 50k-quad torus at level 2 (1.6 M) ~760 MB:
+/// 470–510 B.
+const RENDER_TRIANGLE_BUILD: u64 = 500;
+/// ... and what the scene keeps while rays are cast (triangles in BVH order with their
+/// vertices, domains and corner (u, v), f32 positions and normals, the BVH nodes).
+const RENDER_TRIANGLE: u64 = 150;
+/// `render`, per picture pixel: colour, domain and depth while tracing (20 B), then the
+/// sRGB bytes and the PNG encoder's rows and output (the cube at 2048x1536: +49 MB over
+/// 1024x768 for 2.4 M more pixels).
+const RENDER_PIXEL: u64 = 24;
+/// `render --light`, per texel: the texel normals and tangents, geometry.exr read whole,
+/// the lit colours and the eight-channel maps built from them (an estimate from the
+/// sizes of these arrays, not calibrated).
+const RENDER_LIGHT_TEXEL: u64 = 160;
+
+/// What a `render` run holds, from facemaps.exr's header, the control mesh and the
+/// options (see [`render_estimate`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct RenderJob {
+    /// Texels of the maps (the layout's, not the padded data window's).
+    pub texels: u64,
+    /// Slots of the cross-face fetch's border ring: 2(u + 2) + 2v per domain.
+    pub ring: u64,
+    /// "32² texels" or "4 to 64² texels" (for messages).
+    pub shape: String,
+    /// The largest face-map side (the patch depth follows it).
+    pub side: usize,
+    /// Channels of facemaps.exr.
+    pub channels: usize,
+    /// Bytes of one decoded tile (all channels) and how many tiles the reader decodes at
+    /// once (see [`crate::io::exr::read_face_maps`]).
+    pub tile_bytes: u64,
+    pub tiles_in_flight: u64,
+    /// Triangles of the tessellation and its level.
+    pub triangles: u64,
+    pub level: u32,
+    /// Picture size in pixels.
+    pub width: u32,
+    pub height: u32,
+    /// `--light`: the texels are lit first.
+    pub light: bool,
+    /// `--displace`: the tessellation is at texel resolution.
+    pub displace: bool,
+}
+
+/// Peak-memory estimate of a `render` of maps described by `job` on a mesh of `size`:
+/// the surface and the texel maps, plus the larger of the two phases that follow each
+/// other — reading facemaps.exr (its channels as f32 and the tiles in flight) and ray
+/// tracing (the tessellation and its BVH, the picture).
+pub fn render_estimate(size: &MeshSize, job: &RenderJob) -> Estimate {
+    let sat = |a: u64, b: u64| a.saturating_mul(b);
+    let texel_maps = sat(job.texels, RENDER_TEXEL)
+        .saturating_add(sat(job.ring, RENDER_RING_TEXEL))
+        .saturating_add(if job.light {
+            sat(job.texels, RENDER_LIGHT_TEXEL)
+        } else {
+            0
+        });
+    let mut parts = vec![
+        ("process", BASELINE),
+        ("surface", surface_bytes(size, job.side)),
+        ("texel maps", texel_maps),
+    ];
+    // facemaps.exr's channels are held while the texel maps are made from them; the
+    // tiles in flight before, while they are read (decoded, and the compressed chunks
+    // not yet decoded: Spot N = 128, 4.1 M texels, peaks at 176 MiB when the texel maps
+    // are made, not while its 205 tiles of 320 KiB are in flight).
+    let reading = sat(job.texels, 4 * job.channels as u64).saturating_add(
+        sat(3 * job.tiles_in_flight, job.tile_bytes / 2).saturating_sub(texel_maps),
+    );
+    let pixels = job.width as u64 * job.height as u64;
+    let build = sat(job.triangles, RENDER_TRIANGLE_BUILD);
+    let kept = sat(job.triangles, RENDER_TRIANGLE);
+    let picture = sat(pixels, RENDER_PIXEL);
+    if reading >= build.max(kept.saturating_add(picture)) {
+        parts.push(("reading facemaps.exr", reading));
+    } else if build >= kept.saturating_add(picture) {
+        parts.push(("tessellation", build));
+    } else {
+        parts.push(("ray-casting scene", kept));
+        parts.push(("picture", picture));
+    }
+    parts.sort_by_key(|p| std::cmp::Reverse(p.1));
+    let bytes = parts.iter().fold(0u64, |s, p| s.saturating_add(p.1));
+    Estimate {
+        bytes,
+        parts,
+        shape: format!(
+            "{} domains x {} x {} channels, {} triangles at level {}, {}x{} pixels",
+            size.domains, job.shape, job.channels, job.triangles, job.level, job.width, job.height
+        ),
+    }
+}
+
+/// Refuses a `render` of `what` (the result directory) whose estimate `e` is above the
+/// limit: one line with the estimate, its largest part and the limit.
+pub fn check_render(what: &str, job: &RenderJob, e: &Estimate) -> Result<()> {
+    // Advice for what the user can change: the picture size, the displacement.
+    let advice = match e.parts.first().map(|p| p.0) {
+        Some("picture" | "ray-casting scene") => "lower --width/--height or raise --max-memory",
+        Some("tessellation") if job.displace => "render without --displace or raise --max-memory",
+        _ => "raise --max-memory",
+    };
+    refuse(
+        &limit(),
+        &format!("{what}: render at {}x{}", job.width, job.height),
+        "",
+        e,
+        advice,
+    )
+}
+
+/// Refuses a benchmark (`subject`, e.g. "bench exr --domains 50000000 --resolution 64")
+/// whose estimate `e` is above the limit, with `advice` (which flags to lower).
+pub fn check_bench(subject: &str, e: &Estimate, advice: &str) -> Result<()> {
+    refuse(&limit(), subject, "", e, advice)
 }
 
 #[cfg(test)]

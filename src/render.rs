@@ -34,6 +34,7 @@ use crate::io::atlas::face_domain_corners;
 use crate::io::atomic::AtomicFile;
 use crate::io::exr::{read_face_maps, FaceMaps};
 use crate::maps::{FaceMaps as TexelMaps, MapLayout};
+use crate::memory;
 use glam::{DVec3, Vec2, Vec3A};
 use obvhs::cwbvh::builder::build_cwbvh_from_tris;
 use obvhs::cwbvh::CwBvh;
@@ -102,6 +103,8 @@ pub struct RenderStats {
     pub trace_seconds: f64,
     /// Fraction of pixels whose first sample hit the surface.
     pub coverage: f64,
+    /// The memory guard's estimate of the run's peak ([`memory::render_estimate`]).
+    pub memory_estimate_bytes: u64,
 }
 
 /// A rendered picture: linear RGB, row-major from the top.
@@ -699,6 +702,58 @@ fn check_options(opts: &RenderOptions) -> Result<()> {
     Ok(())
 }
 
+/// The tessellation level of a render: from the triangle budget, or with displacement one
+/// vertex per texel on quad domains (2^level >= the largest side `side`) within the
+/// displaced budget.
+pub fn render_level(base_quads: usize, side: usize, displace: bool) -> u32 {
+    if displace {
+        let mut l = 2;
+        while (1usize << l) < side {
+            l += 1;
+        }
+        l.min(tessellation_level(base_quads, DISPLACED_TRIANGLE_BUDGET, 8))
+    } else {
+        tessellation_level(base_quads, TRIANGLE_BUDGET, 6)
+    }
+}
+
+/// What the memory guard needs to know about a render of maps laid out as `tiles` (with
+/// `channels` channels) on a mesh of `base_quads` base quads.
+fn render_job(
+    tiles: &crate::io::exr::TileLayout,
+    channels: usize,
+    base_quads: usize,
+    opts: &RenderOptions,
+) -> memory::RenderJob {
+    let texels = &tiles.texels;
+    let level = render_level(base_quads, texels.largest_side(), opts.displace.is_some());
+    let tile_bytes = (tiles.tile.0 * tiles.tile.1 * channels * 4) as u64;
+    let batch = crate::io::exr::read_batch_tiles(channels, tiles.tile);
+    memory::RenderJob {
+        texels: texels.len() as u64,
+        ring: (0..texels.faces())
+            .map(|d| {
+                let (u, v) = texels.dims(d);
+                2 * (u + 2 + v) as u64
+            })
+            .sum(),
+        shape: match texels.uniform_n() {
+            Some(n) => format!("{n}² texels"),
+            None => format!("{} texels ({})", texels.len(), texels.describe()),
+        },
+        side: texels.largest_side(),
+        channels,
+        tile_bytes,
+        tiles_in_flight: batch.min(tiles.tile_count()) as u64,
+        triangles: (2 * base_quads as u64) << (2 * (level - 1)),
+        level,
+        width: opts.width,
+        height: opts.height,
+        light: opts.light.is_some(),
+        displace: opts.displace.is_some(),
+    }
+}
+
 /// Renders the result in `dir` to a picture (nothing written).
 pub fn render_dir(dir: &Path, opts: &RenderOptions) -> Result<(Picture, RenderStats)> {
     check_options(opts)?;
@@ -714,11 +769,19 @@ pub fn render_dir(dir: &Path, opts: &RenderOptions) -> Result<(Picture, RenderSt
         Err(e) => return Err(Error::io(dir, "cannot open result directory", e)),
     }
     let maps_path = dir.join("facemaps.exr");
-    let maps = read_face_maps(&maps_path)?;
+    // The memory guard first, from facemaps.exr's header and the control mesh: nothing
+    // large is read or built before it.
+    let (tiles, info) = crate::io::exr::read_face_maps_layout(&maps_path)?;
     let mesh_path = find_mesh(dir, opts.mesh.as_deref())?;
+    let control = subdiv::ControlMesh::load_obj_limited(&mesh_path, memory::limit().bytes / 4)?;
+    let side = tiles.texels.largest_side();
+    let size = memory::MeshSize::of(&control);
+    let job = render_job(&tiles, info.channels.len(), size.base_quads, opts);
+    let estimate = memory::render_estimate(&size, &job);
+    memory::check_render(&dir.display().to_string(), &job, &estimate)?;
+    let maps = read_face_maps(&maps_path)?;
     // Patch trees only as deep as the maps need (exact either way; see bake).
-    let side = maps.layout.largest_side();
-    let surface = crate::bake::load_surface_for(&mesh_path, side)?;
+    let surface = memory::build_surface(control, side);
     if surface.num_domains() != maps.faces() {
         return Err(Error::file(
             &mesh_path,
@@ -752,19 +815,7 @@ pub fn render_dir(dir: &Path, opts: &RenderOptions) -> Result<(Picture, RenderSt
     }
     drop(maps);
     let load = t0.elapsed().as_secs_f64();
-    let base = surface.num_base_quads();
-    let level = match opts.displace {
-        // One vertex per texel on quad domains: 2^level >= N.
-        Some(_) => {
-            let n = side;
-            let mut l = 2;
-            while (1usize << l) < n {
-                l += 1;
-            }
-            l.min(tessellation_level(base, DISPLACED_TRIANGLE_BUDGET, 8))
-        }
-        None => tessellation_level(base, TRIANGLE_BUDGET, 6),
-    };
+    let level = render_level(surface.num_base_quads(), side, opts.displace.is_some());
     let (scene, tess, bvh) = Scene::build(&surface, &texels, level, opts.displace);
     let aspect = opts.width as f64 / opts.height as f64;
     let cam = frame(&scene.positions, opts.yaw, opts.pitch, aspect);
@@ -783,6 +834,7 @@ pub fn render_dir(dir: &Path, opts: &RenderOptions) -> Result<(Picture, RenderSt
             bvh_seconds: bvh,
             trace_seconds: trace,
             coverage,
+            memory_estimate_bytes: estimate.bytes,
         },
     ))
 }
@@ -828,8 +880,21 @@ pub fn run_cli(dir: &Path, out: Option<&Path>, opts: &RenderOptions) -> anyhow::
     let t0 = Instant::now();
     let (pic, st) = render_dir(dir, opts)?;
     pic.write_png(&out)?;
+    // The guard's estimate beside the measured peak (VmHWM, Linux), so both can be
+    // compared on any run.
+    let memory = match crate::bench::peak_rss_bytes() {
+        Some(p) => format!(
+            "memory: estimate {}, peak {}",
+            memory::format_bytes(st.memory_estimate_bytes),
+            memory::format_bytes(p)
+        ),
+        None => format!(
+            "memory: estimate {}",
+            memory::format_bytes(st.memory_estimate_bytes)
+        ),
+    };
     println!(
-        "render: {}x{} from {} triangles (level {}) in {:.2} s (load {:.2}, tessellate {:.2}, bvh {:.2}, trace {:.2}) -> {}",
+        "render: {}x{} from {} triangles (level {}) in {:.2} s (load {:.2}, tessellate {:.2}, bvh {:.2}, trace {:.2}; {memory}) -> {}",
         pic.width,
         pic.height,
         st.triangles,

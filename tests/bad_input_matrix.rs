@@ -1006,6 +1006,82 @@ fn g03_the_estimate_is_calibrated_for_every_method() {
     assert!(bad.is_empty(), "estimate over measured peak: {bad:?}");
 }
 
+/// "65.3 MiB" → bytes (the units of `memory::format_bytes`).
+fn parse_bytes(s: &str) -> f64 {
+    let (v, unit) = s.trim().split_once(' ').expect("a number and a unit");
+    let shift = match unit {
+        "B" => 0,
+        "KiB" => 10,
+        "MiB" => 20,
+        "GiB" => 30,
+        u => panic!("unit {u}"),
+    };
+    v.parse::<f64>().unwrap() * (1u64 << shift) as f64
+}
+
+#[test]
+fn g04_render_refuses_above_max_memory_and_passes_with_the_default() {
+    // Spot at N = 8 (coherent: quick), rendered small: the tessellation (94k triangles)
+    // dominates, as in most renders.
+    let tmp = tempfile::tempdir().unwrap();
+    let res = tmp.path().join("spot8");
+    let o = surfsynth(&os(&[
+        &"synth",
+        &"--mesh",
+        &spot(),
+        &"--example",
+        &gravel(),
+        &"--method",
+        &"coherent",
+        &"--resolution",
+        &"8",
+        &"--no-cache",
+        &"--out",
+        &res,
+    ]));
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let before = files_below(&res);
+    let size: [&dyn AsRef<OsStr>; 4] = [&"--width", &"256", &"--height", &"192"];
+    let mut args = os(&[&"render", &res, &"--max-memory", &"10M"]);
+    args.extend(os(&size));
+    let o = surfsynth(&args);
+    assert_eq!(o.status.code(), Some(1));
+    let msg = assert_clean_failure(
+        &o,
+        &tmp.path().join("none"),
+        &res.display().to_string(),
+        &[
+            "render at 256x192 would need about",
+            "252 domains x 8² texels",
+            "limit of 10.0 MiB from --max-memory",
+            "; raise --max-memory",
+        ],
+    );
+    assert!(msg.contains("largest part: tessellation"), "{msg}");
+    assert_eq!(files_below(&res), before, "nothing written");
+    // With the default limit the same render runs, and prints the guard's estimate beside
+    // the measured peak (VmHWM): within the band.
+    let mut args = os(&[&"render", &res]);
+    args.extend(os(&size));
+    let o = surfsynth(&args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(res.join("preview.png").is_file());
+    let line = String::from_utf8_lossy(&o.stdout).into_owned();
+    let field = |name: &str| -> Option<f64> {
+        let rest = &line[line.find(&format!("{name} "))? + name.len() + 1..];
+        let end = rest.find([',', ')']).unwrap();
+        Some(parse_bytes(&rest[..end]))
+    };
+    let est = field("estimate").unwrap_or_else(|| panic!("the estimate: {line}"));
+    if let Some(peak) = field("peak") {
+        let r = est / peak;
+        assert!(
+            GUARD_BAND.contains(&r),
+            "estimate over measured peak: {r:.2}: {line}"
+        );
+    }
+}
+
 // ------------------------------------------------------------- issue 18: hostile inputs
 
 /// A PNG whose header claims `w` x `h` RGB pixels, with one tiny (wrong) IDAT.
@@ -1485,12 +1561,22 @@ fn h10_messages() {
 
 #[test]
 fn h11_bench_with_absurd_sizes_is_refused_before_it_starts() {
-    // bench exr|bake --domains 50000000 --resolution 64 grew past 8 GiB with no guard.
+    // bench exr|bake --domains 50000000 --resolution 64 grew past 8 GiB with no guard;
+    // every benchmark that synthesizes or evaluates is guarded by its estimate.
     let none = Path::new("/nonexistent-out");
-    for cmd in ["exr", "bake"] {
-        let o = surfsynth(&["bench", cmd, "--domains", "50000000", "--resolution", "64"]);
+    for (cmd, d) in [
+        ("exr", "50000000"),
+        ("bake", "50000000"),
+        ("multiscale", "5000000"),
+    ] {
+        let o = surfsynth(&["bench", cmd, "--domains", d, "--resolution", "64"]);
         assert_eq!(o.status.code(), Some(1), "{cmd}");
-        assert_clean_failure(&o, none, &format!("bench {cmd}"), &["at least", "limit"]);
+        assert_clean_failure(
+            &o,
+            none,
+            &format!("bench {cmd} --domains {d} --resolution 64"),
+            &["would need about", "limit of", "lower --domains"],
+        );
     }
     let o = surfsynth(&[
         "bench",
@@ -1503,6 +1589,16 @@ fn h11_bench_with_absurd_sizes_is_refused_before_it_starts() {
         "1M",
     ]);
     assert_clean_failure(&o, none, "bench exr", &["--max-memory 1.0 MiB"]);
+    for cmd in ["synth", "sampling"] {
+        let o = surfsynth(&["bench", cmd, "--max-memory", "10M"]);
+        assert_eq!(o.status.code(), Some(1), "{cmd}");
+        assert_clean_failure(
+            &o,
+            none,
+            &format!("bench {cmd}"),
+            &["would need about", "--max-memory 10.0 MiB"],
+        );
+    }
 }
 
 /// `synth --scale-map FILE` with `text` in FILE: the failure names the file (and line).

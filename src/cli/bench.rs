@@ -84,6 +84,10 @@ pub struct BenchCropArgs {
 
 #[derive(Args, Debug)]
 pub struct BenchSamplingArgs {
+    /// Memory limit (e.g. 512M, 4G, unlimited; default: 75% of physical memory): runs
+    /// whose memory is sure to exceed it are refused before they start.
+    #[arg(long, value_name = "SIZE", value_parser = surfsynth::memory::parse_size, allow_hyphen_values = true)]
+    pub max_memory: Option<u64>,
     /// Mesh (default: the bundled Spot control mesh, as in `surfsynth demo`).
     #[arg(long, value_name = "M.obj")]
     pub mesh: Option<PathBuf>,
@@ -103,6 +107,10 @@ pub struct BenchSamplingArgs {
 
 #[derive(Args, Debug)]
 pub struct BenchMultiscaleArgs {
+    /// Memory limit (e.g. 512M, 4G, unlimited; default: 75% of physical memory): runs
+    /// whose memory is sure to exceed it are refused before they start.
+    #[arg(long, value_name = "SIZE", value_parser = surfsynth::memory::parse_size, allow_hyphen_values = true)]
+    pub max_memory: Option<u64>,
     /// Mesh (default: the generated quad torus with --domains faces).
     #[arg(long, value_name = "M.obj")]
     pub mesh: Option<PathBuf>,
@@ -129,6 +137,10 @@ pub struct BenchMultiscaleArgs {
 
 #[derive(Args, Debug)]
 pub struct BenchSynthArgs {
+    /// Memory limit (e.g. 512M, 4G, unlimited; default: 75% of physical memory): runs
+    /// whose memory is sure to exceed it are refused before they start.
+    #[arg(long, value_name = "SIZE", value_parser = surfsynth::memory::parse_size, allow_hyphen_values = true)]
+    pub max_memory: Option<u64>,
     /// Runs per case (the median is reported).
     #[arg(long, value_name = "R", default_value_t = 3)]
     pub repeats: usize,
@@ -238,16 +250,23 @@ fn sampling(a: BenchSamplingArgs) -> anyhow::Result<()> {
         anyhow::bail!("--step {t}: steps must be in (0, 64] texel spacings");
     }
     // Default: the bundled Spot (built into the binary, as the demo's).
-    let (surface, name) = match &a.mesh {
-        Some(p) => (
-            surfsynth::bake::load_surface_for(p, a.resolution)?,
-            p.display().to_string(),
-        ),
+    surfsynth::memory::set_limit(a.max_memory);
+    let (control, name) = match &a.mesh {
+        Some(p) => (bench_control(p)?, p.display().to_string()),
         None => (
-            surfsynth::bake::surface_for(surfsynth::demo::control_mesh(), a.resolution),
+            surfsynth::demo::control_mesh(),
             surfsynth::demo::MESH_NAME.to_string(),
         ),
     };
+    bench_guard(
+        &format!("bench sampling on {name} --resolution {}", a.resolution),
+        &surfsynth::bench::sampling_bench_estimate(
+            &surfsynth::memory::MeshSize::of(&control),
+            a.resolution,
+        ),
+        "use a smaller mesh or raise --max-memory",
+    )?;
+    let surface = surfsynth::bake::surface_for(control, a.resolution);
     let field = OrientationField::compute(&surface, &Orientation::Auto)
         .map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
     let mut rows = Vec::new();
@@ -272,6 +291,36 @@ fn multiscale(a: BenchMultiscaleArgs) -> anyhow::Result<()> {
     if a.domains == 0 || a.domains > 10_000_000 {
         anyhow::bail!("--domains {} must be between 1 and 10000000", a.domains);
     }
+    surfsynth::memory::set_limit(a.max_memory);
+    let control = match &a.mesh {
+        Some(p) => Some(bench_control(p)?),
+        None => None,
+    };
+    let (size, name) = match (&control, &a.mesh) {
+        (Some(c), Some(p)) => (
+            surfsynth::memory::MeshSize::of(c),
+            format!("on {}", p.display()),
+        ),
+        _ => (
+            surfsynth::bench::torus_size(a.domains),
+            format!("--domains {}", a.domains),
+        ),
+    };
+    let job = surfsynth::memory::Job::Synth {
+        channels: 5,
+        example_pixels: a.example_size.saturating_mul(a.example_size),
+        method: surfsynth::synth::Method::Multiscale,
+        displace: false,
+        scale_map: false,
+    };
+    bench_guard(
+        &format!(
+            "bench multiscale {name} --resolution {} --example-size {}",
+            a.resolution, a.example_size
+        ),
+        &surfsynth::memory::estimate(&size, a.resolution, &job),
+        "lower --domains, --resolution or --example-size, or raise --max-memory",
+    )?;
     let example = match &a.example {
         Some(p) => surfsynth::example::Example::load(p)?,
         None => {
@@ -287,10 +336,7 @@ fn multiscale(a: BenchMultiscaleArgs) -> anyhow::Result<()> {
         }
     };
     let example = bench::square_example(&example, a.example_size)?;
-    let surface = match &a.mesh {
-        Some(p) => Some(surfsynth::bake::load_surface_for(p, a.resolution)?),
-        None => None,
-    };
+    let surface = control.map(|c| surfsynth::bake::surface_for(c, a.resolution));
     let searches = if a.search.is_empty() {
         vec![super::synth::Search::Kcoherence, super::synth::Search::Ann]
     } else {
@@ -327,6 +373,12 @@ fn multiscale(a: BenchMultiscaleArgs) -> anyhow::Result<()> {
 }
 
 fn synth(a: BenchSynthArgs) -> anyhow::Result<()> {
+    surfsynth::memory::set_limit(a.max_memory);
+    bench_guard(
+        "bench synth",
+        &surfsynth::synth::bench::synth_bench_estimate(),
+        "raise --max-memory",
+    )?;
     // The benchmark lives in the library (surfsynth::synth::bench).
     let dir = std::env::temp_dir().join(format!("surfsynth-bench-synth-{}", std::process::id()));
     let rows = surfsynth::synth::bench::synth_bench(&dir, a.repeats, &|l| eprintln!("{l}"));
@@ -335,38 +387,19 @@ fn synth(a: BenchSynthArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Refuses a generated-torus benchmark whose lower bound of memory is above the limit: the
-/// control mesh and surface (quad domains, four regular base quads each) and `channels`
-/// f32 values per texel held at once. A bound, not a calibrated estimate: it only keeps
-/// `--domains 50000000` from growing past the machine's memory before failing.
-fn bench_guard(what: &str, domains: usize, n: usize, channels: u64) -> anyhow::Result<()> {
-    let size = surfsynth::memory::MeshSize {
-        domains,
-        base_quads: domains.saturating_mul(4),
-        irregular_base_quads: 0,
-        semi_sharp_base_quads: 0,
-        semi_sharp_levels: 0,
-    };
-    let threads = rayon::current_num_threads();
-    let bake = surfsynth::memory::estimate(&size, n, &surfsynth::memory::Job::Bake { threads });
-    let texels = (domains as u64).saturating_mul((n as u64).saturating_mul(n as u64));
-    let need = bake
-        .bytes
-        .saturating_add(texels.saturating_mul(4 * channels));
-    let lim = surfsynth::memory::limit();
-    if need > lim.bytes {
-        let held = match channels {
-            0 => "the surface and the streamed tiles".to_string(),
-            c => format!("{domains} domains x {n}² texels x {c} channels held, plus the surface"),
-        };
-        anyhow::bail!(
-            "{what} --domains {domains} --resolution {n} would need at least {} of memory ({held}), more than the limit of {} from {}; lower --domains or --resolution",
-            surfsynth::memory::format_bytes(need),
-            surfsynth::memory::format_bytes(lim.bytes),
-            lim.source
-        );
-    }
-    Ok(())
+/// The memory guard of a benchmark: `subject` (the command and the flags that size it)
+/// is refused with one line when its estimate `e` is above the limit in force.
+fn bench_guard(subject: &str, e: &surfsynth::memory::Estimate, advice: &str) -> anyhow::Result<()> {
+    Ok(surfsynth::memory::check_bench(subject, e, advice)?)
+}
+
+/// The control mesh at `path` for a benchmark's estimate, read like `synth` reads it (at
+/// most a quarter of the limit in bytes).
+fn bench_control(path: &std::path::Path) -> anyhow::Result<subdiv::ControlMesh> {
+    let control =
+        subdiv::ControlMesh::load_obj_limited(path, surfsynth::memory::limit().bytes / 4)?;
+    surfsynth::memory::check_coordinate_range(&path.display().to_string(), &control)?;
+    Ok(control)
 }
 
 fn exr(a: BenchExrArgs) -> anyhow::Result<()> {
@@ -375,7 +408,14 @@ fn exr(a: BenchExrArgs) -> anyhow::Result<()> {
     }
     // Geometry (6 channels) and colour maps (5) held, plus one read back (6).
     surfsynth::memory::set_limit(a.max_memory);
-    bench_guard("bench exr", a.domains, a.resolution, 17)?;
+    bench_guard(
+        &format!(
+            "bench exr --domains {} --resolution {}",
+            a.domains, a.resolution
+        ),
+        &surfsynth::bench::exr_bench_estimate(a.domains, a.resolution),
+        "lower --domains or --resolution, or raise --max-memory",
+    )?;
     let list = if a.compression.is_empty() {
         vec![
             ExrCompression::None,
@@ -402,7 +442,21 @@ fn bake(a: BenchBakeArgs) -> anyhow::Result<()> {
     }
     // The streamed bake itself (its tiles and scratch); the maps are not held.
     surfsynth::memory::set_limit(a.max_memory);
-    bench_guard("bench bake", a.domains, a.resolution, 0)?;
+    let size = match &a.mesh {
+        Some(p) => surfsynth::bench::refined_size(
+            surfsynth::memory::MeshSize::of(&bench_control(p)?),
+            a.domains,
+        ),
+        None => surfsynth::bench::torus_size(a.domains),
+    };
+    bench_guard(
+        &format!(
+            "bench bake --domains {} --resolution {}",
+            a.domains, a.resolution
+        ),
+        &surfsynth::bench::bake_bench_estimate(&size, a.resolution),
+        "lower --domains or --resolution, or raise --max-memory",
+    )?;
     let mesh = match a.mesh.clone() {
         Some(p) => BenchMesh::File(p, a.domains),
         None => BenchMesh::Torus(a.domains),

@@ -40,6 +40,10 @@ pub struct RenderArgs {
         allow_negative_numbers = true
     )]
     pub light: Option<Vec<f64>>,
+    /// Refuse to start when the estimated peak memory is above this (e.g. 512M, 4G,
+    /// unlimited; default: 75% of physical memory).
+    #[arg(long, value_name = "SIZE", value_parser = surfsynth::memory::parse_size, allow_hyphen_values = true)]
+    pub max_memory: Option<u64>,
 }
 
 pub fn run(a: RenderArgs) -> anyhow::Result<()> {
@@ -51,6 +55,7 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
             ));
         }
     }
+    surfsynth::memory::set_limit(a.max_memory);
     let opts = surfsynth::render::RenderOptions {
         width: a.width,
         height: a.height,

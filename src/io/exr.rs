@@ -696,6 +696,20 @@ pub fn read_face_maps_info(path: impl AsRef<Path>) -> Result<FaceMapsInfo> {
     Ok(face_maps_header(path, reader.headers())?.1)
 }
 
+/// Reads only the header of a face-map file: its tile layout (which texels the maps have)
+/// and description, without a pixel (what `render`'s memory guard estimates from).
+pub fn read_face_maps_layout(path: impl AsRef<Path>) -> Result<(TileLayout, FaceMapsInfo)> {
+    let path = path.as_ref();
+    let reader = open(path)?;
+    face_maps_header(path, reader.headers())
+}
+
+/// Tiles [`read_face_maps`] decodes at once: ~64 MiB of them, at least one per thread.
+pub fn read_batch_tiles(channels: usize, tile: (usize, usize)) -> usize {
+    (((64usize << 20) / (channels * tile.0 * tile.1 * 4).max(1)).max(rayon::current_num_threads()))
+        .max(1)
+}
+
 /// Reads a face-map file written by [`write_face_maps`] / [`write_tiles`] (or any file with
 /// the same layout; f16 and u32 channels are converted to f32). Channels come back in file
 /// (name-sorted) order.
@@ -710,9 +724,7 @@ pub fn read_face_maps(path: impl AsRef<Path>) -> Result<FaceMaps> {
     let names: Vec<&str> = info.channels.iter().map(|s| s.as_str()).collect();
     let mut maps = FaceMaps::with_layout(layout.texels.clone(), &names);
     let (tw, th) = layout.tile;
-    let batch = (((64usize << 20) / (names.len() * tw * th * 4).max(1))
-        .max(rayon::current_num_threads()))
-    .max(1);
+    let batch = read_batch_tiles(names.len(), (tw, th));
     let mut seen = vec![false; layout.tile_count()];
 
     let mut chunks = chunks.peekable();

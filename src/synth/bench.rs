@@ -72,6 +72,31 @@ fn crop(ex: &Example, size: usize) -> Example {
     out
 }
 
+/// The benchmark's cases: name, N and the centre crop of the example (`None`: whole).
+const CASES: [(&str, usize, Option<usize>); 2] =
+    [("spot-n32", 32, None), ("cow-row", 38, Some(96))];
+
+/// Peak-memory estimate of [`synth_bench`]: the larger of its cases' `synth` estimates
+/// (the default method on Spot, R G B source.u source.v).
+pub fn synth_bench_estimate() -> crate::memory::Estimate {
+    let size = crate::memory::MeshSize::of(&crate::demo::control_mesh());
+    CASES
+        .iter()
+        .map(|&(_, n, crop_to)| {
+            let side = crop_to.unwrap_or(128);
+            let job = crate::memory::Job::Synth {
+                channels: 5,
+                example_pixels: side * side,
+                method: crate::synth::Method::DEFAULT,
+                displace: false,
+                scale_map: false,
+            };
+            crate::memory::estimate(&size, n, &job)
+        })
+        .max_by_key(|e| e.bytes)
+        .expect("two cases")
+}
+
 /// Runs both cases `repeats` times in the current rayon pool, using `work` as scratch
 /// directory (created; its contents are overwritten). `progress(line)` gets a line per run.
 pub fn synth_bench(
@@ -89,10 +114,8 @@ pub fn synth_bench(
     write_bytes_atomic(&mesh, crate::demo::MESH_OBJ)?;
     write_bytes_atomic(&example, crate::demo::EXAMPLE_PNG)?;
     let gravel = Example::load(&example)?;
-    let cases: [(&str, usize, Option<usize>); 2] =
-        [("spot-n32", 32, None), ("cow-row", 38, Some(96))];
     let mut rows = Vec::new();
-    for (case, n, crop_to) in cases {
+    for (case, n, crop_to) in CASES {
         let mut synth = Vec::new();
         let mut total = Vec::new();
         let mut stages: Vec<[f64; 7]> = Vec::new();
