@@ -80,6 +80,7 @@ fn run(mesh: &Path, method: Method, texel_size: Option<f64>, n: usize) -> SynthR
         .resolution(n)
         .texel_size(texel_size)
         .seed(3)
+        .analyses(common::analyses())
         .run()
         .unwrap()
 }
