@@ -321,6 +321,7 @@ mod tests {
             "surfsynth bake --mesh m.obj --resolution 8 --out d",
             "surfsynth probe --mesh m.obj --face 3 --uv 0.5 0.25 --step 0.01 --size 5 --sampler march",
             "surfsynth render d --out p.png --width 640 --height 480",
+            "surfsynth render d --light -1,0.5,-2 --pitch -20 --yaw -30",
             "surfsynth eval d --scale 0.5",
             "surfsynth demo --out d",
             "surfsynth demo",
@@ -345,6 +346,16 @@ mod tests {
             let args: Vec<&str> = line.split_whitespace().collect();
             assert!(Cli::try_parse_from(&args).is_err(), "{line}");
         }
+    }
+
+    #[test]
+    fn light_directions_may_be_negative() {
+        let cli =
+            Cli::try_parse_from(["surfsynth", "render", "d", "--light", "-1,0.5,-2"]).unwrap();
+        let Command::Render(a) = cli.command else {
+            panic!("not render")
+        };
+        assert_eq!(a.light, Some(vec![-1.0, 0.5, -2.0]));
     }
 
     #[test]

@@ -37,7 +37,8 @@ pub struct RenderArgs {
         long,
         value_name = "X,Y,Z",
         value_delimiter = ',',
-        allow_negative_numbers = true
+        // `-1,1,1` is a value, not a flag (clap's negative-number rule sees only `-1`).
+        allow_hyphen_values = true
     )]
     pub light: Option<Vec<f64>>,
     /// Refuse to start when the estimated peak memory is above this (e.g. 512M, 4G,
