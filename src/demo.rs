@@ -72,6 +72,8 @@ pub fn run(out: &Path) -> anyhow::Result<Report> {
     write_bytes_atomic(inputs.join(MESH_NAME), MESH_OBJ)?;
     write_bytes_atomic(inputs.join(EXAMPLE_NAME), EXAMPLE_PNG)?;
     let report = run_command(&command(out))?;
+    // The render's summary shows its own peak beside its estimate, not the synthesis's.
+    crate::bench::reset_peak_rss();
     crate::render::run_cli(out, None, &crate::render::RenderOptions::default())?;
     let q = crate::eval::evaluate(out, None)?;
     println!("{}", eval_summary(&q));
@@ -115,6 +117,7 @@ pub fn btf(out: &Path) -> anyhow::Result<()> {
             light: Some(l),
             ..Default::default()
         };
+        crate::bench::reset_peak_rss();
         crate::render::run_cli(&dir, Some(&dir.join(name)), &opts)?;
     }
     Ok(())
