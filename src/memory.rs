@@ -825,12 +825,7 @@ pub fn check_displace(what: &str, amount: f64, extent: f64) -> Result<()> {
 /// The second half of [`load_surface_checked`]: the surface with the patch depth `n`
 /// needs.
 pub fn build_surface(control: ControlMesh, n: usize) -> Surface {
-    Surface::with_options(
-        control,
-        subdiv::surface::SurfaceOptions {
-            max_depth: crate::bake::patch_depth_for(n),
-        },
-    )
+    crate::bake::surface_for(control, n)
 }
 
 /// The part of a `synth` estimate that the example alone is responsible for (decoding it, its appearance space and, for multiscale, its pyramid features),

@@ -61,6 +61,30 @@ pub struct TexelGeometry {
     pub normal: Vec<Vec3>,
 }
 
+/// The limit samples at the texel centres of domain `id` with `nu` x `nv` texels, row by
+/// row, into `buf` (reused between domains): the regular-grid evaluation for square
+/// domains, point by point for the others (per-face resolutions differ per side).
+pub fn eval_domain_texels(
+    surface: &Surface,
+    id: DomainId,
+    nu: usize,
+    nv: usize,
+    buf: &mut Vec<LimitSample>,
+) {
+    if nu == nv {
+        buf.resize(nu * nu, LimitSample::default());
+        surface.eval_texels(id, nu, buf);
+    } else {
+        buf.clear();
+        for y in 0..nv {
+            let v = (y as f64 + 0.5) / nv as f64;
+            for x in 0..nu {
+                buf.push(surface.eval(id, (x as f64 + 0.5) / nu as f64, v));
+            }
+        }
+    }
+}
+
 impl TexelGeometry {
     /// Evaluates all texel centres of `surface` at resolution `n` (uniform layout).
     pub fn compute(surface: &Surface, n: usize) -> Self {
@@ -84,19 +108,7 @@ impl TexelGeometry {
             .enumerate()
             .for_each_init(Vec::new, |buf: &mut Vec<LimitSample>, (d, (p, nrm))| {
                 let (nu, nv) = layout.dims(d);
-                let id = DomainId::from_idx(d);
-                if nu == nv {
-                    buf.resize(nu * nu, LimitSample::default());
-                    surface.eval_texels(id, nu, buf);
-                } else {
-                    buf.clear();
-                    for y in 0..nv {
-                        let v = (y as f64 + 0.5) / nv as f64;
-                        for x in 0..nu {
-                            buf.push(surface.eval(id, (x as f64 + 0.5) / nu as f64, v));
-                        }
-                    }
-                }
+                eval_domain_texels(surface, DomainId::from_idx(d), nu, nv, buf);
                 for (i, s) in buf.iter().enumerate() {
                     p[i] = s.p.as_vec3();
                     nrm[i] = s.n.as_vec3();

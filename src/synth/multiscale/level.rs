@@ -148,19 +148,7 @@ impl LevelGeometry {
                 Vec::new,
                 |buf: &mut Vec<LimitSample>, (d, ((p, ax), gam))| {
                     let (nu, nv) = lay.dims(d);
-                    let id = DomainId::from_idx(d);
-                    if nu == nv {
-                        buf.resize(nu * nu, LimitSample::default());
-                        surface.eval_texels(id, nu, buf);
-                    } else {
-                        buf.clear();
-                        for y in 0..nv {
-                            let v = (y as f64 + 0.5) / nv as f64;
-                            for x in 0..nu {
-                                buf.push(surface.eval(id, (x as f64 + 0.5) / nu as f64, v));
-                            }
-                        }
-                    }
+                    crate::texels::eval_domain_texels(surface, DomainId::from_idx(d), nu, nv, buf);
                     let start = lay.start(d);
                     for (i, s) in buf.iter().enumerate() {
                         p[i] = s.p.as_vec3();
