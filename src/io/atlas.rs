@@ -686,6 +686,27 @@ pub fn level_for_resolution(n: usize) -> u32 {
     level.clamp(2, 5)
 }
 
+/// Domains from which the smoothness floor of [`level_for_resolution`] drops from 2 to 1:
+/// a control mesh this dense is smooth at level 1 already (>= 262,144 quads, 20x Spot's
+/// level-3 tessellation), and its faces are a few texels wide at the low N where the floor
+/// applies (N <= 8). Measured on a 200,704-quad torus at N = 4: surface.obj 655 -> 171 MB,
+/// surface.glb 332 -> 120 MB, the write stage 12.6 -> 5.7 s (docs/benchmarks.md,
+/// "Orientation field").
+pub const DENSE_DOMAINS: usize = 65_536;
+
+/// The level [`export`] uses for a face-map layout: [`level_for_resolution`] of
+/// [`side_for_level`], but at least 1 instead of 2 on a control mesh with
+/// [`DENSE_DOMAINS`] or more domains (the floor is for the smoothness of coarse meshes; the
+/// UVs are exact at any level, being the domain parameters).
+pub fn level_for_layout(l: &TexelLayout) -> u32 {
+    let side = side_for_level(l);
+    if l.faces() >= DENSE_DOMAINS && side <= 8 {
+        1
+    } else {
+        level_for_resolution(side)
+    }
+}
+
 /// The side [`level_for_resolution`] follows: N, or under a texel size the root mean
 /// square side (the tessellation is uniform over the surface and is about smooth shape,
 /// not texels: the largest face's side would refine every face for the few largest ones —
@@ -903,7 +924,7 @@ pub fn mtl_text_with_maps(atlas: &str, alpha: bool, maps: &[(String, String)]) -
 pub struct ExportOptions {
     /// Gutter width in pixels (>= 1; [`DEFAULT_GUTTER`]).
     pub gutter: usize,
-    /// Tessellation level; `None` picks [`level_for_resolution`].
+    /// Tessellation level; `None` picks [`level_for_layout`].
     pub level: Option<u32>,
     /// Also write `surface.glb` (default).
     pub gltf: bool,
@@ -969,9 +990,7 @@ pub fn export_with_frames(
 ) -> Result<(ExportSummary, crate::io::materials::MaterialImages)> {
     let dir = dir.as_ref();
     check_maps(surface, maps, opts.gutter)?;
-    let level = opts
-        .level
-        .unwrap_or_else(|| level_for_resolution(side_for_level(&maps.layout)));
+    let level = opts.level.unwrap_or_else(|| level_for_layout(&maps.layout));
     let layout = AtlasLayout::of(maps.layout.clone(), opts.gutter);
     let (images, mesh) = match frames.filter(|_| maps.channel("normal.R").is_some()) {
         // The normal atlas needs the tessellation's triangles first.
@@ -1185,5 +1204,11 @@ mod tests {
         assert_eq!(level_for_resolution(32), 3);
         assert_eq!(level_for_resolution(64), 4);
         assert_eq!(level_for_resolution(4096), 5);
+        let dense = |f: usize, n: usize| level_for_layout(&TexelLayout::uniform(f, n));
+        assert_eq!(dense(DENSE_DOMAINS - 1, 4), 2);
+        assert_eq!(dense(DENSE_DOMAINS, 4), 1);
+        assert_eq!(dense(DENSE_DOMAINS, 8), 1);
+        assert_eq!(dense(DENSE_DOMAINS, 9), 2);
+        assert_eq!(dense(DENSE_DOMAINS, 32), 3);
     }
 }
