@@ -571,18 +571,19 @@ fn domain_lists(surface: &Surface, geom: &TexelGeometry, d: usize) -> (Vec<u32>,
                     }
                 }
             }
-            buf.retain(|&u| u as usize != t);
-            buf.sort_unstable();
-            buf.dedup();
-            // Nearest first, ties by index: the keys are distinct (the indices are), so
-            // any sort gives this one order; distances are computed once per entry.
+            // Nearest first, ties by index, each neighbour once: a repeated index has the
+            // same key, so the repeats end up side by side and are dropped after the one
+            // sort; the kept keys are distinct (the indices are), so any sort gives this
+            // one order.
             let p = geom.pos[t];
             keyed.clear();
             keyed.extend(
                 buf.iter()
+                    .filter(|&&u| u as usize != t)
                     .map(|&u| (p.distance_squared(geom.pos[u as usize]), u)),
             );
             keyed.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            keyed.dedup_by_key(|k| k.1);
             counts[y * nu + x] = keyed.len() as u32;
             list.extend(keyed.iter().map(|&(_, u)| u));
         }
