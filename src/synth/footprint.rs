@@ -220,27 +220,31 @@ pub fn centres(level: &LevelTexels, pixels: f64, seed: u64, mask: Option<&[bool]
     drop(order);
     let mut grid = CentreGrid::new();
     let mut out = Vec::new();
-    for v in &visits {
-        let [i, j, k] = v.cell;
-        let mut free = true;
-        'search: for a in i - 1..=i + 1 {
-            for b in j - 1..=j + 1 {
-                for c in k - 1..=k + 1 {
-                    // (r + r) / 2 is r exactly: one factor everywhere is one scale.
-                    if grid.any_in([a, b, c], |q| {
-                        let r = 0.5 * (v.r + q.r);
-                        q.p.distance_squared(v.p) < (r * r) as f32
-                    }) {
-                        free = false;
-                        break 'search;
-                    }
-                }
+    // Blocks of visits: first, in parallel, drop the visits that a centre of an earlier
+    // block already rules out (the greedy pass would reject them too: its test is "no
+    // earlier centre within reach"); then the greedy pass over the rest of the block. The
+    // same centres as one serial pass, and once the surface is covered (after a few
+    // blocks) nearly every visit is dropped in the parallel part.
+    let mut at = 0;
+    let mut block = 1 << 12;
+    while at < visits.len() {
+        let part = &visits[at..(at + block).min(visits.len())];
+        let open: Vec<bool> = if grid.items.is_empty() {
+            vec![true; part.len()]
+        } else {
+            part.par_iter()
+                .with_min_len(1 << 10)
+                .map(|v| grid.free(v))
+                .collect()
+        };
+        for (v, _) in part.iter().zip(&open).filter(|(_, &o)| o) {
+            if grid.free(v) {
+                grid.insert(*v);
+                out.push(v.t);
             }
         }
-        if free {
-            grid.insert(*v);
-            out.push(v.t);
-        }
+        at += part.len();
+        block = (block * 2).min(1 << 16);
     }
     out
 }
@@ -282,6 +286,30 @@ impl CentreGrid {
             ^ (c[1] as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
             ^ (c[2] as u64).wrapping_mul(0x1656_67B1_9E37_79F9);
         ((h ^ (h >> 29)) as usize) & (self.head.len() - 1)
+    }
+
+    /// Whether no centre is within reach of `v`: closer than the mean of their minimum
+    /// distances (the own cell first, where one is likeliest).
+    fn free(&self, v: &Visit) -> bool {
+        let [i, j, k] = v.cell;
+        let near = |q: &Visit| {
+            // (r + r) / 2 is r exactly: one factor everywhere is one scale.
+            let r = 0.5 * (v.r + q.r);
+            q.p.distance_squared(v.p) < (r * r) as f32
+        };
+        if self.any_in(v.cell, near) {
+            return false;
+        }
+        for a in i - 1..=i + 1 {
+            for b in j - 1..=j + 1 {
+                for c in k - 1..=k + 1 {
+                    if [a, b, c] != v.cell && self.any_in([a, b, c], near) {
+                        return false;
+                    }
+                }
+            }
+        }
+        true
     }
 
     /// Whether `f` holds for a centre in cell `c`.
@@ -384,6 +412,15 @@ pub struct Footprints {
     start: Vec<usize>,
     texels: Vec<u32>,
     coords: Vec<[f32; 2]>,
+    /// Patch indices by centre texel ([`Footprints::by_centre`]).
+    order: Vec<u32>,
+}
+
+/// Indices of `centres` sorted by texel (centres are distinct texels).
+fn by_texel(centres: &[u32]) -> Vec<u32> {
+    let mut order: Vec<u32> = (0..centres.len() as u32).collect();
+    order.sort_unstable_by_key(|&i| centres[i as usize]);
+    order
 }
 
 /// Dijkstra queue entry: path length, texel (min-heap by length, then texel index).
@@ -402,7 +439,7 @@ impl PartialOrd for Entry {
 }
 
 /// Per-thread flood state, indexed by texel, reset lazily by generation stamps.
-struct Flood {
+pub struct Flood {
     nodes: Vec<Node>,
     gen: u32,
     heap: BinaryHeap<Entry>,
@@ -443,21 +480,58 @@ impl Flood {
     }
 }
 
+/// Per-thread flood state for [`Footprints::build_with`], kept between the builds on one
+/// level (each thread's state is one node per texel: 115 MB at 3.2 M texels, written and
+/// faulted in afresh by every build without it).
+#[derive(Default)]
+pub struct FloodScratch(super::per_thread::PerThread<Flood>);
+
 impl Footprints {
     /// Floods every centre's footprint of half-size `half` (example pixels of `level`).
     pub fn build(level: &LevelTexels, centres: Vec<u32>, half: f32) -> Self {
+        Self::build_with(level, centres, half, &FloodScratch::default())
+    }
+
+    /// [`Footprints::build`] with flood state `scratch` (of builds on the same `level`).
+    pub fn build_with(
+        level: &LevelTexels,
+        centres: Vec<u32>,
+        half: f32,
+        scratch: &FloodScratch,
+    ) -> Self {
         let n = level.len();
-        let scratch = super::per_thread::PerThread::new();
-        let per: Vec<(Vec<u32>, Vec<[f32; 2]>)> = centres
+        // Flooded in the order of the centres' texels, where neighbouring patches (which
+        // overlap) follow one another and find their texels' state still in the caches
+        // (the centres come in a hashed order: each flood started cold). Stored in the
+        // centres' order, as before.
+        let order = by_texel(&centres);
+        let mut per: Vec<(Vec<u32>, Vec<[f32; 2]>)> = order
             .par_iter()
-            .map(|&c| scratch.with(|| Flood::new(n), |fl| flood(level, fl, c as usize, half)))
+            .map(|&i| centres[i as usize])
+            .map(|c| {
+                scratch.0.with(
+                    || Flood::new(n),
+                    |fl| {
+                        // A state of another level's size is made anew.
+                        if fl.nodes.len() != n {
+                            *fl = Flood::new(n);
+                        }
+                        flood(level, fl, c as usize, half)
+                    },
+                )
+            })
             .collect();
+        let mut rank = vec![0u32; order.len()];
+        for (k, &i) in order.iter().enumerate() {
+            rank[i as usize] = k as u32;
+        }
         let mut start = Vec::with_capacity(per.len() + 1);
         start.push(0);
         let total: usize = per.iter().map(|p| p.0.len()).sum();
         let mut texels = Vec::with_capacity(total);
         let mut coords = Vec::with_capacity(total);
-        for (t, l) in per {
+        for &k in &rank {
+            let (t, l) = std::mem::take(&mut per[k as usize]);
             texels.extend_from_slice(&t);
             coords.extend_from_slice(&l);
             start.push(texels.len());
@@ -468,7 +542,14 @@ impl Footprints {
             start,
             texels,
             coords,
+            order,
         }
+    }
+
+    /// The patches in the order of their centre texels (a cache-friendly order to visit
+    /// them in: overlapping patches come together).
+    pub fn by_centre(&self) -> &[u32] {
+        &self.order
     }
 
     /// Number of patches.
@@ -501,6 +582,21 @@ impl Footprints {
     /// For every texel, the patches whose footprint holds it (CSR: starts, patch list),
     /// each list ascending.
     pub fn covering(&self, texels: usize) -> (Vec<u32>, Vec<u32>) {
+        let (start, list, _) = self.covering_impl(texels, false);
+        (start, list)
+    }
+
+    /// [`Footprints::covering`] and, parallel to its list, the texel's local coordinates
+    /// in each patch.
+    pub fn covering_coords(&self, texels: usize) -> (Vec<u32>, Vec<u32>, Vec<[f32; 2]>) {
+        self.covering_impl(texels, true)
+    }
+
+    fn covering_impl(
+        &self,
+        texels: usize,
+        with_coords: bool,
+    ) -> (Vec<u32>, Vec<u32>, Vec<[f32; 2]>) {
         let mut count = vec![0u32; texels + 1];
         for &t in &self.texels {
             count[t as usize + 1] += 1;
@@ -510,14 +606,19 @@ impl Footprints {
         }
         let mut fill = count.clone();
         let mut list = vec![0u32; self.texels.len()];
+        let mut coords = vec![[0.0f32; 2]; if with_coords { list.len() } else { 0 }];
         for p in 0..self.len() {
-            for &t in self.get(p).0 {
+            let (ts, ls) = self.get(p);
+            for (&t, &l) in ts.iter().zip(ls) {
                 let k = &mut fill[t as usize];
                 list[*k as usize] = p as u32;
+                if with_coords {
+                    coords[*k as usize] = l;
+                }
                 *k += 1;
             }
         }
-        (count, list)
+        (count, list, coords)
     }
 }
 
@@ -563,8 +664,11 @@ fn flood(level: &LevelTexels, fl: &mut Flood, c: usize, half: f32) -> (Vec<u32>,
             let inv_step = level.inv_step_at(s);
             fl.nodes[s].e1 = transport(fl.nodes[p].e1, normal[p], normal[s]);
             let nb = edges.of(s);
+            // The step lengths to the placed neighbours, for the stretch test below (the
+            // same values it computed again; NaN where a neighbour is not placed).
+            let mut lens = [f32::NAN; 8];
             let (mut sx, mut sy, mut sw) = (0.0f32, 0.0f32, 0.0f32);
-            for &q in nb {
+            for (k, &q) in nb.iter().enumerate() {
                 let q = q as usize;
                 let nq = &fl.nodes[q];
                 if nq.stamp != gen || !nq.done || !nq.coord[0].is_finite() {
@@ -572,6 +676,9 @@ fn flood(level: &LevelTexels, fl: &mut Flood, c: usize, half: f32) -> (Vec<u32>,
                 }
                 let dp = unfolded(pos[s] - pos[q], normal[q], normal[s]);
                 let len = dp.length();
+                if let Some(l) = lens.get_mut(k) {
+                    *l = len;
+                }
                 if len <= 0.0 {
                     continue;
                 }
@@ -595,13 +702,17 @@ fn flood(level: &LevelTexels, fl: &mut Flood, c: usize, half: f32) -> (Vec<u32>,
             // there. Such texels end the patch (smaller patches cover them later).
             let l = fl.nodes[s].coord;
             let mut bad = false;
-            for &q in nb {
+            for (k, &q) in nb.iter().enumerate() {
                 let q = q as usize;
                 let nq = &fl.nodes[q];
                 if nq.stamp != gen || !nq.done || !nq.coord[0].is_finite() {
                     continue;
                 }
-                let dp = unfolded(pos[s] - pos[q], normal[q], normal[s]).length() * inv_step;
+                let len = match lens.get(k) {
+                    Some(&l) => l,
+                    None => unfolded(pos[s] - pos[q], normal[q], normal[s]).length(),
+                };
+                let dp = len * inv_step;
                 let lq = nq.coord;
                 let dl = (l[0] - lq[0]).hypot(l[1] - lq[1]);
                 if dp > 0.0 && !(STRETCH_MIN..=STRETCH_MAX).contains(&(dl / dp)) {

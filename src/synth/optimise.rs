@@ -235,10 +235,11 @@ pub fn run<const K: usize>(
             ..LevelStats::default()
         };
         let mut last = None;
+        let scratch = super::footprint::FloodScratch::default();
         for (si, &size) in params.sizes.iter().enumerate() {
             let size = size.min(ex.width().min(ex.height()) / 2).max(4);
             let key = hash(target.seed, &[0x0971, li as u64, si as u64]);
-            let res = optimise_size(&ex, level, &src, size, params, key, &mut || {
+            let res = optimise_size(&ex, level, &src, size, params, key, &scratch, &mut || {
                 done_iters += 1;
                 progress(done_iters, total_iters);
             });
@@ -248,6 +249,7 @@ pub fn run<const K: usize>(
             stats.candidates += res.candidates;
             last = Some((res.footprints, res.positions, res.texture));
         }
+        drop(scratch); // not held through the final assembly
         stats.levels.push(lstats);
         if li == 0 {
             // Final pass: the last patches joined at their optimised positions by cuts.
@@ -278,6 +280,7 @@ struct SizeResult<const K: usize> {
 }
 
 /// EM iterations with patches of side `size` over `level`, starting from sources `src`.
+#[allow(clippy::too_many_arguments)]
 fn optimise_size<const K: usize>(
     ex: &Exemplar<K>,
     level: &LevelTexels,
@@ -285,13 +288,14 @@ fn optimise_size<const K: usize>(
     size: usize,
     params: &OptimiseParams,
     key: u64,
+    scratch: &super::footprint::FloodScratch,
     tick: &mut dyn FnMut(),
 ) -> SizeResult<K> {
     let n = level.len();
     let f = &ex.features;
     let half = size as f32 / 2.0;
     let spacing = params.spacing as f64 * size as f64;
-    let fp = Footprints::build(level, centres(level, spacing, key, None), half);
+    let fp = Footprints::build_with(level, centres(level, spacing, key, None), half, scratch);
     let np = fp.len();
     let (lo, hi_x, hi_y) = (
         0.5 + half,
@@ -300,19 +304,7 @@ fn optimise_size<const K: usize>(
     );
     let clamp = |z: [f32; 2]| [z[0].clamp(lo, hi_x.max(lo)), z[1].clamp(lo, hi_y.max(lo))];
     // Memberships per texel (patch, local coordinates), for the M-step.
-    let (mstart, mlist) = fp.covering(n);
-    let mut mcoord = vec![[0.0f32; 2]; mlist.len()];
-    {
-        let mut fill: Vec<u32> = mstart.clone();
-        for p in 0..np {
-            let (ts, ls) = fp.get(p);
-            for (&t, &l) in ts.iter().zip(ls) {
-                let k = &mut fill[t as usize];
-                mcoord[*k as usize] = l;
-                *k += 1;
-            }
-        }
-    }
+    let (mstart, mlist, mcoord) = fp.covering_coords(n);
     let sigma2 = (0.8 * half) * (0.8 * half);
     let falloff = |l: [f32; 2]| (-(l[0] * l[0] + l[1] * l[1]) / (2.0 * sigma2)).exp();
     // Initial state: the example at the given sources; patch positions continue the
@@ -323,10 +315,13 @@ fn optimise_size<const K: usize>(
     let mut err = vec![0.0f32; np];
     let mut candidates = 0u64;
     for it in 0..params.iterations {
-        // E-step: per patch, the nearest example patch among the candidates.
-        let chosen: Vec<([f32; 2], f32, u64)> = (0..np)
-            .into_par_iter()
-            .map(|p| {
+        // E-step: per patch, the nearest example patch among the candidates (visited in
+        // the order of their centres, so that overlapping patches read `x` together).
+        let order = fp.by_centre();
+        let chosen: Vec<([f32; 2], f32, u64)> = order
+            .par_iter()
+            .map(|&p| {
+                let p = p as usize;
                 let (ts, ls) = fp.get(p);
                 let m = ts.len();
                 let stride = m.div_ceil(params.eval_samples.max(1) as usize).max(1);
@@ -400,7 +395,8 @@ fn optimise_size<const K: usize>(
                 (best.1, best.0 / samples.max(1.0), measured)
             })
             .collect();
-        for (p, (q, e, c)) in chosen.into_iter().enumerate() {
+        for (&p, (q, e, c)) in order.iter().zip(chosen) {
+            let p = p as usize;
             z[p] = q;
             err[p] = e;
             candidates += c;
