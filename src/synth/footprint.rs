@@ -57,7 +57,11 @@ const STRETCH_MAX: f32 = 1.25;
 pub struct LevelTexels {
     /// Shared: a prepared session hands it to every result for writing.
     pub geometry: std::sync::Arc<TexelGeometry>,
-    pub graph: TexelGraph,
+    /// The 5x5-block neighbourhood graph, built on first use ([`LevelTexels::graph`]):
+    /// coherent synthesis and patch sampling's filling of uncovered texels read it, texture
+    /// optimisation's floods do not (at N = 4 every texel is a border texel and building
+    /// it walked ~200 times per domain: ~3 s of a 200k-quad torus run).
+    graph: std::sync::OnceLock<TexelGraph>,
     /// (v1, v2) per texel.
     pub frames: Vec<[Vec3; 2]>,
     /// Surface length of one example pixel of this level (δ) where the scale map's factor
@@ -77,9 +81,8 @@ impl LevelTexels {
     /// Evaluates everything for `n`×`n` maps.
     pub fn new(surface: &Surface, field: &OrientationField, n: usize, step: f64) -> Self {
         let geometry = TexelGeometry::compute(surface, n);
-        let graph = TexelGraph::build(surface, &geometry);
         let frames = super::texel_frames_f32(field, surface, n);
-        Self::from_parts(surface, geometry, graph, frames, step)
+        Self::from_parts(surface, geometry, frames, step)
     }
 
     /// Evaluates everything for the maps of `layout` (per-face resolutions).
@@ -90,28 +93,38 @@ impl LevelTexels {
         step: f64,
     ) -> Self {
         let geometry = TexelGeometry::compute_layout(surface, layout);
-        let graph = TexelGraph::build(surface, &geometry);
         let frames = super::layout_frames(field, surface, &geometry.layout);
-        Self::from_parts(surface, geometry, graph, frames, step)
+        Self::from_parts(surface, geometry, frames, step)
     }
 
     /// From parts already computed (the builder's output-resolution texels).
     pub fn from_parts(
         surface: &Surface,
         geometry: TexelGeometry,
-        graph: TexelGraph,
         frames: Vec<[Vec3; 2]>,
         step: f64,
     ) -> Self {
         let edges = EdgeGraph::build(surface, &geometry);
         Self {
             geometry: std::sync::Arc::new(geometry),
-            graph,
+            graph: std::sync::OnceLock::new(),
             frames,
             step,
             factor: None,
             edges,
         }
+    }
+
+    /// The texel graph ([`TexelGraph`]) of these texels on `surface` (the surface they
+    /// were made on), built on the first call.
+    pub fn graph(&self, surface: &Surface) -> &TexelGraph {
+        self.graph
+            .get_or_init(|| TexelGraph::build(surface, &self.geometry))
+    }
+
+    /// Frees the texel graph (built again if asked for).
+    pub fn drop_graph(&mut self) {
+        self.graph = std::sync::OnceLock::new();
     }
 
     /// The same texels with the scale map's factor at each (`None`: no scale map).

@@ -470,11 +470,11 @@ fn coherent_output<const K: usize>(
     let features = Features::<K>::from_image(&app.image);
     let t = target.texels;
     let params = &settings.coherent;
-    let schedule =
-        coherent::schedule_for(params.domain_order, target.surface, &t.geometry, &t.graph);
+    let graph = t.graph(target.surface);
+    let schedule = coherent::schedule_for(params.domain_order, target.surface, &t.geometry, graph);
     let inputs = coherent::Inputs {
         geometry: &t.geometry,
-        graph: &t.graph,
+        graph,
         frames: &t.frames,
         schedule: &schedule,
         scale: t.step,
@@ -503,7 +503,14 @@ fn run_patches<const K: usize>(
 ) -> Output {
     let app = appearance(analyses, weighted, settings.appearance, K);
     let ex = Exemplar::<K>::from_appearance(&app);
-    let out = patches::run(&ex, target.texels, &settings.patches, target.seed, progress);
+    let out = patches::run(
+        &ex,
+        target.surface,
+        target.texels,
+        &settings.patches,
+        target.seed,
+        progress,
+    );
     Output {
         source: out.source,
         appearance: ex.info,

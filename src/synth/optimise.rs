@@ -223,7 +223,14 @@ pub fn run<const K: usize>(
         // Start: patch sampling at the coarsest level, else the coarser level continued.
         let mut src = match prev.take() {
             None => {
-                let out = patches::run(&ex, level, &params.start, target.seed, &|_, _| {});
+                let out = patches::run(
+                    &ex,
+                    target.surface,
+                    level,
+                    &params.start,
+                    target.seed,
+                    &|_, _| {},
+                );
                 stats.start = out.stats;
                 out.source
             }

@@ -211,6 +211,7 @@ struct Paste {
 /// pixel of `ex`). `progress(done, total)` counts patches.
 pub fn run<const K: usize>(
     ex: &Exemplar<K>,
+    surface: &subdiv::Surface,
     level: &LevelTexels,
     params: &PatchParams,
     seed: u64,
@@ -270,7 +271,7 @@ pub fn run<const K: usize>(
         }
         size = (size / 2).max(MIN_SIZE);
     }
-    stats.filled = fill_uncovered(level, &mut state.src, &mut state.set, ex, seed);
+    stats.filled = fill_uncovered(surface, level, &mut state.src, &mut state.set, ex, seed);
     Output {
         source: state.src,
         stats,
@@ -846,6 +847,7 @@ fn join<const K: usize>(
 /// (breadth-first, nearest neighbour first); isolated texels get the example's centre.
 /// Returns how many were filled.
 fn fill_uncovered<const K: usize>(
+    surface: &subdiv::Surface,
     level: &LevelTexels,
     src: &mut [[f32; 2]],
     set: &mut [bool],
@@ -855,6 +857,10 @@ fn fill_uncovered<const K: usize>(
     let n = src.len();
     let mut filled = 0u64;
     let mut frontier: Vec<usize> = (0..n).filter(|&t| !set[t]).collect();
+    if frontier.is_empty() {
+        return 0; // the texel graph is not needed (nor built)
+    }
+    let graph = level.graph(surface);
     let mut nb = Vec::new();
     let (w, h) = (ex.width() as f32, ex.height() as f32);
     while !frontier.is_empty() {
@@ -862,7 +868,7 @@ fn fill_uncovered<const K: usize>(
         let mut updates = Vec::new();
         for &t in &frontier {
             nb.clear();
-            level.graph.neighbours(t, &mut nb);
+            graph.neighbours(t, &mut nb);
             match nb.iter().map(|&u| u as usize).find(|&u| set[u]) {
                 Some(u) => {
                     let e = level.offset(u, t);

@@ -45,7 +45,7 @@ use crate::report::{ExampleInfo, Inputs, Report, Seconds};
 use crate::scale_field::{ScaleField, ScaleMap};
 use crate::synth::footprint::LevelTexels;
 use crate::synth::{Analyses, Derived, Method, Settings, Target};
-use crate::texels::{TexelGeometry, TexelGraph};
+use crate::texels::TexelGeometry;
 use rayon::prelude::*;
 use std::sync::{Arc, OnceLock};
 use std::time::Instant;
@@ -441,8 +441,9 @@ impl Session {
 
         report(Stage::Graph, 0, 1);
         let t0 = Instant::now();
-        let graph = TexelGraph::build(&surface, &geometry);
-        let texels = LevelTexels::from_parts(&surface, geometry, graph, frames, scale)
+        // The edge graph (floods, seams); the texel graph is built by the methods that
+        // read it, on first use.
+        let texels = LevelTexels::from_parts(&surface, geometry, frames, scale)
             .with_scale(&surface, scale_field.as_deref());
         let graph_s = t0.elapsed().as_secs_f64();
         report(Stage::Graph, 1, 1);
@@ -517,12 +518,16 @@ impl Session {
     }
 
     /// Computes now what `method` derives from the mesh on its first use (the jump
-    /// method's region-growing order), so that no synthesis pays for it; returns the
-    /// seconds it took. The one-shot builder calls it in its graph stage.
+    /// method's region-growing order, coherent synthesis's texel graph), so that no
+    /// synthesis pays for it; returns the seconds it took. The one-shot builder calls it
+    /// in its graph stage.
     pub fn prepare_method(&self, method: Method) -> f64 {
         let t0 = Instant::now();
         if method == Method::Jump {
             self.derived.growth(&self.texels);
+        }
+        if method == Method::Coherent {
+            self.texels.graph(&self.surface);
         }
         t0.elapsed().as_secs_f64()
     }
@@ -580,7 +585,7 @@ impl Session {
         seconds: PrepareSeconds,
     ) -> Result<SynthResult> {
         let s = self.synthesis(&example, params, &labels)?;
-        drop(std::mem::take(&mut self.texels.graph));
+        self.texels.drop_graph();
         drop(std::mem::take(&mut self.texels.edges));
         drop(std::mem::take(&mut self.texels.frames));
         drop(std::mem::take(&mut self.derived));
