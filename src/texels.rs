@@ -714,8 +714,11 @@ mod tests {
     }
 
     fn shared(path: &str) -> Surface {
-        let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../shared/data/meshes")
+        // $SURFSYNTH_SHARED when set, as the integration tests (tests/common).
+        let p = std::env::var_os("SURFSYNTH_SHARED")
+            .map(std::path::PathBuf::from)
+            .unwrap_or_else(|| std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared"))
+            .join("data/meshes")
             .join(path);
         Surface::load_obj(p).unwrap()
     }
