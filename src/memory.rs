@@ -913,9 +913,11 @@ const RENDER_TRIANGLE: u64 = 150;
 /// 1024x768 for 2.4 M more pixels).
 const RENDER_PIXEL: u64 = 24;
 /// `render --light`, per texel: the texel normals and tangents, geometry.exr read whole,
-/// the lit colours and the eight-channel maps built from them (an estimate from the
-/// sizes of these arrays, not calibrated).
-const RENDER_LIGHT_TEXEL: u64 = 160;
+/// the lit colours and the eight-channel maps built from them. Measured as the peak over
+/// the same render without `--light`: a material set (colour, normal, roughness) on Spot
+/// at N = 128 +506 MiB for 4.1 M texels (128 B), a 16-light BTF result at N = 64 +102 MiB
+/// for 1.0 M texels (104 B); the sizes of the arrays had suggested 160 B.
+const RENDER_LIGHT_TEXEL: u64 = 130;
 
 /// What a `render` run holds, from facemaps.exr's header, the control mesh and the
 /// options (see [`render_estimate`]).
