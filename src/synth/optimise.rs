@@ -40,7 +40,7 @@
 //! M-steps read the chosen positions), so parallel loops give the same result for any
 //! thread count; random candidates hash (seed, level, size, iteration, patch).
 
-use super::footprint::{centres, Footprints, LevelTexels};
+use super::footprint::{centres, spread, Footprints, LevelTexels};
 use super::matching::exemplar::Exemplar;
 use super::matching::features::dist2;
 use super::matching::search::hash;
@@ -321,6 +321,36 @@ fn optimise_size<const K: usize>(
     let mut z: Vec<[f32; 2]> = fp.centres.iter().map(|&c| clamp(src[c as usize])).collect();
     let mut err = vec![0.0f32; np];
     let mut candidates = 0u64;
+    // What each patch's E-step measures and which of its texels propose continuations:
+    // subsets spread over the patch (`footprint::spread`), fixed for this patch size.
+    let subsets = |count: u32, salt: u64| -> (Vec<usize>, Vec<u32>) {
+        let per: Vec<Vec<u32>> = (0..np)
+            .into_par_iter()
+            .map(|p| {
+                let (ts, ls) = fp.get(p);
+                let mut out = Vec::new();
+                spread(
+                    ls,
+                    0..ts.len(),
+                    half,
+                    count as usize,
+                    hash(key, &[salt, p as u64]),
+                    &mut out,
+                );
+                out
+            })
+            .collect();
+        let mut start = Vec::with_capacity(np + 1);
+        start.push(0);
+        let mut list = Vec::with_capacity(per.iter().map(Vec::len).sum());
+        for v in per {
+            list.extend_from_slice(&v);
+            start.push(list.len());
+        }
+        (start, list)
+    };
+    let (estart, elist) = subsets(params.eval_samples, 0xE5);
+    let (pstart, plist) = subsets(params.proposers, 0x9F);
     for it in 0..params.iterations {
         // E-step: per patch, the nearest example patch among the candidates (visited in
         // the order of their centres, so that overlapping patches read `x` together).
@@ -330,8 +360,7 @@ fn optimise_size<const K: usize>(
             .map(|&p| {
                 let p = p as usize;
                 let (ts, ls) = fp.get(p);
-                let m = ts.len();
-                let stride = m.div_ceil(params.eval_samples.max(1) as usize).max(1);
+                let measured_texels = &elist[estart[p]..estart[p + 1]];
                 let mut cands: Vec<[f32; 2]> = Vec::with_capacity(48);
                 let push = |c: &mut Vec<[f32; 2]>, q: [f32; 2]| {
                     let q = clamp(q);
@@ -343,8 +372,8 @@ fn optimise_size<const K: usize>(
                     }
                 };
                 push(&mut cands, z[p]);
-                let pstride = m.div_ceil(params.proposers.max(1) as usize).max(1);
-                for i in (0..m).step_by(pstride) {
+                for &i in &plist[pstart[p]..pstart[p + 1]] {
+                    let i = i as usize;
                     let s = source[ts[i] as usize];
                     push(&mut cands, [s[0] - ls[i][0], s[1] - ls[i][1]]);
                 }
@@ -368,14 +397,12 @@ fn optimise_size<const K: usize>(
                 let mut best = (f32::INFINITY, z[p]);
                 let mut measure = |q: [f32; 2]| {
                     let mut e = 0.0f32;
-                    let mut i = 0;
-                    while i < m {
-                        let l = ls[i];
-                        e += dist2(&x[ts[i] as usize], &f.sample(q[0] + l[0], q[1] + l[1]));
+                    for &i in measured_texels {
+                        let (t, l) = (ts[i as usize], ls[i as usize]);
+                        e += dist2(&x[t as usize], &f.sample(q[0] + l[0], q[1] + l[1]));
                         if e >= best.0 {
                             break;
                         }
-                        i += stride;
                     }
                     if e < best.0 {
                         best = (e, q);
@@ -398,7 +425,7 @@ fn optimise_size<const K: usize>(
                         qy += step;
                     }
                 }
-                let samples = m.div_ceil(stride) as f32;
+                let samples = measured_texels.len() as f32;
                 (best.1, best.0 / samples.max(1.0), measured)
             })
             .collect();

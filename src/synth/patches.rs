@@ -39,7 +39,7 @@
 //! so each patch sees exactly the patches before it that it overlaps, as in the sequential
 //! order, whatever the thread count. Random draws hash (seed, patch, draw).
 
-use super::footprint::{centres, Footprints, LevelTexels};
+use super::footprint::{centres, spread, Footprints, LevelTexels};
 use super::matching::exemplar::Exemplar;
 use super::matching::features::dist2;
 use super::matching::search::hash;
@@ -504,15 +504,21 @@ fn near_any(list: &[[f32; 2]], z: [f32; 2]) -> bool {
 fn continuations<'a, const K: usize>(
     c: &'a Ctx<'_, K>,
     p: usize,
-    known: &'a [usize],
+    known: &[usize],
     src: &'a [[f32; 2]],
 ) -> impl Iterator<Item = [f32; 2]> + 'a {
     let (texels, coords) = c.fp.get(p);
-    let step = known
-        .len()
-        .div_ceil(c.params.proposers.max(1) as usize)
-        .max(1);
-    known.iter().step_by(step).map(move |&i| {
+    let mut pick = Vec::new();
+    spread(
+        coords,
+        known.iter().copied(),
+        c.fp.half,
+        c.params.proposers as usize,
+        hash(c.seed, &[0xC047, p as u64]),
+        &mut pick,
+    );
+    pick.into_iter().map(move |i| {
+        let i = i as usize;
         let t = texels[i] as usize;
         [src[t][0] - coords[i][0], src[t][1] - coords[i][1]]
     })
@@ -546,11 +552,20 @@ fn settle<const K: usize>(
             cands.push(z);
         }
     }
-    let estep = m.div_ceil(c.params.eval_samples.max(1) as usize).max(1);
+    let mut sub = Vec::new();
+    spread(
+        coords,
+        0..m,
+        c.fp.half,
+        c.params.eval_samples as usize,
+        hash(c.seed, &[0x5E77, p as u64]),
+        &mut sub,
+    );
     let mut best = (f32::INFINITY, z0);
     for &z in &cands {
         let mut e = 0.0f32;
-        for i in (0..m).step_by(estep) {
+        for &i in &sub {
+            let i = i as usize;
             let t = texels[i] as usize;
             let l = coords[i];
             let want = if set[t] { &app[t] } else { &guide[t] };
@@ -622,14 +637,18 @@ fn choose<const K: usize>(
         push(&mut s.cands, random(k + 1));
     }
     if c.params.grid_step > 0 {
-        let gstep = known
-            .len()
-            .div_ceil(c.params.grid_samples.max(1) as usize)
-            .max(1);
-        let gsub: Vec<(usize, [f32; 2])> = known
+        let mut pick = Vec::new();
+        spread(
+            coords,
+            known.iter().copied(),
+            c.fp.half,
+            c.params.grid_samples as usize,
+            hash(c.seed, &[0x6A1D, p as u64]),
+            &mut pick,
+        );
+        let gsub: Vec<(usize, [f32; 2])> = pick
             .iter()
-            .step_by(gstep)
-            .map(|&i| (texels[i] as usize, coords[i]))
+            .map(|&i| (texels[i as usize] as usize, coords[i as usize]))
             .collect();
         let keep = c.params.grid_keep as usize;
         let mut top: Vec<(f32, [f32; 2])> = Vec::with_capacity(keep + 1);
@@ -667,12 +686,17 @@ fn choose<const K: usize>(
     if s.cands.is_empty() {
         s.cands.push(random(0));
     }
-    // Errors on a strided subset of the overlap.
-    let estep = known
-        .len()
-        .div_ceil(c.params.eval_samples.max(1) as usize)
-        .max(1);
-    let sub: Vec<usize> = known.iter().copied().step_by(estep).collect();
+    // Errors on a subset of the overlap spread over the patch.
+    let mut pick = Vec::new();
+    spread(
+        coords,
+        known.iter().copied(),
+        c.fp.half,
+        c.params.eval_samples as usize,
+        hash(c.seed, &[0xE7A1, p as u64]),
+        &mut pick,
+    );
+    let sub: Vec<usize> = pick.into_iter().map(|i| i as usize).collect();
     s.errs.clear();
     // Error of position z over the subset, abandoned once above `bound`: anything beyond
     // (1 + tol) × best can never be eligible.
