@@ -263,10 +263,11 @@ pub fn centres(level: &LevelTexels, pixels: f64, seed: u64, mask: Option<&[bool]
 }
 
 /// About `count` texels of a footprint spread evenly over its patch, as indices into the
-/// footprint: the square of half-size `half` is cut into G×G cells (G = ⌈√count⌉) and each
-/// cell gives the texel of `among` (footprint indices, e.g. the texels already synthesized)
-/// with the lowest hash of (`key`, index) — jittered stratified sampling. Every index of
-/// `among` when there are no more than `count`. Appended to `out` in cell order.
+/// footprint: the square of half-size `half` is cut into G×G cells (G = ⌈√(count / a)⌉,
+/// `a` the share of the footprint's texels that `among` holds) and each cell gives the texel
+/// of `among` (footprint indices, e.g. the texels already synthesized) with the lowest hash
+/// of (`key`, index) — jittered stratified sampling. Every index of `among` when there are
+/// no more than `count`. Appended to `out` in cell order.
 ///
 /// Why not every k-th texel in flood order (what the methods took before): the flood visits
 /// texels by path length, and on a texel lattice whose two spacings differ even slightly —
@@ -289,7 +290,11 @@ pub fn spread(
         out.extend(among.map(|i| i as u32));
         return;
     }
-    let g = (count as f64).sqrt().ceil() as usize;
+    // Cells over the whole square, as many as make about `count` of them hold a texel of
+    // `among` when it covers only part of the patch (an overlap band: with a grid of `count`
+    // cells it would get only the few cells it crosses).
+    let share = among.clone().count() as f64 / coords.len().max(1) as f64;
+    let g = ((count as f64 / share.max(1e-3)).sqrt().ceil() as usize).max(1);
     let cell = (2.0 * half.max(1e-6)) / g as f32;
     let mut best = vec![(u64::MAX, u32::MAX); g * g];
     for i in among {
@@ -884,12 +889,12 @@ mod tests {
         let mut pick = Vec::new();
         spread(&ls, (0..ls.len()).step_by(97), 16.0, 64, 1, &mut pick);
         assert_eq!(pick.len(), ls.len().div_ceil(97));
-        // Only texels of `among` (here the upper half of the patch), one per cell they
-        // occupy: of 4x4 cells of 8 units, the upper half's 8.
+        // Only texels of `among` (here the upper half of the patch), still about `count`
+        // of them: the grid is finer (6x6 cells) so that its upper half holds 18.
         let upper = |i: &usize| ls[*i][1] > 0.0;
         let mut pick = Vec::new();
         spread(&ls, (0..ls.len()).filter(upper), 16.0, 16, 1, &mut pick);
         assert!(pick.iter().all(|&i| upper(&(i as usize))), "{pick:?}");
-        assert_eq!(pick.len(), 8);
+        assert_eq!(pick.len(), 18);
     }
 }

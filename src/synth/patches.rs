@@ -552,20 +552,13 @@ fn settle<const K: usize>(
             cands.push(z);
         }
     }
-    let mut sub = Vec::new();
-    spread(
-        coords,
-        0..m,
-        c.fp.half,
-        c.params.eval_samples as usize,
-        hash(c.seed, &[0x5E77, p as u64]),
-        &mut sub,
-    );
+    // Every k-th texel in flood order, weighting texels (not area) like the seam measure;
+    // see `choose`.
+    let estep = m.div_ceil(c.params.eval_samples.max(1) as usize).max(1);
     let mut best = (f32::INFINITY, z0);
     for &z in &cands {
         let mut e = 0.0f32;
-        for &i in &sub {
-            let i = i as usize;
+        for i in (0..m).step_by(estep) {
             let t = texels[i] as usize;
             let l = coords[i];
             let want = if set[t] { &app[t] } else { &guide[t] };
@@ -686,17 +679,15 @@ fn choose<const K: usize>(
     if s.cands.is_empty() {
         s.cands.push(random(0));
     }
-    // Errors on a subset of the overlap spread over the patch.
-    let mut pick = Vec::new();
-    spread(
-        coords,
-        known.iter().copied(),
-        c.fp.half,
-        c.params.eval_samples as usize,
-        hash(c.seed, &[0xE7A1, p as u64]),
-        &mut pick,
-    );
-    let sub: Vec<usize> = pick.into_iter().map(|i| i as usize).collect();
+    // Errors on every k-th texel of the overlap in flood order. Not `spread`: that weighs
+    // area, and where texel density varies (the all-triangle Spot at N = 8) the texels of
+    // dense small faces then count for little in the choice, while the seam measure counts
+    // texel pairs — seam ratio 0.97–1.07 with the stride, 1.15–1.37 spread (seeds 1–3).
+    let estep = known
+        .len()
+        .div_ceil(c.params.eval_samples.max(1) as usize)
+        .max(1);
+    let sub: Vec<usize> = known.iter().copied().step_by(estep).collect();
     s.errs.clear();
     // Error of position z over the subset, abandoned once above `bound`: anything beyond
     // (1 + tol) × best can never be eligible.
