@@ -498,6 +498,27 @@ fn near_any(list: &[[f32; 2]], z: [f32; 2]) -> bool {
         .any(|o| (o[0] - z[0]).abs() < 0.5 && (o[1] - z[1]).abs() < 0.5)
 }
 
+/// About `count` of patch `p`'s overlapped texels (`known`: indices into its footprint),
+/// spread over the patch ([`spread`]); `salt` tells the uses apart.
+fn spread_known<const K: usize>(
+    c: &Ctx<'_, K>,
+    p: usize,
+    known: &[usize],
+    count: u32,
+    salt: u64,
+) -> Vec<u32> {
+    let mut pick = Vec::new();
+    spread(
+        c.fp.get(p).1,
+        known.iter().copied(),
+        c.fp.half,
+        count as usize,
+        hash(c.seed, &[salt, p as u64]),
+        &mut pick,
+    );
+    pick
+}
+
 /// The positions continuing patch `p`'s overlapped texels (`known`: indices into its
 /// footprint), from at most [`PatchParams::proposers`] of them: texel `t` with source
 /// `s(t)` at coordinates `l(t)` proposes `s(t) − l(t)`.
@@ -508,20 +529,13 @@ fn continuations<'a, const K: usize>(
     src: &'a [[f32; 2]],
 ) -> impl Iterator<Item = [f32; 2]> + 'a {
     let (texels, coords) = c.fp.get(p);
-    let mut pick = Vec::new();
-    spread(
-        coords,
-        known.iter().copied(),
-        c.fp.half,
-        c.params.proposers as usize,
-        hash(c.seed, &[0xC047, p as u64]),
-        &mut pick,
-    );
-    pick.into_iter().map(move |i| {
-        let i = i as usize;
-        let t = texels[i] as usize;
-        [src[t][0] - coords[i][0], src[t][1] - coords[i][1]]
-    })
+    spread_known(c, p, known, c.params.proposers, 0xC047)
+        .into_iter()
+        .map(move |i| {
+            let i = i as usize;
+            let t = texels[i] as usize;
+            [src[t][0] - coords[i][0], src[t][1] - coords[i][1]]
+        })
 }
 
 /// The position of patch `p` in a guided assembly: its optimised position `z0`, or a
@@ -630,19 +644,11 @@ fn choose<const K: usize>(
         push(&mut s.cands, random(k + 1));
     }
     if c.params.grid_step > 0 {
-        let mut pick = Vec::new();
-        spread(
-            coords,
-            known.iter().copied(),
-            c.fp.half,
-            c.params.grid_samples as usize,
-            hash(c.seed, &[0x6A1D, p as u64]),
-            &mut pick,
-        );
-        let gsub: Vec<(usize, [f32; 2])> = pick
-            .iter()
-            .map(|&i| (texels[i as usize] as usize, coords[i as usize]))
-            .collect();
+        let gsub: Vec<(usize, [f32; 2])> =
+            spread_known(c, p, known.as_slice(), c.params.grid_samples, 0x6A1D)
+                .iter()
+                .map(|&i| (texels[i as usize] as usize, coords[i as usize]))
+                .collect();
         let keep = c.params.grid_keep as usize;
         let mut top: Vec<(f32, [f32; 2])> = Vec::with_capacity(keep + 1);
         let g = c.params.grid_step as f32;
