@@ -71,7 +71,7 @@ pub use crate::cache::CacheDir;
 pub use crate::synth::matching::appearance::AppearanceMode;
 pub use crate::synth::{
     Analyses, CoherentParams, JumpParams, Method, MultiscaleParams, OptimiseParams, PatchParams,
-    Settings, Weights,
+    Settings, Vote, Weights,
 };
 
 /// Which way round the example is laid on the surface (`--handedness`).

@@ -465,6 +465,10 @@ fn unfolded(dp: Vec3, a: Vec3, b: Vec3) -> Vec3 {
     d * along + ua * (alpha + beta)
 }
 
+/// A patch given as its centre and its (texel, local coordinates), for tests.
+#[cfg(test)]
+pub(crate) type PatchList = (u32, Vec<(u32, [f32; 2])>);
+
 /// The footprints of a set of patches (CSR): texels and their local coordinates.
 pub struct Footprints {
     /// Half-size r in example pixels: footprints hold the texels with |l|∞ ≤ r.
@@ -597,6 +601,31 @@ impl Footprints {
             coords.extend_from_slice(&l);
             start.push(texels.len());
         }
+        Self {
+            half,
+            centres,
+            start,
+            texels,
+            coords,
+            order,
+        }
+    }
+
+    /// Footprints given directly, one `(centre, [(texel, l)])` per patch (the centre's own
+    /// entry first): for tests of what is done with footprints.
+    #[cfg(test)]
+    pub(crate) fn from_lists(half: f32, patches: Vec<PatchList>) -> Self {
+        let mut start = vec![0];
+        let (mut texels, mut coords, mut centres) = (Vec::new(), Vec::new(), Vec::new());
+        for (c, list) in patches {
+            centres.push(c);
+            for (t, l) in list {
+                texels.push(t);
+                coords.push(l);
+            }
+            start.push(texels.len());
+        }
+        let order = by_texel(&centres);
         Self {
             half,
             centres,

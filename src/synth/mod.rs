@@ -49,7 +49,7 @@ pub use analysis::Analyses;
 pub use coherent::{CoherentParams, DomainOrder, Order};
 pub use jump::JumpParams;
 pub use multiscale::MultiscaleParams;
-pub use optimise::OptimiseParams;
+pub use optimise::{OptimiseParams, Vote};
 pub use patches::PatchParams;
 pub use textons::TextonParams;
 

@@ -200,6 +200,8 @@ impl Scratch {
 
 /// What one patch writes: texels taking the new patch, with their sources.
 struct Paste {
+    /// The position the patch was pasted at.
+    z: [f32; 2],
     texels: Vec<u32>,
     sources: Vec<[f32; 2]>,
     candidates: u64,
@@ -265,7 +267,16 @@ pub fn run<const K: usize>(
         stats.waves += waves.len() as u64;
         stats.passes.push((size, fp.len() as u64));
         stats.footprint_bytes = stats.footprint_bytes.max(fp.heap_bytes() as u64);
-        paste_waves(&ctx, &waves, &mut state, &scratch, &mut stats, progress);
+        let mut positions = vec![[0.0; 2]; fp.len()];
+        paste_waves(
+            &ctx,
+            &waves,
+            &mut state,
+            &scratch,
+            &mut stats,
+            &mut positions,
+            progress,
+        );
         if covered.iter().all(|&c| c) || size <= MIN_SIZE {
             break;
         }
@@ -302,6 +313,7 @@ fn paste_waves<const K: usize>(
     state: &mut State<K>,
     scratch: &super::per_thread::PerThread<Scratch>,
     stats: &mut Stats,
+    positions: &mut [[f32; 2]],
     progress: &(dyn Fn(usize, usize) + Sync),
 ) {
     let n = state.src.len();
@@ -317,7 +329,8 @@ fn paste_waves<const K: usize>(
                 )
             })
             .collect();
-        for r in pastes {
+        for (&p, r) in wave.iter().zip(pastes) {
+            positions[p as usize] = r.z;
             for (&t, &s) in r.texels.iter().zip(&r.sources) {
                 let t = t as usize;
                 state.src[t] = s;
@@ -337,7 +350,9 @@ fn paste_waves<const K: usize>(
 /// breadth-first waves of patch sampling: each patch of `fp` is pasted at `positions[p]`
 /// and cut into what is already there, so patches meet along seams of least error
 /// instead of along the boundaries of whichever patch weighs most. Texels no footprint
-/// covers keep `fallback`'s source.
+/// covers keep `fallback`'s source. With `blend`, joins between patches that nearly
+/// continue each other are smoothed ([`blend_joins`]).
+#[allow(clippy::too_many_arguments)]
 pub fn assemble<const K: usize>(
     ex: &Exemplar<K>,
     level: &LevelTexels,
@@ -345,6 +360,7 @@ pub fn assemble<const K: usize>(
     positions: &[[f32; 2]],
     fallback: &[[f32; 2]],
     guide: Option<&[[f32; K]]>,
+    blend: Option<f32>,
     seed: u64,
 ) -> Vec<[f32; 2]> {
     let n = level.len();
@@ -367,12 +383,14 @@ pub fn assemble<const K: usize>(
     let mut state = State::new(n);
     let mut stats = Stats::default();
     let scratch = super::per_thread::PerThread::new();
+    let mut pasted = vec![[0.0; 2]; fp.len()];
     paste_waves(
         &ctx,
         &plan_waves(fp, n),
         &mut state,
         &scratch,
         &mut stats,
+        &mut pasted,
         &|_, _| {},
     );
     for ((src, &set), &fb) in state.src.iter_mut().zip(&state.set).zip(fallback) {
@@ -380,7 +398,66 @@ pub fn assemble<const K: usize>(
             *src = fb;
         }
     }
+    if let Some(tau) = blend {
+        blend_joins(fp, &pasted, &state.set, &mut state.src, tau);
+    }
     state.src
+}
+
+/// Smooths the joins between patches that nearly continue each other. On a curved surface
+/// two overlapping patches laid from different centres disagree by a pixel or two across
+/// their overlap (the field turns between the centres; docs/synthesis.md, "Known limits"),
+/// so a cut between two copies that continue each other still steps a mortar line
+/// sideways. Here every texel's source becomes the weighted mean of the sources the
+/// patches covering it give it (`positions[q] + l_q(t)`), over those within `tau` pixels
+/// of its own: the weight `(1 − d²/τ²)² · w(l)`, with `w` a window that falls to 0 at the
+/// footprint's edge, so the mean changes continuously where a patch begins or ends and is
+/// the same on both sides of a cut between two agreeing patches — the step becomes a
+/// gentle bend. Patches further apart than `tau` (a join between unrelated copies) are
+/// left to the cut. Each texel still copies the example at one position, so every
+/// channel comes from the same place.
+fn blend_joins(
+    fp: &Footprints,
+    positions: &[[f32; 2]],
+    set: &[bool],
+    src: &mut [[f32; 2]],
+    tau: f32,
+) {
+    let n = src.len();
+    let (start, list, coords) = fp.covering_coords(n);
+    let half = fp.half;
+    let out: Vec<[f32; 2]> = (0..n)
+        .into_par_iter()
+        .map(|t| {
+            let s0 = src[t];
+            if !set[t] {
+                return s0;
+            }
+            let (mut sx, mut sy, mut sw) = (0.0f64, 0.0f64, 0.0f64);
+            for k in start[t] as usize..start[t + 1] as usize {
+                let q = list[k] as usize;
+                let l = coords[k];
+                let s = [positions[q][0] + l[0], positions[q][1] + l[1]];
+                let d2 = (s[0] - s0[0]).powi(2) + (s[1] - s0[1]).powi(2);
+                if d2 >= tau * tau {
+                    continue;
+                }
+                let a = 1.0 - d2 / (tau * tau);
+                let u = 1.0 - (l[0] / half).powi(2).min(1.0);
+                let v = 1.0 - (l[1] / half).powi(2).min(1.0);
+                let w = (a * a * u * u * v * v) as f64;
+                sx += w * s[0] as f64;
+                sy += w * s[1] as f64;
+                sw += w;
+            }
+            if sw > 0.0 {
+                [(sx / sw) as f32, (sy / sw) as f32]
+            } else {
+                s0
+            }
+        })
+        .collect();
+    src.copy_from_slice(&out);
 }
 
 /// Breadth-first order over overlapping patches, grouped into waves (see the module docs).
@@ -468,6 +545,7 @@ fn paste<const K: usize>(
     let (texels, coords) = c.fp.get(p);
     if seeded {
         return Paste {
+            z,
             texels: texels.to_vec(),
             sources: coords.iter().map(|l| [z[0] + l[0], z[1] + l[1]]).collect(),
             candidates,
@@ -477,6 +555,7 @@ fn paste<const K: usize>(
     }
     let (texels, sources, replaced) = join(c, p, z, set, app, s);
     Paste {
+        z,
         texels,
         sources,
         candidates,
@@ -929,4 +1008,64 @@ fn fill_uncovered<const K: usize>(
         frontier = next;
     }
     filled
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Two patches along a row of 41 texels (texel t at x = t), centred at 12 and 28 with
+    /// half-size 12, pasted at positions that disagree by `gap` pixels; the texels left of
+    /// 20 took the first, the others the second (a cut at 20).
+    fn two_patches(gap: f32) -> (Footprints, Vec<[f32; 2]>, Vec<[f32; 2]>) {
+        let patch = |c: u32| {
+            let list = (c.saturating_sub(12)..=(c + 12).min(40))
+                .map(|t| (t, [t as f32 - c as f32, 0.0]))
+                .collect::<Vec<_>>();
+            // The centre's entry first.
+            let mut list = list;
+            list.sort_by_key(|&(t, _)| t != c);
+            (c, list)
+        };
+        let fp = Footprints::from_lists(12.0, vec![patch(12), patch(28)]);
+        let positions = vec![[50.0, 50.0], [66.0 + gap, 50.0]];
+        let src = (0..41)
+            .map(|t| {
+                let (z, c) = if t < 20 {
+                    (positions[0], 12)
+                } else {
+                    (positions[1], 28)
+                };
+                [z[0] + (t - c) as f32, z[1]]
+            })
+            .collect();
+        (fp, positions, src)
+    }
+
+    #[test]
+    fn blended_joins_bend_a_small_step_and_leave_single_patches_and_large_steps_alone() {
+        let (fp, z, mut src) = two_patches(0.8);
+        let before = src.clone();
+        assert!(
+            (before[20][0] - before[19][0] - 1.8).abs() < 1e-5,
+            "a 0.8 px step at the cut"
+        );
+        blend_joins(&fp, &z, &[true; 41], &mut src, 4.0);
+        // Where one patch alone covers a texel nothing moves.
+        for t in (0..16).chain(25..41) {
+            assert_eq!(src[t], before[t], "texel {t}");
+        }
+        // The step is spread: no neighbour step differs from one pixel by more than a
+        // quarter of the gap, and the row still runs from one patch to the other.
+        for t in 0..40 {
+            let d = src[t + 1][0] - src[t][0];
+            assert!((d - 1.0).abs() < 0.2, "step {d} at texel {t}");
+            assert_eq!(src[t][1], 50.0);
+        }
+        // Patches further apart than tau are left to the cut.
+        let (fp, z, mut src) = two_patches(5.0);
+        let before = src.clone();
+        blend_joins(&fp, &z, &[true; 41], &mut src, 4.0);
+        assert_eq!(src, before);
+    }
 }
