@@ -99,19 +99,21 @@ pub struct OptimiseParams {
 #[serde(rename_all = "lowercase")]
 pub enum Vote {
     /// Kwatra et al.'s robust weighted average (IRLS with r = 0.8); the heaviest vote gives
-    /// the source.
+    /// the source. The default: [`Vote::Mode`] raised seams (below).
+    #[default]
     Mean,
     /// The weighted medoid: the vote nearest (in appearance space, L2) to all the others,
     /// weighted — the dominant mode of the votes, as Wexler, Shechtman & Irani (2007)
     /// take with mean shift. The texel's value and source are one real vote's, never a
-    /// blend. Why: on a curved surface overlapping patches disagree by a pixel or two
-    /// (the field turns between their centres), and the average of a thin line seen at two
-    /// places is a faint wide smear that the next E-step then matches — a texture no
-    /// example patch has. With the mode the E-step matches texture the example does have:
-    /// pf8 of bricks fell 7–13% on the double torus and 0–8% on Spot (pf4 on every mesh),
-    /// at no measurable cost in seams or scale.
-    /// Measured in docs/synthesis.md ("The M-step's vote").
-    #[default]
+    /// blend. Why one would: on a curved surface overlapping patches disagree by a pixel or
+    /// two (the field turns between their centres), and the average of a thin line seen at
+    /// two places is a faint wide smear that the next E-step then matches — a texture no
+    /// example patch has. With the mode, bricks' pf8 fell 7–13% on the double torus and
+    /// 0–8% on Spot (N = 32). Why it is not the default: where neighbouring texels' votes
+    /// nearly agree, which one is the medoid flips from texel to texel, and the sources
+    /// with it; seams rose past the bar on the scales of tests/methods.rs (double torus
+    /// N = 16: 1.06 → 1.18; open cube N = 32: 1.00 → 1.12). docs/synthesis.md, "The
+    /// M-step's vote".
     Mode,
 }
 
@@ -178,7 +180,7 @@ impl Default for OptimiseParams {
             start: PatchParams::default(),
             exhaustive: None,
             guided_assembly: true,
-            vote: Vote::Mode,
+            vote: Vote::Mean,
             join_blend: Some(JOIN_BLEND),
         }
     }
