@@ -923,6 +923,47 @@ mod tests {
     }
 
     #[test]
+    fn orientation_lengths_are_the_scale_map_of_their_lengths() {
+        use crate::field::Constraints;
+        let c = Constraints::parse(
+            "axis 0 1 0\nvertex 3 0 2 0 # length 2\nsink 0 0 0\nvertex 9 3 0 4\n",
+        )
+        .unwrap();
+        let m = ScaleMap::from_orientation(&c).unwrap();
+        let want = ScaleMap::parse("vertex 3 2\nvertex 9 5\n").unwrap();
+        assert_eq!(m.source, ScaleSource::OrientLengths);
+        let pairs = |m: &ScaleMap| -> Vec<(At, f64)> {
+            m.constraints.iter().map(|c| (c.at, c.factor)).collect()
+        };
+        assert_eq!(pairs(&m), pairs(&want));
+        assert_eq!(
+            m.constraints.iter().map(|c| c.line).collect::<Vec<_>>(),
+            [2, 4]
+        );
+        // The same vertex twice: one length is fine, two are refused (naming both lines).
+        let twice = |t: &str| ScaleMap::from_orientation(&Constraints::parse(t).unwrap());
+        assert!(twice("vertex 1 1 0 0\nvertex 1 0 1 0\n").is_ok());
+        let e = twice("vertex 1 1 0 0\nvertex 1 0 2 0\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("line 2: vertex 1 has direction length 2 here and 1 on line 1"),
+            "{e}"
+        );
+        let e = twice("vertex 1 1 0 0\nvertex 2 17 0 0\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("direction lengths 1 (line 1) and 17 (line 2)"),
+            "{e}"
+        );
+        let e = twice("vertex 1 1e300 1e300 0\n").unwrap_err().to_string();
+        assert!(e.contains("line 1: direction length inf"), "{e}");
+        let e = twice("axis 1 0 0\n").unwrap_err().to_string();
+        assert!(e.contains("has no `vertex"), "{e}");
+    }
+
+    #[test]
     fn parse_accepts_both_spellings_and_comments() {
         let m =
             ScaleMap::parse("# a map\nvertex 3 2\nv 4 0.5 # half\n\np 0 1 2 3\npoint 1 1 1 1e0\n")
