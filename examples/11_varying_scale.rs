@@ -10,6 +10,15 @@
 //! cargo run --release -- render out/varying-scale --yaw 0 --pitch 0 --width 1600 --height 460
 //! ```
 //! The same from the command line: `synth --scale-map FILE` (format in docs/formats.md).
+//!
+//! With a second argument `orient` the scale comes instead from the lengths of the
+//! directions of an orientation constraints file (`synth --orient orient.txt
+//! --scale-from-orient`, docs/field.md): the example writes `inputs/orient.txt`, which pins
+//! v1 along x at the same vertices with directions of length 1 and 3, and uses it for both
+//! the field and the scale:
+//! ```sh
+//! cargo run --release --example 11_varying_scale -- out/varying-scale-orient orient
+//! ```
 
 use glam::DVec3;
 use surfsynth::example::Example;
@@ -58,15 +67,32 @@ fn main() -> surfsynth::Result<()> {
     for y in 0..=h {
         map += &format!("vertex {} 1\nvertex {} 3\n", y * (w + 1), y * (w + 1) + w);
     }
-    let (mesh, scale) = (inputs.join("strip.obj"), inputs.join("scale.txt"));
-    for (p, text) in [(&mesh, &obj), (&scale, &map)] {
+    // The same factors as the lengths of orientation pins along x (`vertex I DX DY DZ`).
+    let mut pins = String::from("# vertex INDEX DX DY DZ: v1 along x, |d| the scale factor\n");
+    for y in 0..=h {
+        pins += &format!(
+            "vertex {} 1 0 0\nvertex {} 3 0 0\n",
+            y * (w + 1),
+            y * (w + 1) + w
+        );
+    }
+    let (mesh, scale, orient) = (
+        inputs.join("strip.obj"),
+        inputs.join("scale.txt"),
+        inputs.join("orient.txt"),
+    );
+    for (p, text) in [(&mesh, &obj), (&scale, &map), (&orient, &pins)] {
         std::fs::write(p, text).map_err(|e| surfsynth::Error::io(p, "cannot write", e))?;
     }
-    let (r, report) = Synthesizer::new(&mesh, bricks(128))
-        .method(Method::Optimise)
-        .orientation(Orientation::Axis(DVec3::X))
-        .scale_map(&scale)
-        .run_to(&out)?;
+    let from_orient = std::env::args().nth(2).as_deref() == Some("orient");
+    let s = Synthesizer::new(&mesh, bricks(128)).method(Method::Optimise);
+    let s = if from_orient {
+        s.orientation(Orientation::Constraints(orient))
+            .scale_from_orientation()
+    } else {
+        s.orientation(Orientation::Axis(DVec3::X)).scale_map(&scale)
+    };
+    let (r, report) = s.run_to(&out)?;
 
     // Per quarter of the strip (by x): median requested and measured local scale.
     let (su, sv) = (

@@ -49,6 +49,7 @@ pub fn command(out: &Path) -> SynthCommand {
         texel_size: None,
         scale: None,
         scale_map: None,
+        scale_from_orient: false,
         orientation: None,
         seed: SEED,
         search: None,

@@ -262,6 +262,10 @@ pub struct Constraints {
     /// The file's 1-based line of each entry of `vertices` (empty when not from a file),
     /// for messages about indices the mesh does not have.
     pub vertex_lines: Vec<usize>,
+    /// |d| of each entry of `vertices` as written (the field uses only its direction):
+    /// `--scale-from-orient` takes the local scale from it
+    /// ([`crate::scale_field::ScaleMap::from_orientation`]).
+    pub vertex_lengths: Vec<f64>,
     /// The file read, for the same messages.
     pub path: Option<PathBuf>,
 }
@@ -297,8 +301,11 @@ impl Constraints {
                 }
                 Ok(v)
             };
+            let raw3 = |i: usize| -> anyhow::Result<DVec3> {
+                Ok(DVec3::new(num(i)?, num(i + 1)?, num(i + 2)?))
+            };
             let dir3 = |i: usize| -> anyhow::Result<DVec3> {
-                let d = DVec3::new(num(i)?, num(i + 1)?, num(i + 2)?);
+                let d = raw3(i)?;
                 if d.length() < 1e-12 {
                     bail!(
                         "line {}: direction ({}, {}, {}) has zero length",
@@ -327,6 +334,7 @@ impl Constraints {
                     })?;
                     c.vertices.push((idx, dir3(1)?));
                     c.vertex_lines.push(ln + 1);
+                    c.vertex_lengths.push(raw3(1)?.length());
                 }
                 "sink" | "source" => {
                     if nums.len() != 3 && nums.len() != 4 {

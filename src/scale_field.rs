@@ -99,12 +99,38 @@ pub struct Constraint {
     pub line: usize,
 }
 
+/// Where a scale map's factors were read from (report.json `scale_map.from`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ScaleSource {
+    /// A scale map file (`--scale-map FILE`), or constraints made in memory.
+    #[default]
+    ScaleMap,
+    /// The lengths of the `vertex I DX DY DZ` directions of an orientation constraints file
+    /// (`--orient FILE --scale-from-orient`; 001 §3.1: the field's "magnitude ... will be
+    /// used to determine the local scale").
+    OrientLengths,
+}
+
+impl ScaleSource {
+    /// What its numbers are called in messages.
+    fn noun(self) -> (&'static str, &'static str) {
+        match self {
+            ScaleSource::ScaleMap => ("factor", "factors"),
+            ScaleSource::OrientLengths => ("direction length", "direction lengths"),
+        }
+    }
+}
+
 /// A parsed scale map (format in docs/formats.md).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct ScaleMap {
     pub constraints: Vec<Constraint>,
     /// The file read (for messages and the report).
     pub path: Option<PathBuf>,
+    /// What the file was: a scale map, or orientation constraints whose lengths are the
+    /// factors.
+    pub source: ScaleSource,
 }
 
 /// What report.json records of a scale map (`scale_map`).
@@ -112,6 +138,9 @@ pub struct ScaleMap {
 pub struct ScaleMapInfo {
     /// The file, as given.
     pub file: String,
+    /// What it is: `scale_map` (`--scale-map`) or `orient_lengths` (the lengths of an
+    /// orientation constraints file's `vertex` directions, `--scale-from-orient`).
+    pub from: ScaleSource,
     /// `vertex` and `point` lines.
     pub vertices: usize,
     pub points: usize,
@@ -207,19 +236,7 @@ impl ScaleMap {
                     ))
                 }
             };
-            if let At::Vertex(i) = c.at {
-                if let Some(o) = m
-                    .constraints
-                    .iter()
-                    .find(|o| o.at == At::Vertex(i) && o.factor != c.factor)
-                {
-                    return Err(format!(
-                        "line {line}: vertex {i} has factor {} here and {} on line {}",
-                        c.factor, o.factor, o.line
-                    ));
-                }
-            }
-            m.constraints.push(c);
+            m.push(c)?;
         }
         if m.constraints.is_empty() {
             return Err(
@@ -227,10 +244,39 @@ impl ScaleMap {
                     .into(),
             );
         }
-        let (lo, hi) = m.extremes();
+        m.check_ratio()?;
+        Ok(m)
+    }
+
+    /// Adds `c`, refusing a vertex given a different factor on an earlier line.
+    fn push(&mut self, c: Constraint) -> std::result::Result<(), String> {
+        if let At::Vertex(i) = c.at {
+            if let Some(o) = self
+                .constraints
+                .iter()
+                .find(|o| o.at == At::Vertex(i) && o.factor != c.factor)
+            {
+                return Err(format!(
+                    "line {}: vertex {i} has {} {} here and {} on line {}",
+                    c.line,
+                    self.source.noun().0,
+                    c.factor,
+                    o.factor,
+                    o.line
+                ));
+            }
+        }
+        self.constraints.push(c);
+        Ok(())
+    }
+
+    /// Refuses factors more than [`MAX_RATIO`] apart.
+    fn check_ratio(&self) -> std::result::Result<(), String> {
+        let (lo, hi) = self.extremes();
         if hi.factor / lo.factor > MAX_RATIO {
             return Err(format!(
-                "factors {} (line {}) and {} (line {}) are {:.3}x apart; at most {MAX_RATIO}x is supported",
+                "{} {} (line {}) and {} (line {}) are {:.3}x apart; at most {MAX_RATIO}x is supported",
+                self.source.noun().1,
                 lo.factor,
                 lo.line,
                 hi.factor,
@@ -238,7 +284,54 @@ impl ScaleMap {
                 hi.factor / lo.factor
             ));
         }
+        Ok(())
+    }
+
+    /// The scale map an orientation constraints file implies (`--scale-from-orient`): each
+    /// `vertex I DX DY DZ` line's length |d| is vertex I's factor, exactly as a scale-map
+    /// line `vertex I |d|` would be (001 §3.1 takes the local scale from the magnitude of
+    /// the direction field a user draws; here the user's pinned directions are that field's
+    /// samples). `sink`, `source` and `axis` lines carry no scale. The same checks as a scale
+    /// map's: lengths finite (zero lengths are refused by the constraints parser already), a
+    /// vertex given two lengths, at most [`MAX_RATIO`] between the largest and smallest.
+    pub fn from_orientation(c: &crate::field::Constraints) -> Result<Self> {
+        let mut m = ScaleMap {
+            constraints: Vec::with_capacity(c.vertices.len()),
+            path: c.path.clone(),
+            source: ScaleSource::OrientLengths,
+        };
+        let at = m.at();
+        for (k, &(i, _)) in c.vertices.iter().enumerate() {
+            let line = c.vertex_lines.get(k).copied().unwrap_or(0);
+            let len = c.vertex_lengths.get(k).copied().unwrap_or(1.0);
+            if !(len.is_finite() && len > 0.0) {
+                return Err(Error::invalid(format!(
+                    "{at}line {line}: direction length {len} of vertex {i} must be a finite number > 0 (--scale-from-orient takes it as the scale factor)"
+                )));
+            }
+            m.push(Constraint {
+                at: At::Vertex(i),
+                factor: len,
+                line,
+            })
+            .map_err(|e| Error::invalid(format!("{at}{e}")))?;
+        }
+        if m.constraints.is_empty() {
+            return Err(Error::invalid(format!(
+                "{at}has no `vertex INDEX DX DY DZ` lines, so --scale-from-orient has no lengths to take the scale from"
+            )));
+        }
+        m.check_ratio()
+            .map_err(|e| Error::invalid(format!("{at}{e}")))?;
         Ok(m)
+    }
+
+    /// [`ScaleMap::from_orientation`] of the constraints file at `path`; errors are one line
+    /// naming the file (and line).
+    pub fn load_orientation(path: &Path) -> Result<Self> {
+        let c =
+            crate::field::Constraints::load(path).map_err(|e| Error::invalid(format!("{e:#}")))?;
+        Self::from_orientation(&c)
     }
 
     /// The constraints with the smallest and the largest factor (first of equals).
@@ -307,6 +400,7 @@ pub struct ScaleField {
     unconstrained_parts: usize,
     label: String,
     counts: (usize, usize),
+    from: ScaleSource,
 }
 
 impl ScaleField {
@@ -399,6 +493,7 @@ impl ScaleField {
                 unconstrained_parts,
                 label,
                 counts,
+                from: map.source,
             });
         }
         let lm = finest;
@@ -447,6 +542,7 @@ impl ScaleField {
             unconstrained_parts,
             label,
             counts,
+            from: map.source,
         })
     }
 
@@ -505,6 +601,7 @@ impl ScaleField {
     pub fn info(&self, scale: f64) -> ScaleMapInfo {
         ScaleMapInfo {
             file: self.label.clone(),
+            from: self.from,
             vertices: self.counts.0,
             points: self.counts.1,
             min_factor: self.min,
@@ -823,6 +920,47 @@ mod tests {
         }
         let f: Vec<&[u32]> = faces.iter().map(|f| f.as_slice()).collect();
         Surface::new(ControlMesh::from_faces(p, &f).unwrap())
+    }
+
+    #[test]
+    fn orientation_lengths_are_the_scale_map_of_their_lengths() {
+        use crate::field::Constraints;
+        let c = Constraints::parse(
+            "axis 0 1 0\nvertex 3 0 2 0 # length 2\nsink 0 0 0\nvertex 9 3 0 4\n",
+        )
+        .unwrap();
+        let m = ScaleMap::from_orientation(&c).unwrap();
+        let want = ScaleMap::parse("vertex 3 2\nvertex 9 5\n").unwrap();
+        assert_eq!(m.source, ScaleSource::OrientLengths);
+        let pairs = |m: &ScaleMap| -> Vec<(At, f64)> {
+            m.constraints.iter().map(|c| (c.at, c.factor)).collect()
+        };
+        assert_eq!(pairs(&m), pairs(&want));
+        assert_eq!(
+            m.constraints.iter().map(|c| c.line).collect::<Vec<_>>(),
+            [2, 4]
+        );
+        // The same vertex twice: one length is fine, two are refused (naming both lines).
+        let twice = |t: &str| ScaleMap::from_orientation(&Constraints::parse(t).unwrap());
+        assert!(twice("vertex 1 1 0 0\nvertex 1 0 1 0\n").is_ok());
+        let e = twice("vertex 1 1 0 0\nvertex 1 0 2 0\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("line 2: vertex 1 has direction length 2 here and 1 on line 1"),
+            "{e}"
+        );
+        let e = twice("vertex 1 1 0 0\nvertex 2 17 0 0\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("direction lengths 1 (line 1) and 17 (line 2)"),
+            "{e}"
+        );
+        let e = twice("vertex 1 1e300 1e300 0\n").unwrap_err().to_string();
+        assert!(e.contains("line 1: direction length inf"), "{e}");
+        let e = twice("axis 1 0 0\n").unwrap_err().to_string();
+        assert!(e.contains("has no `vertex"), "{e}");
     }
 
     #[test]

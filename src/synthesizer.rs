@@ -279,6 +279,9 @@ pub type Progress = dyn Fn(Stage, usize, usize) + Send + Sync;
 enum ScaleMapInput {
     Path(PathBuf),
     Map(crate::scale_field::ScaleMap),
+    /// The lengths of the orientation constraints file's `vertex` directions
+    /// ([`Synthesizer::scale_from_orientation`]).
+    FromOrientation,
 }
 
 /// Builder for one synthesis run (see the module docs).
@@ -432,6 +435,16 @@ impl Synthesizer {
     /// ([`crate::scale_field::ScaleMap::parse`] or built directly).
     pub fn scale_map_constraints(mut self, map: crate::scale_field::ScaleMap) -> Self {
         self.scale_map = Some(ScaleMapInput::Map(map));
+        self
+    }
+    /// Spatially varying scale from the orientation constraints file (`--orient FILE
+    /// --scale-from-orient`): each `vertex I DX DY DZ` line's length |d| is vertex I's scale
+    /// factor, exactly as the scale-map line `vertex I |d|` would be
+    /// ([`crate::scale_field::ScaleMap::from_orientation`]); replaces any scale map. The
+    /// orientation must be a constraints file ([`Orientation::Constraints`]); errors name
+    /// the file and line, before `--out` is opened.
+    pub fn scale_from_orientation(mut self) -> Self {
+        self.scale_map = Some(ScaleMapInput::FromOrientation);
         self
     }
     /// Orientation field (`--orient`); `None` gives the method's own
@@ -828,6 +841,17 @@ impl Synthesizer {
                 let m = match input {
                     ScaleMapInput::Path(p) => crate::scale_field::ScaleMap::load(p)?,
                     ScaleMapInput::Map(m) => m.clone(),
+                    ScaleMapInput::FromOrientation => match &orientation {
+                        Orientation::Constraints(p) => {
+                            crate::scale_field::ScaleMap::load_orientation(p)?
+                        }
+                        other => {
+                            return Err(Error::invalid(format!(
+                                "--scale-from-orient takes the scale from the directions of an orientation constraints file, but the orientation is `{}`: pass --orient FILE",
+                                other.label()
+                            )))
+                        }
+                    },
                 };
                 let control = match (&user_control, &self.mesh) {
                     (Some(c), _) => c,
@@ -1225,6 +1249,8 @@ pub struct SynthCommand {
     pub scale: Option<f64>,
     /// `--scale-map FILE`.
     pub scale_map: Option<PathBuf>,
+    /// `--scale-from-orient`: the scale from the lengths of the `--orient FILE` directions.
+    pub scale_from_orient: bool,
     /// `--orient` (`None`: the method's own).
     pub orientation: Option<Orientation>,
     pub seed: u64,
@@ -1270,6 +1296,9 @@ impl SynthCommand {
         }
         if let Some(m) = &self.scale_map {
             s = s.scale_map(m);
+        }
+        if self.scale_from_orient {
+            s = s.scale_from_orientation();
         }
         for (name, file) in &self.maps {
             s = s.map(name, file);

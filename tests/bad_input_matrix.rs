@@ -1698,6 +1698,95 @@ fn s05_scale_map_ratio_too_large() {
     assert!(!msg.contains("line 2"), "{msg}");
 }
 
+/// `synth --orient FILE --scale-from-orient` with `text` in FILE: the failure names the
+/// file (and line), and `--out` is not created.
+#[track_caller]
+fn bad_orient_lengths(text: &str, names_line: Option<usize>, problem: &[&str]) -> String {
+    let tmp = tempfile::tempdir().unwrap();
+    let c = tmp.path().join("orient c.txt");
+    std::fs::write(&c, text).unwrap();
+    let f = c.display().to_string();
+    let names = match names_line {
+        Some(l) => format!("{f}: line {l}:"),
+        None => format!("{f}:"),
+    };
+    let (out, msg) = synth_fails_in(
+        &spot(),
+        &gravel(),
+        &["--resolution", "4", "--orient", &f, "--scale-from-orient"],
+        &names,
+        problem,
+    );
+    assert!(
+        !out.path().join("out").exists(),
+        "--out is not even created for bad orientation lengths"
+    );
+    msg
+}
+
+#[test]
+fn s07_scale_from_orient_bad_lengths() {
+    bad_orient_lengths(
+        "vertex 0 1 0 0\nvertex 5 0 0 0\n",
+        Some(2),
+        &["has zero length"],
+    );
+    bad_orient_lengths(
+        "vertex 0 1 0 0\nvertex 5 1e200 1e200 0\n",
+        Some(2),
+        &["direction length inf of vertex 5", "finite number > 0"],
+    );
+    bad_orient_lengths(
+        "vertex 0 1 0 0\nvertex 0 0 2 0\n",
+        Some(2),
+        &["vertex 0 has direction length 2 here and 1 on line 1"],
+    );
+    let msg = bad_orient_lengths(
+        "vertex 0 0.1 0 0\nvertex 5 1 0 0\nvertex 9 0 2 0\n",
+        None,
+        &[
+            "direction lengths 0.1 (line 1) and 2 (line 3)",
+            "20.000x apart",
+            "at most 16x",
+        ],
+    );
+    assert!(!msg.contains("line 2"), "{msg}");
+    bad_orient_lengths(
+        "axis 0 1 0\n",
+        None,
+        &["has no `vertex", "--scale-from-orient"],
+    );
+    bad_orient_lengths(
+        "vertex 0 1 0 0\nvertex 188 2 0 0\n",
+        Some(2),
+        &["vertex 188, but the mesh has 188 vertices (0-based)"],
+    );
+}
+
+#[test]
+fn s08_scale_from_orient_without_a_constraints_file_or_with_a_scale_map() {
+    bad_flag(
+        &["--scale-from-orient"],
+        "--scale-from-orient",
+        &["pass --orient FILE"],
+    );
+    bad_flag(
+        &["--orient", "auto", "--scale-from-orient"],
+        "--scale-from-orient",
+        &["pass --orient FILE"],
+    );
+    let tmp = tempfile::tempdir().unwrap();
+    let (c, m) = (tmp.path().join("c.txt"), tmp.path().join("m.txt"));
+    std::fs::write(&c, "vertex 0 2 0 0\n").unwrap();
+    std::fs::write(&m, "vertex 0 2\n").unwrap();
+    let (c, m) = (c.display().to_string(), m.display().to_string());
+    bad_flag(
+        &["--orient", &c, "--scale-from-orient", "--scale-map", &m],
+        "--scale-from-orient and --scale-map",
+        &["pass one of them"],
+    );
+}
+
 #[test]
 fn s06_scale_map_point_off_the_surface() {
     // Found when the map is interpolated (after --out was opened: it stays empty).

@@ -344,3 +344,77 @@ fn strip_seconds(v: &mut serde_json::Value) {
         _ => {}
     }
 }
+
+/// Measurement, not a check (`--ignored`): texton synthesis per embedding dimension count
+/// (`TextonParams::dims`; `TEXTON_DIMS`, default "8,4") against a plain multiscale synthesis
+/// of each light's image, on Spot and the double torus, seeds 1–2, at the benchmark's size
+/// (the krita relief's 64² crop, 32 lights, N = 32; `BTF_SIZE`, `BTF_LIGHTS`, `BTF_N`
+/// override). Prints pf4 and pf8 of the result relit under lights 0 and L/4 (20°
+/// elevation, opposite azimuths: the acceptance test's pair) and the synthesis seconds;
+/// docs/btf.md has the table.
+#[test]
+#[ignore]
+fn texton_dims_per_light_measured() {
+    let dims: Vec<usize> = std::env::var("TEXTON_DIMS")
+        .unwrap_or_else(|_| "8,4".into())
+        .split(',')
+        .map(|s| s.trim().parse().unwrap())
+        .collect();
+    let size = common::env_or("BTF_SIZE", 64usize);
+    let lights = common::env_or("BTF_LIGHTS", 32usize);
+    let n = common::env_or("BTF_N", 32usize);
+    let tmp = tempfile::tempdir().unwrap();
+    let hf = HeightField::load(&data("textures/krita_bump_relief.png"), Some(size), 5.0).unwrap();
+    let (s, _) = generate::sample(&hf, &generate::light_directions(lights));
+    let json = generate::write(&tmp.path().join("sample"), &s, serde_json::json!({})).unwrap();
+    let sample = BtfSample::load(&json).unwrap();
+    let pair = [0, lights / 4];
+    for mesh in [SPOT, "meshes/double_torus_genus2.obj"] {
+        for seed in [1u64, 2] {
+            let mut plain = Vec::new();
+            for &i in &pair {
+                let ex = sample.images[i].clone();
+                let r = Synthesizer::new(data(mesh), ex.clone())
+                    .method(Method::Multiscale)
+                    .resolution(n)
+                    .seed(seed)
+                    .cache(CacheDir::Off)
+                    .run()
+                    .unwrap();
+                let g = r.geometry_maps();
+                let pf = surfsynth::eval::patch_fidelities(&r.maps, &g, &ex, Some(r.report.scale));
+                plain.push((pf.pf4.unwrap(), pf.pf8.unwrap()));
+            }
+            for &d in &dims {
+                let b = Synthesizer::new(data(mesh), ExampleSource::Btf(json.clone()))
+                    .method(Method::Textons)
+                    .resolution(n)
+                    .seed(seed)
+                    .cache(CacheDir::Off);
+                let mut settings = b.current_settings().clone();
+                settings.textons.dims = d;
+                let t0 = std::time::Instant::now();
+                let r = b.settings(settings).run().unwrap();
+                let secs = t0.elapsed().as_secs_f64();
+                let g = r.geometry_maps();
+                for (k, &i) in pair.iter().enumerate() {
+                    let ex = sample.images[i].clone();
+                    let pf = surfsynth::eval::patch_fidelities(
+                        &relit(&r.maps, &sample, i),
+                        &g,
+                        &ex,
+                        Some(r.report.scale),
+                    );
+                    let (p4, p8) = (pf.pf4.unwrap(), pf.pf8.unwrap());
+                    println!(
+                        "{mesh} seed {seed} dims {d} light {i}: pf4 {p4:.3} pf8 {p8:.3} | plain {:.3} {:.3} | ratio pf4 {:.2} pf8 {:.2} | {secs:.1} s",
+                        plain[k].0,
+                        plain[k].1,
+                        p4 / plain[k].0,
+                        p8 / plain[k].1
+                    );
+                }
+            }
+        }
+    }
+}

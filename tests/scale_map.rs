@@ -319,3 +319,135 @@ fn outputs_and_eval() {
     let sf = q.scale_fidelity.unwrap();
     assert!(q.local_scale.is_none() && sf.p10 < 0.8, "{sf:?}");
 }
+
+/// [`spot_ramp`] as an orientation constraints file (`--orient FILE`): every vertex of the
+/// map pinned to world x, with a direction whose length is the vertex's factor (1 on the
+/// head, 3 on the rump) — what `--scale-from-orient` reads the scale from.
+fn spot_ramp_orientation(dir: &std::path::Path) -> PathBuf {
+    let mut text = String::from("# v1 along x; the lengths are the scale factors\n");
+    for c in &spot_ramp().constraints {
+        let surfsynth::scale_field::At::Vertex(i) = c.at else {
+            unreachable!("spot_ramp has vertex lines only")
+        };
+        text += &format!("vertex {i} {} 0 0\n", c.factor);
+    }
+    let path = dir.join("ramp orient.txt");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+fn run_oriented(
+    method: Method,
+    n: usize,
+    orient: &std::path::Path,
+    scale: impl FnOnce(Synthesizer) -> Synthesizer,
+) -> SynthResult {
+    let s = Synthesizer::new(spot(), bricks())
+        .method(method)
+        .resolution(n)
+        .orientation(surfsynth::field::Orientation::Constraints(orient.into()))
+        .seed(1)
+        .analyses(common::analyses());
+    scale(s).run().unwrap()
+}
+
+/// `--scale-from-orient` (issue 15 item 4, "the lengths of a per-vertex direction field"):
+/// directions of lengths 1 and 3 give the same files, bit for bit, as the scale map with
+/// factors 1 and 3 at those vertices; report.json says where the scale came from.
+#[test]
+fn orientation_lengths_are_the_equivalent_scale_map() {
+    let tmp = tempfile::tempdir().unwrap();
+    let orient = spot_ramp_orientation(tmp.path());
+    for method in [Method::Jump, Method::Multiscale] {
+        let a = run_oriented(method, 8, &orient, |s| s.scale_from_orientation());
+        let b = run_oriented(method, 8, &orient, |s| s.scale_map_constraints(spot_ramp()));
+        assert!(
+            a.maps.channels == b.maps.channels,
+            "{}: maps differ from the scale map's",
+            method.name()
+        );
+        assert_eq!(a.local_scale, b.local_scale);
+        let (ia, ib) = (
+            a.report.scale_map.as_ref().unwrap(),
+            b.report.scale_map.as_ref().unwrap(),
+        );
+        assert_eq!(ia.from, surfsynth::scale_field::ScaleSource::OrientLengths);
+        assert_eq!(ib.from, surfsynth::scale_field::ScaleSource::ScaleMap);
+        assert_eq!(ia.file, orient.display().to_string());
+        assert_eq!((ia.min_factor, ia.max_factor), (1.0, 3.0));
+        assert_eq!(ia.vertices, ib.vertices);
+        // Not trivially equal: without the lengths the scale is the global one.
+        let c = run_oriented(method, 8, &orient, |s| s);
+        assert!(c.local_scale.is_none() && c.maps.channels != a.maps.channels);
+    }
+}
+
+/// Every direction of length 2 is `--scale 2S`, bit for bit (as a scale map of factor 2).
+#[test]
+fn orientation_lengths_all_two_are_twice_the_scale() {
+    let tmp = tempfile::tempdir().unwrap();
+    let path = tmp.path().join("two.txt");
+    std::fs::write(&path, "vertex 7 0 2 0\nvertex 40 0 0 -2\n").unwrap();
+    let s = 0.013;
+    for method in [Method::Jump, Method::Patches] {
+        let a = run_oriented(method, 8, &path, |b| b.scale(s).scale_from_orientation());
+        let b = run_oriented(method, 8, &path, |b| b.scale(2.0 * s));
+        for c in ["source.u", "source.v", "R"] {
+            assert!(
+                a.maps.channel(c).unwrap() == b.maps.channel(c).unwrap(),
+                "{}: {c} differs",
+                method.name()
+            );
+        }
+        let want = (2.0 * s) as f32;
+        assert!(a.local_scale.as_ref().unwrap().iter().all(|&v| v == want));
+    }
+}
+
+/// The measured local scale follows the lengths (per region within 5%, as the scale map's
+/// acceptance), through the CLI's flag: `synth --orient FILE --scale-from-orient`, and
+/// report.json records `scale_map.from`.
+#[test]
+fn orientation_lengths_set_the_measured_local_scale() {
+    let tmp = tempfile::tempdir().unwrap();
+    let orient = spot_ramp_orientation(tmp.path());
+    let r = run_oriented(Method::Patches, 16, &orient, |s| s.scale_from_orientation());
+    for (i, &(pairs, _, _, ratio)) in regions(&r, 1.0, 3.0).iter().enumerate() {
+        println!("region {i}: {pairs} pairs, ratio {ratio:.4}");
+        assert!(
+            pairs >= 200 && (0.95..=1.05).contains(&ratio),
+            "region {i}: {pairs} pairs, ratio {ratio}"
+        );
+    }
+    // The binary: same flag, report.json says where the scale came from.
+    let out = tmp.path().join("out");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_surfsynth"))
+        .args([
+            "synth",
+            "--method",
+            "jump",
+            "--resolution",
+            "4",
+            "--no-cache",
+        ])
+        .arg("--mesh")
+        .arg(spot())
+        .arg("--example")
+        .arg(data("textures/skimage_brick.png"))
+        .arg("--orient")
+        .arg(&orient)
+        .arg("--scale-from-orient")
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let rep = surfsynth::report::read(&out).unwrap();
+    let m = &rep["scale_map"];
+    assert_eq!(m["from"], "orient_lengths");
+    assert_eq!(m["file"], orient.display().to_string());
+    assert_eq!(
+        (m["min_factor"].clone(), m["max_factor"].clone()),
+        (1.0.into(), 3.0.into())
+    );
+}

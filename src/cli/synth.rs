@@ -148,6 +148,11 @@ pub struct SynthArgs {
     /// (docs/formats.md); the factors, interpolated over the surface, multiply the scale.
     #[arg(long, value_name = "FILE")]
     pub scale_map: Option<PathBuf>,
+    /// Spatially varying scale from the orientation constraints file (--orient FILE): each
+    /// `vertex I DX DY DZ` line's length |(DX, DY, DZ)| multiplies the scale at vertex I, as
+    /// the scale-map line `vertex I LENGTH` would (docs/field.md); instead of --scale-map.
+    #[arg(long)]
+    pub scale_from_orient: bool,
     /// Orientation field: auto (the smoothest field), up[+-AXIS] (the example upright
     /// along an axis, +y by default: level brick courses), straight, +x|-x|+y|-y|+z|-z (the
     /// example's x along an axis), or a constraints file. Default: `up` for optimise (the
@@ -267,6 +272,18 @@ pub fn run(mut a: SynthArgs) -> anyhow::Result<()> {
     if a.patch_size.is_some() && !matches!(chosen, Method::Patches | Method::Optimise) {
         return super::usage("--patch-size applies to --method patches and optimise only");
     }
+    if a.scale_from_orient {
+        if a.scale_map.is_some() {
+            return super::usage(
+                "--scale-from-orient and --scale-map both give the scale: pass one of them",
+            );
+        }
+        if !matches!(a.orient, Some(Orientation::Constraints(_))) {
+            return super::usage(
+                "--scale-from-orient takes the scale from the lengths of the `vertex` directions of a constraints file: pass --orient FILE",
+            );
+        }
+    }
     surfsynth::memory::set_limit(a.max_memory);
     use surfsynth::synthesizer::Search as S;
     let method = match chosen {
@@ -298,6 +315,7 @@ pub fn run(mut a: SynthArgs) -> anyhow::Result<()> {
         texel_size: a.texel_size,
         scale: a.scale,
         scale_map: a.scale_map,
+        scale_from_orient: a.scale_from_orient,
         orientation: a.orient,
         seed: a.seed,
         search: a.search.map(|s| match s {

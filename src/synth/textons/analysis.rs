@@ -45,7 +45,12 @@ pub struct TextonParams {
     pub textons: usize,
     /// Lloyd iterations at most (stops earlier when no label changes).
     pub iterations: usize,
-    /// Dimensions of the Γ embedding the neighbourhoods compare.
+    /// Dimensions of the Γ embedding the neighbourhoods compare. 4: every candidate
+    /// distance of the search (the largest share of the run's time) and every neighbourhood
+    /// fetch cost half what 8 did, and the leading four eigenvalues already hold most of
+    /// the centred Γ's trace (krita relief, 64², 32 lights: see report `kept_variance`);
+    /// pf4/pf8 per light were the same or better than with 8 on Spot and the double torus,
+    /// seeds 1–2 (docs/btf.md, "Embedding dimensions").
     pub dims: usize,
 }
 
@@ -54,7 +59,7 @@ impl Default for TextonParams {
         Self {
             textons: 96,
             iterations: 12,
-            dims: 8,
+            dims: 4,
         }
     }
 }
