@@ -152,8 +152,8 @@ fn methods_run_across_faces_of_different_resolution() {
 /// Multiscale synthesis and textons across faces of different resolution over more seeds
 /// than the test above (seed 3): the seam bar holds for each, not on average. Measured
 /// (docs/multiscale.md, "Seams across a resolution step"), seeds 1, 2, 3, 4: multiscale
-/// mixed 0.965, 0.958, 1.064, 1.052; textons 1.024, 1.046, 1.05 (seed 3). Two seeds here
-/// keep the cost at four Spot runs of ~61k texels.
+/// mixed 0.965, 0.958, 1.064, 1.052; textons 1.024, 1.046, 1.045, 0.924. Two seeds here
+/// keep the cost at four Spot runs of 98k texels.
 #[test]
 fn seams_across_resolution_steps_hold_over_seeds() {
     let mesh = data("meshes/spot_control_mesh.obj");
