@@ -118,8 +118,8 @@ const OPTIMISE_TEXEL: u64 = 300;
 /// on a miss than on a hit (flat grid, N = 32). Per texel jump needs nothing on top of
 /// [`SYNTH_TEXEL`]: its growth order, buckets and sources (~16 B) take the room the
 /// other methods' appearance-space texels take (Spot with a 128² example, `--no-cache`,
-/// N = 32, 64, 128: 124, 281, 814 MB peak, 479, 272, 197 B/texel; the estimate is 1.25,
-/// 1.06, 1.06x of that).
+/// N = 32, 64, 128: 124, 281, 814 MB peak, 479, 272, 197 B/texel before the compact pf
+/// summary; 135, 154, 428 MiB after it, the estimate 0.91, 1.22, 1.03x of that).
 const JUMP_MAP_PIXEL: u64 = 360;
 /// `synth`, per border texel (4N per domain): its neighbour list across the face edges.
 const SYNTH_BORDER_TEXEL: u64 = 64;
