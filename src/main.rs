@@ -38,6 +38,8 @@ fn install_panic_hook() {
 
 fn main() {
     install_panic_hook();
+    // Freed memory goes back to the system (peak RSS; surfsynth::memory::tune_allocator).
+    surfsynth::memory::tune_allocator();
     // SIGINT / SIGTERM: remove staging folders and temporaries, one line, exit 130 / 143
     // (surfsynth::io::interrupt). Without it the default action (die at once) stays.
     let _ = surfsynth::io::interrupt::install();

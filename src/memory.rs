@@ -38,6 +38,39 @@ use std::path::Path;
 use std::sync::atomic::{AtomicU64, Ordering};
 use subdiv::{ControlMesh, FaceId, Surface};
 
+/// Makes glibc's malloc give freed memory back (the command line calls it first thing).
+///
+/// By default glibc raises its mmap threshold to the largest block freed (up to 32 MiB),
+/// so once a per-texel array of a few MiB is freed, later blocks below that size come
+/// from heaps that are trimmed only at their top: freed memory stays resident. Measured on
+/// Spot N = 128 (jump), the write stage held ~80 MiB more resident than the process had
+/// allocated (peak RSS 508 MiB against 428 MiB with this). Fixed thresholds of 1 MiB
+/// (blocks from 1 MiB up are mapped on their own and unmapped when freed; heaps are trimmed
+/// above 1 MiB free) keep RSS near what is allocated; the run's time is unchanged
+/// (docs/benchmarks.md). Skipped when `GLIBC_TUNABLES` sets malloc's own, and on other
+/// platforms (whose allocators are not glibc's). Allocation only: results do not change.
+pub fn tune_allocator() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    {
+        if std::env::var("GLIBC_TUNABLES").is_ok_and(|t| t.contains("glibc.malloc.")) {
+            return;
+        }
+        extern "C" {
+            fn mallopt(param: i32, value: i32) -> i32;
+        }
+        // <malloc.h>
+        const M_TRIM_THRESHOLD: i32 = -1;
+        const M_MMAP_THRESHOLD: i32 = -3;
+        const THRESHOLD: i32 = 1 << 20;
+        // SAFETY: mallopt only sets allocator parameters; called before other threads
+        // exist, and both values are within glibc's documented ranges.
+        unsafe {
+            mallopt(M_MMAP_THRESHOLD, THRESHOLD);
+            mallopt(M_TRIM_THRESHOLD, THRESHOLD);
+        }
+    }
+}
+
 /// Share of physical memory used as the default limit.
 pub const DEFAULT_FRACTION: f64 = 0.75;
 
@@ -59,30 +92,34 @@ const IRREGULAR_QUAD_PER_LEVEL: u64 = 2867;
 /// Orientation field: per face of its limit mesh (positions, normals, locations, the
 /// solver's arrays; most of it is kept for the texel frames), measured ~430 B.
 pub const FIELD_FACE: u64 = 430;
-/// `synth`, per texel, besides 4 bytes per map channel: position + normal (24), frames,
-/// graph starts, source positions, geometry maps (24), atlas and tessellation shares,
-/// the appearance-space image of the texels, and the transient copies of the stages
-/// (measured on Spot with the coherent method at N = 32–128: 163–214 B/texel at 5
-/// channels, the slope falling as N grows; two more channels added only ~2 B/texel, so 4 B
-/// per channel is on the safe side).
-const SYNTH_TEXEL: u64 = 160;
+/// `synth`, per texel, besides 4 bytes per map channel: what the largest stage holds at
+/// once — during synthesis the texel geometry (24), frames (24), edge graph (20), sources
+/// (8) and the method's compact state; afterwards the maps, the tangents and the pf
+/// summary's k-d tree (32), or the atlas and the tiles being written. Measured on Spot with
+/// the coherent and jump methods (issue 14 item 6, 2026-12-03): whole-run peak 417–428
+/// MiB at N = 128, 152–154 at N = 64, 135 at N = 32; 84 B per texel in all at 5 channels
+/// puts the estimate at 1.03–1.04x at N = 128, 1.2x at N = 64 and 0.9x at N = 32, where
+/// the orientation field's stage (a fixed part, not a sum with the texels) is the peak.
+/// It was 160 while the pf summary copied every texel as f64 (~200 B per texel).
+const SYNTH_TEXEL: u64 = 64;
 /// `synth --method patches`, per texel on top of [`SYNTH_TEXEL`]: footprints (texel lists
 /// and their example positions), the min-cut graphs in flight, the assembled sources.
-/// Measured on Spot at N = 32–128: 90–100 B/texel more than coherent.
-const PATCHES_TEXEL: u64 = 100;
+/// Measured on Spot (2026-12-03): peak 264 MiB at N = 64, 882 at N = 128 (209 B per
+/// texel between them).
+const PATCHES_TEXEL: u64 = 120;
 /// `synth --method optimise`, per texel on top of [`SYNTH_TEXEL`]: the footprints of
 /// every level, the per-texel accumulators of the M-step, the optimised sources and
-/// colours, and the patch sampling that starts the coarsest level. Measured on Spot at
-/// N = 32–128: 200–250 B/texel more than coherent.
-const OPTIMISE_TEXEL: u64 = 240;
+/// colours, and the patch sampling that starts the coarsest level. Measured on Spot
+/// (2026-12-03): peak 155 MiB at N = 32, 448 at N = 64 (~400 B per texel between them).
+const OPTIMISE_TEXEL: u64 = 300;
 /// `synth --method jump`, per example pixel: the jump map (4 targets, 4 weights, their
 /// sum: 36 B) and, while it is built (a cache miss), the 3x3-lattice vectors (72 floats),
 /// their tree projections and the kd-tree. Measured: a 512² example peaked 82 MB higher
 /// on a miss than on a hit (flat grid, N = 32). Per texel jump needs nothing on top of
 /// [`SYNTH_TEXEL`]: its growth order, buckets and sources (~16 B) take the room the
 /// other methods' appearance-space texels take (Spot with a 128² example, `--no-cache`,
-/// N = 32, 64, 128: 124, 281, 814 MB peak, 479, 272, 197 B/texel; the estimate is 1.25,
-/// 1.06, 1.06x of that).
+/// N = 32, 64, 128: 124, 281, 814 MB peak, 479, 272, 197 B/texel before the compact pf
+/// summary; 135, 154, 428 MiB after it, the estimate 0.91, 1.22, 1.03x of that).
 const JUMP_MAP_PIXEL: u64 = 360;
 /// `synth`, per border texel (4N per domain): its neighbour list across the face edges.
 const SYNTH_BORDER_TEXEL: u64 = 64;
@@ -97,8 +134,10 @@ const EXAMPLE_PIXEL: u64 = 240;
 /// - per texel of the output: the finest level's geometry (positions, frames, parameter
 ///   axes, Christoffel symbols: 140 B), the coarser level's (a quarter of that), each
 ///   level's sources (4 B), and the continuation of the sources (its links, 4 B each
-///   way, and positions); the slope between N = 32 and 64 is 157 B/texel;
-const MULTISCALE_TEXEL: u64 = 160;
+///   way, and positions); whole-run peak 216 MiB at N = 32 and 440 at N = 64 with a 128²
+///   example (2026-12-03): 304 B per texel between them, [`SYNTH_TEXEL`]'s 84 included
+///   (it was 160 on top of the old 180);
+const MULTISCALE_TEXEL: u64 = 220;
 /// - per example pixel (multiscale only): the appearance-space pyramid, the gathered-from images of the search features (the level
 ///   and its coarser level upsampled: 2 x 8 floats per pixel and level) and the
 ///   k-coherence lists (11 per pixel, 100 per pixel of the levels that parent another);

@@ -1332,45 +1332,17 @@ pub fn run_command(c: &SynthCommand) -> Result<Report> {
         .on_progress(move |s, d, t| bars.update(s, d, t))
         .run_to_with(&c.out, |r| {
             // Measured before writing, so report.json is written once, with the rest.
-            // pf reads the geometry as maps: the texel geometry is parked as those maps
-            // meanwhile (the same f32 values, rebuilt exactly), so both are not held at
-            // the run's peak (the pf point cloud; 24 B per texel less).
-            let geometry_maps = r.geometry_maps();
-            r.geometry = Arc::new(TexelGeometry {
-                layout: r.geometry.layout.clone(),
-                pos: Vec::new(),
-                normal: Vec::new(),
-            });
-            r.report.patch_fidelity = Some(crate::eval::summary_fidelity(
+            // pf reads the texel geometry in place (not a copy as geometry maps: 24 B per
+            // texel less at the run's peak, the pf point cloud).
+            r.report.patch_fidelity = Some(crate::eval::summary_fidelity_of(
                 &r.maps,
-                &geometry_maps,
+                crate::eval::TexelPoints::of_geometry(&r.geometry, r.local_scale.as_deref()),
                 &r.example,
                 r.report.scale,
             ));
-            r.geometry = Arc::new(geometry_from_maps(&geometry_maps));
         })?;
     println!("{}", summary_line(&report, &c.out));
     Ok(report)
-}
-
-/// The texel geometry back from its maps ([`SynthResult::geometry_maps`]; exact: the
-/// same f32 values).
-fn geometry_from_maps(m: &FaceMaps) -> TexelGeometry {
-    let ch = |k: usize| {
-        m.channel(crate::bake::GEOMETRY_CHANNELS[k])
-            .expect("geometry maps have every geometry channel")
-    };
-    let xyz = |o: usize| -> Vec<glam::Vec3> {
-        let (x, y, z) = (ch(o), ch(o + 1), ch(o + 2));
-        (0..x.len())
-            .map(|i| glam::Vec3::new(x[i], y[i], z[i]))
-            .collect()
-    };
-    TexelGeometry {
-        layout: m.layout.clone(),
-        pos: xyz(0),
-        normal: xyz(3),
-    }
 }
 
 /// One line: domains, texels, seconds, texels/s (whole run and synthesis alone), and

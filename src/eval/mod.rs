@@ -38,7 +38,7 @@ pub use pf::{
     image_patch_fidelities, PatchFidelity, PfDetail, PfMethod, PfOptions, PfScale, Rgb, PF_SAMPLES,
     PF_SCALES, PF_SUMMARY_SAMPLES,
 };
-pub use surface::patch_fidelities_with;
+pub use surface::{patch_fidelities_of, patch_fidelities_with, TexelPoints, Xyz};
 
 /// The pfS figures `synth` prints at the end of a run and records in report.json
 /// (`patch_fidelity`): measured like `eval`'s, on fewer drawn texels.
@@ -64,11 +64,39 @@ pub fn summary_fidelity(
     scale: f64,
 ) -> PfSummary {
     let t0 = std::time::Instant::now();
+    let p = match TexelPoints::of_maps(geometry) {
+        Some(g) => summary_pf(colour, g, example, scale),
+        None => PatchFidelity::empty(PfMethod::Surface),
+    };
+    summary_of(p, t0)
+}
+
+/// [`summary_fidelity`] on texel geometry wherever it is: `synth` measures its result
+/// with the texel geometry in place (no geometry-map copy at the run's peak).
+pub fn summary_fidelity_of(
+    colour: &FaceMaps,
+    geometry: TexelPoints,
+    example: &Example,
+    scale: f64,
+) -> PfSummary {
+    let t0 = std::time::Instant::now();
+    summary_of(summary_pf(colour, geometry, example, scale), t0)
+}
+
+fn summary_pf(
+    colour: &FaceMaps,
+    geometry: TexelPoints,
+    example: &Example,
+    scale: f64,
+) -> PatchFidelity {
     let opts = PfOptions {
         samples: PF_SUMMARY_SAMPLES,
         ..Default::default()
     };
-    let p = patch_fidelities_with(colour, geometry, example, Some(scale), &opts);
+    patch_fidelities_of(colour, geometry, example, Some(scale), &opts)
+}
+
+fn summary_of(p: PatchFidelity, t0: std::time::Instant) -> PfSummary {
     PfSummary {
         pf1: p.pf1,
         pf4: p.pf4,

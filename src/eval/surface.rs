@@ -43,7 +43,7 @@ use crate::io::exr::FaceMaps;
 use glam::DVec3;
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU32, Ordering};
 
 /// Neighbours within this many local texel spacings enter a texel's fit (its 5x5 block
 /// without the corners on a regular grid).
@@ -90,31 +90,118 @@ struct State {
     n: DVec3,
 }
 
+/// Three f32 values per texel, read as f64 (exact): the planes of geometry maps
+/// (geometry.exr's `P.X P.Y P.Z`) or the packed vectors of the texel geometry in memory.
+#[derive(Clone, Copy, Debug)]
+pub enum Xyz<'a> {
+    Planar([&'a [f32]; 3]),
+    Packed(&'a [glam::Vec3]),
+}
+
+impl Xyz<'_> {
+    #[inline]
+    fn get(&self, i: usize) -> DVec3 {
+        match self {
+            Xyz::Planar([x, y, z]) => DVec3::new(x[i] as f64, y[i] as f64, z[i] as f64),
+            Xyz::Packed(v) => v[i].as_dvec3(),
+        }
+    }
+
+    /// One coordinate of texel `i` (what the k-d tree's construction reads).
+    #[inline]
+    fn coord(&self, i: usize, dim: usize) -> f64 {
+        match self {
+            Xyz::Planar(c) => c[dim][i] as f64,
+            Xyz::Packed(v) => v[i][dim] as f64,
+        }
+    }
+
+    fn len(&self) -> usize {
+        match self {
+            Xyz::Planar([x, y, z]) => x.len().min(y.len()).min(z.len()),
+            Xyz::Packed(v) => v.len(),
+        }
+    }
+}
+
+/// The texel geometry pf reads: positions, normals (optional) and the requested local
+/// scale (a scale-map result, optional), each borrowed where it already is. `synth`'s
+/// summary reads its texel geometry in place ([`TexelPoints::of_geometry`]) instead of a
+/// second copy as geometry maps (24 B per texel at the run's peak, issue 14 item 6).
+#[derive(Clone, Copy, Debug)]
+pub struct TexelPoints<'a> {
+    pub layout: &'a std::sync::Arc<crate::layout::TexelLayout>,
+    pub pos: Xyz<'a>,
+    pub normal: Option<Xyz<'a>>,
+    /// geometry.exr's `scale` channel ([`crate::scale_field::CHANNEL`]).
+    pub local_scale: Option<&'a [f32]>,
+}
+
+impl<'a> TexelPoints<'a> {
+    /// Geometry maps: `None` without `P.X P.Y P.Z`; normals when all of `N.X N.Y N.Z` are
+    /// there.
+    pub fn of_maps(geometry: &'a FaceMaps) -> Option<Self> {
+        let ch = |n: &str| geometry.channel(n);
+        Some(Self {
+            layout: &geometry.layout,
+            pos: Xyz::Planar([ch("P.X")?, ch("P.Y")?, ch("P.Z")?]),
+            normal: match (ch("N.X"), ch("N.Y"), ch("N.Z")) {
+                (Some(x), Some(y), Some(z)) => Some(Xyz::Planar([x, y, z])),
+                _ => None,
+            },
+            local_scale: ch(crate::scale_field::CHANNEL),
+        })
+    }
+
+    /// The texel geometry in memory (the same values its geometry maps hold).
+    pub fn of_geometry(
+        geometry: &'a crate::texels::TexelGeometry,
+        local_scale: Option<&'a [f32]>,
+    ) -> Self {
+        Self {
+            layout: &geometry.layout,
+            pos: Xyz::Packed(&geometry.pos),
+            normal: Some(Xyz::Packed(&geometry.normal)),
+            local_scale,
+        }
+    }
+}
+
 /// The texel point cloud of one result.
+///
+/// Per texel it holds only the k-d tree (24 B of f64 coordinates and a 4-byte texel
+/// index) and the lazily computed cover spacing (4 B); positions, normals and colours are
+/// read where they already are (the maps or the texel geometry) and converted on use
+/// (exactly: f32 to f64, the normal normalised as before). It used to copy them as f64
+/// beside the tree (~110 B per texel), which made pf the peak of a whole `synth` run
+/// (issue 14 item 6).
 pub(crate) struct Cloud<'a> {
     layout: std::sync::Arc<crate::layout::TexelLayout>,
-    pos: Vec<DVec3>,
-    col: Vec<[f32; 3]>,
-    nrm: Vec<DVec3>,
-    valid: Vec<bool>,
+    pos: Xyz<'a>,
+    /// Given normals (normalised on use; [`grid_normal`] where absent or zero).
+    given: Option<Xyz<'a>>,
+    col: [&'a [f32]; 3],
     src: Option<(&'a [f32], &'a [f32])>,
+    /// Items are texel indices.
     tree: ImmutableKdTree<f64, 3>,
-    /// Tree item → texel index.
-    items: Vec<usize>,
     /// Per texel, the spacing that decides whether a point nearest to it is on the
-    /// surface ([`Cloud::cover`]), computed on first use: 0 while unknown, else the f32
-    /// bits with bit 32 set. Only texels walked near are asked (a few per window); at
-    /// small N most texels are border texels, whose cover costs a radius query each, and
-    /// computing all of them took most of pf's time on a 200k-quad torus at N = 4.
-    cover: Vec<AtomicU64>,
+    /// surface ([`Cloud::cover`]), computed on first use: [`COVER_UNKNOWN`] while unknown,
+    /// else the f32 bits. Only texels walked near are asked (a few per window); at small N
+    /// most texels are border texels, whose cover costs a radius query each, and computing
+    /// all of them took most of pf's time on a 200k-quad torus at N = 4.
+    cover: Vec<AtomicU32>,
     /// Median adjacent spacing h.
     pub h: f64,
     /// Surface length per example pixel.
     pub scale: f64,
     /// The requested local scale per texel (geometry.exr `scale`, a scale-map result):
     /// replaces `scale` in the fit's stretch bound and the fallback directions.
-    local: Option<Vec<f32>>,
+    local: Option<&'a [f32]>,
 }
+
+/// [`Cloud::cover`] not computed yet (a NaN pattern; a computed cover with these very
+/// bits would only be computed again, to the same value).
+const COVER_UNKNOWN: u32 = u32::MAX;
 
 fn channel<'a>(m: &'a FaceMaps, name: &str) -> Option<&'a [f32]> {
     m.channel(name)
@@ -122,75 +209,102 @@ fn channel<'a>(m: &'a FaceMaps, name: &str) -> Option<&'a [f32]> {
 
 impl<'a> Cloud<'a> {
     /// `None` without R, G, B or P channels, mismatched maps, or no finite texel.
-    pub fn build(colour: &'a FaceMaps, geometry: &FaceMaps, scale: Option<f64>) -> Option<Self> {
+    pub fn build(
+        colour: &'a FaceMaps,
+        geometry: TexelPoints<'a>,
+        scale: Option<f64>,
+    ) -> Option<Self> {
         let layout = colour.layout.clone();
-        if geometry.layout != colour.layout {
+        if *geometry.layout != colour.layout {
             return None;
         }
-        let (r, g, b) = (
+        let col = [
             channel(colour, "R")?,
             channel(colour, "G")?,
             channel(colour, "B")?,
-        );
-        let (px, py, pz) = (
-            channel(geometry, "P.X")?,
-            channel(geometry, "P.Y")?,
-            channel(geometry, "P.Z")?,
-        );
+        ];
         let total = layout.len();
-        let pos: Vec<DVec3> = (0..total)
-            .map(|i| DVec3::new(px[i] as f64, py[i] as f64, pz[i] as f64))
-            .collect();
-        let col: Vec<[f32; 3]> = (0..total).map(|i| [r[i], g[i], b[i]]).collect();
-        let valid: Vec<bool> = (0..total)
-            .map(|i| pos[i].is_finite() && col[i].iter().all(|c| c.is_finite()))
-            .collect();
-        let normals = match (
-            channel(geometry, "N.X"),
-            channel(geometry, "N.Y"),
-            channel(geometry, "N.Z"),
-        ) {
-            (Some(x), Some(y), Some(z)) => Some((x, y, z)),
-            _ => None,
-        };
-        let nrm: Vec<DVec3> = (0..total)
-            .into_par_iter()
-            .map(|i| {
-                let given = normals
-                    .map(|(x, y, z)| DVec3::new(x[i] as f64, y[i] as f64, z[i] as f64))
-                    .and_then(|v| v.try_normalize());
-                given.unwrap_or_else(|| grid_normal(&pos, &valid, &layout, i))
-            })
-            .collect();
+        if geometry.pos.len() < total || col.iter().any(|c| c.len() < total) {
+            return None;
+        }
         let src = match (colour.channel("source.u"), colour.channel("source.v")) {
             (Some(u), Some(v)) => Some((u, v)),
             _ => None,
         };
-        let items: Vec<usize> = (0..total).filter(|&i| valid[i]).collect();
-        if items.is_empty() {
-            return None;
-        }
-        let points: Vec<[f64; 3]> = items.iter().map(|&i| pos[i].to_array()).collect();
-        let tree = ImmutableKdTree::new_from_slice(&points).ok()?;
-        let h = median_spacing(&pos, &valid, &layout)?;
-        let scale = scale.filter(|s| s.is_finite() && *s > 0.0).unwrap_or(h);
-        Some(Self {
+        let mut cloud = Self {
             layout,
-            pos,
+            pos: geometry.pos,
+            given: geometry.normal.filter(|n| n.len() >= total),
             col,
-            nrm,
-            valid,
             src,
-            tree,
-            items,
-            cover: (0..total).map(|_| AtomicU64::new(0)).collect(),
-            h,
-            scale,
-            local: geometry
-                .channel(crate::scale_field::CHANNEL)
-                .filter(|c| c.len() == total)
-                .map(|c| c.to_vec()),
-        })
+            tree: ImmutableKdTree::new_from_slice(&[]).ok()?,
+            cover: Vec::new(),
+            h: 0.0,
+            scale: 0.0,
+            local: geometry.local_scale.filter(|c| c.len() == total),
+        };
+        // h first: its spacings (16 B per texel) are gone before the tree is built.
+        cloud.h = median_spacing(&cloud)?;
+        cloud.scale = scale
+            .filter(|s| s.is_finite() && *s > 0.0)
+            .unwrap_or(cloud.h);
+        // The tree straight from the positions, its items the texel indices: the same
+        // tree (coordinates, splits, leaf order) as one built from a copied f64 point
+        // list whose items were positions in the list of valid texels (that list is
+        // ascending, so the items' order is the same).
+        // When every texel is valid (the usual case) and the positions are packed (the
+        // texel geometry), the tree reads them directly: one lookup per coordinate instead
+        // of two (pf's time; issue 14's no-slower rule).
+        let all_valid = (0..total).into_par_iter().all(|i| cloud.valid(i));
+        let pos = cloud.pos;
+        cloud.tree = match pos {
+            Xyz::Packed(v) if all_valid && total > 0 => {
+                ImmutableKdTree::new_from_source(v, |p, dim| p[dim] as f64, |i, _| i as u32).ok()?
+            }
+            _ => {
+                let items: Vec<u32> = (0..total as u32)
+                    .filter(|&i| cloud.valid(i as usize))
+                    .collect();
+                if items.is_empty() {
+                    return None;
+                }
+                ImmutableKdTree::new_from_source(
+                    &items,
+                    |&i, dim| pos.coord(i as usize, dim),
+                    |_, &i| i,
+                )
+                .ok()?
+            }
+        };
+        cloud.cover = (0..total).map(|_| AtomicU32::new(COVER_UNKNOWN)).collect();
+        Some(cloud)
+    }
+
+    /// Texel `i`'s position.
+    #[inline]
+    fn pos(&self, i: usize) -> DVec3 {
+        self.pos.get(i)
+    }
+
+    /// Texel `i`'s colour.
+    #[inline]
+    fn col(&self, i: usize) -> [f32; 3] {
+        [self.col[0][i], self.col[1][i], self.col[2][i]]
+    }
+
+    /// A finite position and colour.
+    #[inline]
+    fn valid(&self, i: usize) -> bool {
+        self.pos(i).is_finite() && self.col(i).iter().all(|c| c.is_finite())
+    }
+
+    /// Texel `i`'s unit normal: the given one normalised, else from its in-face
+    /// neighbours ([`grid_normal`]).
+    #[inline]
+    fn nrm(&self, i: usize) -> DVec3 {
+        self.given
+            .and_then(|n| n.get(i).try_normalize())
+            .unwrap_or_else(|| grid_normal(self, i))
     }
 
     /// The spacing that decides whether a point nearest to texel `i` is on the surface:
@@ -205,11 +319,11 @@ impl<'a> Cloud<'a> {
     /// for a corner texel. The same value whichever thread computes it first.
     fn cover(&self, i: usize) -> f32 {
         let known = self.cover[i].load(Ordering::Relaxed);
-        if known != 0 {
-            return f32::from_bits(known as u32);
+        if known != COVER_UNKNOWN {
+            return f32::from_bits(known);
         }
         let c = self.cover_of(i);
-        self.cover[i].store((1 << 32) | c.to_bits() as u64, Ordering::Relaxed);
+        self.cover[i].store(c.to_bits(), Ordering::Relaxed);
         c
     }
 
@@ -219,17 +333,18 @@ impl<'a> Cloud<'a> {
         let (d, x, y) = l.coords(i);
         let (nu, nv) = l.dims(d);
         let (bx, by) = (x == 0 || x + 1 == nu, y == 0 || y + 1 == nv);
-        if !(bx || by) || !self.valid[i] {
+        if !(bx || by) || !self.valid(i) {
             return own_i as f32;
         }
         // Nearest texel of each other domain: (domain, distance, texel).
         let mut per: Vec<(usize, f64, usize)> = Vec::new();
-        for j in self.within(self.pos[i], 4.0 * own_i) {
+        let pi = self.pos(i);
+        for j in self.within(pi, 4.0 * own_i) {
             let dj = l.domain_of(j);
             if dj == d {
                 continue;
             }
-            let dist = (self.pos[j] - self.pos[i]).length();
+            let dist = (self.pos(j) - pi).length();
             match per.iter_mut().find(|e| e.0 == dj) {
                 Some(e) if dist < e.1 => *e = (dj, dist, j),
                 Some(_) => {}
@@ -249,7 +364,7 @@ impl<'a> Cloud<'a> {
 
     /// Texels that can be window centres.
     pub fn candidates(&self) -> Vec<usize> {
-        self.items.clone()
+        (0..self.layout.len()).filter(|&i| self.valid(i)).collect()
     }
 
     #[inline]
@@ -259,7 +374,7 @@ impl<'a> Cloud<'a> {
             .query(&p.to_array())
             .nearest_one::<SquaredEuclidean<f64>>()
             .execute();
-        self.items[r.item as usize]
+        r.item as usize
     }
 
     /// Texels within `radius` of `p`, in texel order.
@@ -270,7 +385,7 @@ impl<'a> Cloud<'a> {
             .within::<SquaredEuclidean<f64>>(radius * radius)
             .unsorted()
             .execute();
-        let mut v: Vec<usize> = hits.iter().map(|r| self.items[r.item as usize]).collect();
+        let mut v: Vec<usize> = hits.iter().map(|r| r.item as usize).collect();
         v.sort_unstable();
         v
     }
@@ -280,9 +395,10 @@ impl<'a> Cloud<'a> {
         let (d, x, y) = self.layout.coords(i);
         let (n, nv) = self.layout.dims(d);
         let mut max = 0f64;
+        let pi = self.pos(i);
         let mut add = |j: usize| {
-            if self.valid[j] {
-                max = max.max((self.pos[j] - self.pos[i]).length());
+            if self.valid(j) {
+                max = max.max((self.pos(j) - pi).length());
             }
         };
         if x > 0 {
@@ -323,10 +439,10 @@ impl<'a> Cloud<'a> {
         if !(st[0].is_finite() && st[1].is_finite()) {
             return None;
         }
-        let nt = self.nrm[t];
+        let nt = self.nrm(t);
         let (e1, e2) = nt.any_orthonormal_pair();
         let ht = self.local_spacing(t);
-        let p0 = self.pos[t];
+        let p0 = self.pos(t);
         let mut pairs: Vec<([f64; 2], [f64; 2])> = Vec::new();
         for k in self.within(p0, FIT_RADIUS * ht) {
             if k == t {
@@ -337,7 +453,7 @@ impl<'a> Cloud<'a> {
             if !(ds[0].is_finite() && ds[1].is_finite()) {
                 continue;
             }
-            let dp = self.pos[k] - p0;
+            let dp = self.pos(k) - p0;
             let grid = (dp.length() / ht).max(1.0);
             if ds[0].hypot(ds[1]) > COHERENT_PER_TEXEL * grid {
                 continue;
@@ -417,12 +533,12 @@ impl<'a> Cloud<'a> {
     fn fallback_frame(&self, t: usize) -> Frame {
         let (d, x, y) = self.layout.coords(t);
         let (n, nv) = self.layout.dims(d);
-        let nt = self.nrm[t];
+        let nt = self.nrm(t);
         let dir = |lo: Option<usize>, hi: Option<usize>| -> Option<DVec3> {
-            let pick = |j: Option<usize>| j.filter(|&j| self.valid[j]).map(|j| self.pos[j]);
+            let pick = |j: Option<usize>| j.filter(|&j| self.valid(j)).map(|j| self.pos(j));
             let (a, b) = (
-                pick(lo).unwrap_or(self.pos[t]),
-                pick(hi).unwrap_or(self.pos[t]),
+                pick(lo).unwrap_or(self.pos(t)),
+                pick(hi).unwrap_or(self.pos(t)),
             );
             let d = b - a;
             (d - nt * d.dot(nt)).try_normalize()
@@ -456,8 +572,8 @@ impl<'a> Cloud<'a> {
             let v = if along_b { cur.b } else { cur.a };
             let p = cur.p + v.normalize_or_zero() * (sign * d);
             let k = self.nearest(p);
-            let nk = self.nrm[k];
-            let off = p - self.pos[k];
+            let nk = self.nrm(k);
+            let off = p - self.pos(k);
             let dn = off.dot(nk);
             if (off - nk * dn).length() > OFF_SURFACE * self.cover(k) as f64 {
                 return None;
@@ -474,22 +590,22 @@ impl<'a> Cloud<'a> {
     fn sample(&self, st: &State, s: usize) -> [f32; 3] {
         let k = self.nearest(st.p);
         if s <= 1 {
-            return self.col[k];
+            return self.col(k);
         }
         let r = s as f64 / 2.0;
         let radius = r * (st.a.length_squared() + st.b.length_squared()).sqrt() * 1.001;
         let (g11, g12, g22) = (st.a.dot(st.a), st.a.dot(st.b), st.b.dot(st.b));
         let det = g11 * g22 - g12 * g12;
         if det.is_nan() || det <= 0.0 {
-            return self.col[k];
+            return self.col(k);
         }
         let sheet = 0.5 * radius + 0.5 * self.h;
         let mut acc = [0f64; 3];
         let mut cnt = 0usize;
         for j in self.within(st.p, radius) {
-            let d = self.pos[j] - st.p;
+            let d = self.pos(j) - st.p;
             let dn = d.dot(st.n);
-            if dn.abs() > sheet || self.nrm[j].dot(st.n) < 0.5 {
+            if dn.abs() > sheet || self.nrm(j).dot(st.n) < 0.5 {
                 continue;
             }
             let dt = d - st.n * dn;
@@ -497,14 +613,14 @@ impl<'a> Cloud<'a> {
             let alpha = (g22 * ra - g12 * rb) / det;
             let beta = (g11 * rb - g12 * ra) / det;
             if alpha * alpha + beta * beta <= r * r + 1e-3 {
-                for (a, &c) in acc.iter_mut().zip(&self.col[j]) {
+                for (a, c) in acc.iter_mut().zip(self.col(j)) {
                     *a += c as f64;
                 }
                 cnt += 1;
             }
         }
         if cnt == 0 {
-            return self.col[k];
+            return self.col(k);
         }
         let inv = 1.0 / cnt as f64;
         [
@@ -518,10 +634,10 @@ impl<'a> Cloud<'a> {
     pub fn window(&self, t: usize, fr: &Frame, s: usize) -> Option<Vec<f32>> {
         let half = WINDOW / 2;
         let start = State {
-            p: self.pos[t],
+            p: self.pos(t),
             a: fr.a,
             b: fr.b,
-            n: self.nrm[t],
+            n: self.nrm(t),
         };
         let (sp, ext) = (s as f64, (s / 2) as f64);
         let line = |from: &State, along_b: bool| -> Option<[State; WINDOW]> {
@@ -570,31 +686,34 @@ fn transport(v: DVec3, n: DVec3, len: f64) -> DVec3 {
 }
 
 /// Normal from the texel's in-face neighbours (one-sided at the border).
-fn grid_normal(pos: &[DVec3], valid: &[bool], l: &crate::layout::TexelLayout, i: usize) -> DVec3 {
+fn grid_normal(c: &Cloud, i: usize) -> DVec3 {
+    let l = &c.layout;
     let (d, x, y) = l.coords(i);
     let (n, nv) = l.dims(d);
-    let pick = |j: usize| if valid[j] { pos[j] } else { pos[i] };
+    let pick = |j: usize| if c.valid(j) { c.pos(j) } else { c.pos(i) };
     let du = pick(if x + 1 < n { i + 1 } else { i }) - pick(if x > 0 { i - 1 } else { i });
     let dv = pick(if y + 1 < nv { i + n } else { i }) - pick(if y > 0 { i - n } else { i });
     du.cross(dv).try_normalize().unwrap_or(DVec3::Z)
 }
 
 /// Median distance between horizontally or vertically adjacent valid texels of one face.
-fn median_spacing(pos: &[DVec3], valid: &[bool], l: &crate::layout::TexelLayout) -> Option<f64> {
+fn median_spacing(c: &Cloud) -> Option<f64> {
+    let l = &c.layout;
     let mut d: Vec<f64> = Vec::with_capacity(2 * l.len());
     for face in 0..l.faces() {
         let (n, nv) = l.dims(face);
         for y in 0..nv {
             for x in 0..n {
                 let i = l.index(face, x, y);
-                if !valid[i] {
+                if !c.valid(i) {
                     continue;
                 }
-                if x + 1 < n && valid[i + 1] {
-                    d.push((pos[i + 1] - pos[i]).length());
+                let pi = c.pos(i);
+                if x + 1 < n && c.valid(i + 1) {
+                    d.push((c.pos(i + 1) - pi).length());
                 }
-                if y + 1 < nv && valid[i + n] {
-                    d.push((pos[i + n] - pos[i]).length());
+                if y + 1 < nv && c.valid(i + n) {
+                    d.push((c.pos(i + n) - pi).length());
                 }
             }
         }
@@ -613,26 +732,21 @@ fn median_spacing(pos: &[DVec3], valid: &[bool], l: &crate::layout::TexelLayout)
 /// otherwise (docs/eval.md, "Lattice").
 pub(crate) fn lattice_image(
     colour: &FaceMaps,
-    geometry: &FaceMaps,
+    geometry: TexelPoints,
     scale: Option<f64>,
 ) -> Option<Rgb> {
     // The lattice is one resolution's pixel grid: per-face resolutions have none.
     let n = colour.uniform_n()?;
     let f = colour.faces();
-    if n < 2 || geometry.layout != colour.layout {
+    if n < 2 || *geometry.layout != colour.layout || geometry.pos.len() < colour.layout.len() {
         return None;
     }
-    let (px, py, pz) = (
-        geometry.channel("P.X")?,
-        geometry.channel("P.Y")?,
-        geometry.channel("P.Z")?,
-    );
     let (r, g, b) = (
         colour.channel("R")?,
         colour.channel("G")?,
         colour.channel("B")?,
     );
-    let p = |i: usize| DVec3::new(px[i] as f64, py[i] as f64, pz[i] as f64);
+    let p = |i: usize| geometry.pos.get(i);
     let idx = |d: usize, x: usize, y: usize| (d * n + y) * n + x;
     let o0 = p(0);
     let eu = (p(idx(0, n - 1, 0)) - o0) / (n - 1) as f64;
@@ -760,6 +874,20 @@ fn source_steps(colour: &FaceMaps) -> Option<[f64; 4]> {
 pub fn patch_fidelities_with(
     colour: &FaceMaps,
     geometry: &FaceMaps,
+    example: &Example,
+    scale: Option<f64>,
+    opts: &PfOptions,
+) -> PatchFidelity {
+    match TexelPoints::of_maps(geometry) {
+        Some(g) => patch_fidelities_of(colour, g, example, scale, opts),
+        None => PatchFidelity::empty(PfMethod::Surface),
+    }
+}
+
+/// [`patch_fidelities_with`] on texel geometry wherever it is ([`TexelPoints`]).
+pub fn patch_fidelities_of(
+    colour: &FaceMaps,
+    geometry: TexelPoints,
     example: &Example,
     scale: Option<f64>,
     opts: &PfOptions,

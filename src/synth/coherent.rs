@@ -234,7 +234,13 @@ pub fn run<const K: usize>(
     };
     let mut src = vec![[0.0f32; 2]; total];
     let mut kind = vec![0u8; total];
-    let mut feat = vec![[0.0f32; K]; total];
+    // A texel's feature (K floats, 32 B with appearance space) is read by later texels of
+    // its own domain, which keeps its own per task, and by the texels of other domains
+    // whose border lists name it: only those (`shared`, a ring a few texels deep, ~6% of
+    // the texels at N = 128) are kept past their domain's task, not every texel's (issue 14
+    // item 6, compact per-texel state). The values read are the same.
+    let shared = shared_texels(inputs.graph);
+    let mut shared_feat = vec![[0.0f32; K]; shared.len()];
     let mut done = vec![false; faces];
     let mut stats = Stats::default();
     let mut finished = 0;
@@ -243,13 +249,18 @@ pub fn run<const K: usize>(
     for wave in &schedule.waves {
         let results: Vec<DomainOut<K>> = wave
             .par_iter()
-            .map(|&d| synth_domain(&ctx, &src, &feat, &done, d as usize))
+            .map(|&d| synth_domain(&ctx, &src, (&shared, &shared_feat), &done, d as usize))
             .collect();
         for (&d, r) in wave.iter().zip(results) {
             let d = d as usize;
-            src[layout.range(d)].copy_from_slice(&r.src);
-            kind[layout.range(d)].copy_from_slice(&r.kind);
-            feat[layout.range(d)].copy_from_slice(&r.feat);
+            let range = layout.range(d);
+            src[range.clone()].copy_from_slice(&r.src);
+            kind[range.clone()].copy_from_slice(&r.kind);
+            let lo = shared.partition_point(|&t| (t as usize) < range.start);
+            let hi = shared.partition_point(|&t| (t as usize) < range.end);
+            for (k, &t) in (lo..hi).zip(&shared[lo..hi]) {
+                shared_feat[k] = r.feat[t as usize - range.start];
+            }
             done[d] = true;
             stats.add(&r.stats);
         }
@@ -432,10 +443,37 @@ fn front_order<const K: usize>(c: &Ctx<'_, K>, done_g: &[bool], d: usize) -> Opt
     Some(order)
 }
 
+/// The texels some other domain's texels have as neighbours (ascending, unique): those
+/// named by a border list outside their own domain (interior texels' neighbours are all
+/// in their domain).
+fn shared_texels(graph: &TexelGraph) -> Vec<u32> {
+    let l = &graph.layout;
+    let per: Vec<Vec<u32>> = (0..l.faces())
+        .into_par_iter()
+        .map(|d| {
+            let r = l.range(d);
+            let mut v: Vec<u32> = r
+                .clone()
+                .flat_map(|t| graph.border_list(t))
+                .copied()
+                .filter(|&j| !r.contains(&(j as usize)))
+                .collect();
+            v.sort_unstable();
+            v.dedup();
+            v
+        })
+        .collect();
+    let mut all: Vec<u32> = per.into_iter().flatten().collect();
+    all.par_sort_unstable();
+    all.dedup();
+    all
+}
+
+/// `shared`: [`shared_texels`] and their features (filled as their domains finish).
 fn synth_domain<const K: usize>(
     c: &Ctx<'_, K>,
     src_g: &[[f32; 2]],
-    feat_g: &[[f32; K]],
+    (shared, feat_g): (&[u32], &[[f32; K]]),
     done_g: &[bool],
     d: usize,
 ) -> DomainOut<K> {
@@ -489,7 +527,10 @@ fn synth_domain<const K: usize>(
                 if !done_g[geom.layout.domain_of(j)] {
                     continue;
                 }
-                (src_g[j], &feat_g[j])
+                let k = shared
+                    .binary_search(&(j as u32))
+                    .expect("a neighbour in another domain is a shared texel");
+                (src_g[j], &feat_g[k])
             };
             let dp = geom.pos[j] - p;
             let e = [dp.dot(v1) * inv_scale, -dp.dot(v2) * inv_scale];
