@@ -152,31 +152,30 @@ fn methods_run_across_faces_of_different_resolution() {
 /// Multiscale synthesis and textons across faces of different resolution over more seeds
 /// than the test above (seed 3): the seam bar holds for each, not on average. Measured
 /// (docs/multiscale.md, "Seams across a resolution step"), seeds 1, 2, 3, 4: multiscale
-/// mixed 0.965, 0.958, 1.064, 1.052; textons 1.024, 1.046, 1.045, 0.924. Two seeds here
-/// keep the cost at four Spot runs of 98k texels.
+/// mixed 0.965, 0.958, 1.064, 1.052; textons 1.024, 1.046, 1.045, 0.924. One more seed
+/// here (two Spot runs of 98k texels): CI's 20 minutes on two cores are the limit.
 #[test]
 fn seams_across_resolution_steps_hold_over_seeds() {
     let mesh = data("meshes/spot_control_mesh.obj");
     let s = Surface::load_obj(&mesh).unwrap();
     let l = spacing_at(&s, 16);
+    let seed = 1;
     for method in [Method::Multiscale, Method::Textons] {
-        for seed in [1, 2] {
-            let r = Synthesizer::new(&mesh, data("textures/etr_gravel.png"))
-                .method(method)
-                .texel_size(l)
-                .seed(seed)
-                .analyses(common::analyses())
-                .run()
-                .unwrap();
-            let q = quality(&r);
-            let mixed = q.seam_ratio_mixed.unwrap();
-            eprintln!(
-                "{method:?} seed {seed}: seam {:.3} mixed {mixed:.3} ({} pairs)",
-                q.seam_ratio.unwrap(),
-                q.seam_pairs_mixed
-            );
-            assert!(mixed <= 1.10, "{method:?} seed {seed}: mixed {mixed}");
-        }
+        let r = Synthesizer::new(&mesh, data("textures/etr_gravel.png"))
+            .method(method)
+            .texel_size(l)
+            .seed(seed)
+            .analyses(common::analyses())
+            .run()
+            .unwrap();
+        let q = quality(&r);
+        let mixed = q.seam_ratio_mixed.unwrap();
+        eprintln!(
+            "{method:?} seed {seed}: seam {:.3} mixed {mixed:.3} ({} pairs)",
+            q.seam_ratio.unwrap(),
+            q.seam_pairs_mixed
+        );
+        assert!(mixed <= 1.10, "{method:?} seed {seed}: mixed {mixed}");
     }
 }
 
