@@ -353,12 +353,15 @@ fn run_oriented(
 
 /// `--scale-from-orient` (issue 15 item 4, "the lengths of a per-vertex direction field"):
 /// directions of lengths 1 and 3 give the same files, bit for bit, as the scale map with
-/// factors 1 and 3 at those vertices; report.json says where the scale came from.
+/// factors 1 and 3 at those vertices; report.json says where the scale came from. One
+/// method suffices: the lengths become a `ScaleMap` before any method runs, and how every
+/// method follows a scale map is tested above (CI's budget: multiscale here cost ~10 s).
 #[test]
 fn orientation_lengths_are_the_equivalent_scale_map() {
     let tmp = tempfile::tempdir().unwrap();
     let orient = spot_ramp_orientation(tmp.path());
-    for method in [Method::Jump, Method::Multiscale] {
+    {
+        let method = Method::Jump;
         let a = run_oriented(method, 8, &orient, |s| s.scale_from_orientation());
         let b = run_oriented(method, 8, &orient, |s| s.scale_map_constraints(spot_ramp()));
         assert!(
@@ -389,7 +392,8 @@ fn orientation_lengths_all_two_are_twice_the_scale() {
     let path = tmp.path().join("two.txt");
     std::fs::write(&path, "vertex 7 0 2 0\nvertex 40 0 0 -2\n").unwrap();
     let s = 0.013;
-    for method in [Method::Jump, Method::Patches] {
+    {
+        let method = Method::Jump;
         let a = run_oriented(method, 8, &path, |b| b.scale(s).scale_from_orientation());
         let b = run_oriented(method, 8, &path, |b| b.scale(2.0 * s));
         for c in ["source.u", "source.v", "R"] {
