@@ -267,15 +267,8 @@ pub fn run<const K: usize>(
         stats.waves += waves.len() as u64;
         stats.passes.push((size, fp.len() as u64));
         stats.footprint_bytes = stats.footprint_bytes.max(fp.heap_bytes() as u64);
-        let mut positions = vec![[0.0; 2]; fp.len()];
         paste_waves(
-            &ctx,
-            &waves,
-            &mut state,
-            &scratch,
-            &mut stats,
-            &mut positions,
-            progress,
+            &ctx, &waves, &mut state, &scratch, &mut stats, None, progress,
         );
         if covered.iter().all(|&c| c) || size <= MIN_SIZE {
             break;
@@ -306,14 +299,15 @@ impl<const K: usize> State<K> {
     }
 }
 
-/// Pastes the patches of `ctx` wave by wave (see the module docs).
+/// Pastes the patches of `ctx` wave by wave (see the module docs); `positions`, when given,
+/// receives the position each patch was pasted at.
 fn paste_waves<const K: usize>(
     ctx: &Ctx<'_, K>,
     waves: &[Vec<u32>],
     state: &mut State<K>,
     scratch: &super::per_thread::PerThread<Scratch>,
     stats: &mut Stats,
-    positions: &mut [[f32; 2]],
+    mut positions: Option<&mut [[f32; 2]]>,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) {
     let n = state.src.len();
@@ -330,7 +324,9 @@ fn paste_waves<const K: usize>(
             })
             .collect();
         for (&p, r) in wave.iter().zip(pastes) {
-            positions[p as usize] = r.z;
+            if let Some(z) = positions.as_deref_mut() {
+                z[p as usize] = r.z;
+            }
             for (&t, &s) in r.texels.iter().zip(&r.sources) {
                 let t = t as usize;
                 state.src[t] = s;
@@ -383,14 +379,15 @@ pub fn assemble<const K: usize>(
     let mut state = State::new(n);
     let mut stats = Stats::default();
     let scratch = super::per_thread::PerThread::new();
-    let mut pasted = vec![[0.0; 2]; fp.len()];
+    // Where each patch was pasted (settling may move it), for blending its joins.
+    let mut pasted = blend.map(|_| vec![[0.0; 2]; fp.len()]);
     paste_waves(
         &ctx,
         &plan_waves(fp, n),
         &mut state,
         &scratch,
         &mut stats,
-        &mut pasted,
+        pasted.as_deref_mut(),
         &|_, _| {},
     );
     for ((src, &set), &fb) in state.src.iter_mut().zip(&state.set).zip(fallback) {
@@ -398,8 +395,8 @@ pub fn assemble<const K: usize>(
             *src = fb;
         }
     }
-    if let Some(tau) = blend {
-        blend_joins(fp, &pasted, &state.set, &mut state.src, tau);
+    if let (Some(tau), Some(pasted)) = (blend, &pasted) {
+        blend_joins(fp, pasted, &state.set, &mut state.src, tau);
     }
     state.src
 }
