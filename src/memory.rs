@@ -111,7 +111,10 @@ const PATCHES_TEXEL: u64 = 120;
 /// every level, the per-texel accumulators of the M-step, the optimised sources and
 /// colours, and the patch sampling that starts the coarsest level. Measured on Spot
 /// (2026-12-03): peak 155 MiB at N = 32, 448 at N = 64 (~400 B per texel between them).
-const OPTIMISE_TEXEL: u64 = 300;
+/// The source orientations (a 2-byte turn per footprint membership and per texel,
+/// 2026-12-04) added ~30 B per texel: peak 1657 → 1778 MiB at N = 128 (estimate / peak
+/// 0.98 → 0.91 at 300; 0.98 at 330).
+const OPTIMISE_TEXEL: u64 = 330;
 /// `synth --method jump`, per example pixel: the jump map (4 targets, 4 weights, their
 /// sum: 36 B) and, while it is built (a cache miss), the 3x3-lattice vectors (72 floats),
 /// their tree projections and the kd-tree. Measured: a 512² example peaked 82 MB higher

@@ -477,6 +477,11 @@ pub struct Footprints {
     start: Vec<usize>,
     texels: Vec<u32>,
     coords: Vec<[f32; 2]>,
+    /// Per texel of a footprint, its turn β: the angle from the field's v1 at the texel to
+    /// the patch's frame there (transported from the centre, where β = 0). The example
+    /// pasted by the patch runs at β against the field at that texel — what a texel's
+    /// source orientation is ([`Footprints::turns`]).
+    turns: Vec<Turn>,
     /// Patch indices by centre texel ([`Footprints::by_centre`]).
     order: Vec<u32>,
 }
@@ -570,7 +575,7 @@ impl Footprints {
         // (the centres come in a hashed order: each flood started cold). Stored in the
         // centres' order, as before.
         let order = by_texel(&centres);
-        let mut per: Vec<(Vec<u32>, Vec<[f32; 2]>)> = order
+        let mut per: Vec<Flooded> = order
             .par_iter()
             .map(|&i| centres[i as usize])
             .map(|c| {
@@ -592,13 +597,15 @@ impl Footprints {
         }
         let mut start = Vec::with_capacity(per.len() + 1);
         start.push(0);
-        let total: usize = per.iter().map(|p| p.0.len()).sum();
+        let total: usize = per.iter().map(|p| p.texels.len()).sum();
         let mut texels = Vec::with_capacity(total);
         let mut coords = Vec::with_capacity(total);
+        let mut turns = Vec::with_capacity(total);
         for &k in &rank {
-            let (t, l) = std::mem::take(&mut per[k as usize]);
-            texels.extend_from_slice(&t);
-            coords.extend_from_slice(&l);
+            let f = std::mem::take(&mut per[k as usize]);
+            texels.extend_from_slice(&f.texels);
+            coords.extend_from_slice(&f.coords);
+            turns.extend_from_slice(&f.turns);
             start.push(texels.len());
         }
         Self {
@@ -607,6 +614,7 @@ impl Footprints {
             start,
             texels,
             coords,
+            turns,
             order,
         }
     }
@@ -626,12 +634,14 @@ impl Footprints {
             start.push(texels.len());
         }
         let order = by_texel(&centres);
+        let turns = vec![Turn::ZERO; coords.len()];
         Self {
             half,
             centres,
             start,
             texels,
             coords,
+            turns,
             order,
         }
     }
@@ -659,6 +669,13 @@ impl Footprints {
         (&self.texels[a..b], &self.coords[a..b])
     }
 
+    /// The turns β of patch `p`'s texels, parallel to [`Footprints::get`]'s (the centre's
+    /// is 0): a texel that copies patch `p` has source orientation β against the field.
+    #[inline]
+    pub fn turns(&self, p: usize) -> &[Turn] {
+        &self.turns[self.start[p]..self.start[p + 1]]
+    }
+
     /// Total (texel, patch) memberships.
     pub fn memberships(&self) -> usize {
         self.texels.len()
@@ -666,27 +683,23 @@ impl Footprints {
 
     /// Bytes held.
     pub fn heap_bytes(&self) -> usize {
-        self.texels.len() * 12 + self.start.len() * 8 + self.centres.len() * 4
+        self.texels.len() * 14 + self.start.len() * 8 + self.centres.len() * 4
     }
 
     /// For every texel, the patches whose footprint holds it (CSR: starts, patch list),
     /// each list ascending.
     pub fn covering(&self, texels: usize) -> (Vec<u32>, Vec<u32>) {
-        let (start, list, _) = self.covering_impl(texels, false);
-        (start, list)
+        let c = self.covering_impl(texels, false);
+        (c.start, c.patch)
     }
 
-    /// [`Footprints::covering`] and, parallel to its list, the texel's local coordinates
-    /// in each patch.
-    pub fn covering_coords(&self, texels: usize) -> (Vec<u32>, Vec<u32>, Vec<[f32; 2]>) {
+    /// [`Footprints::covering`] with, parallel to its list, the texel's local coordinates
+    /// and turn in each patch.
+    pub fn covering_coords(&self, texels: usize) -> Covering {
         self.covering_impl(texels, true)
     }
 
-    fn covering_impl(
-        &self,
-        texels: usize,
-        with_coords: bool,
-    ) -> (Vec<u32>, Vec<u32>, Vec<[f32; 2]>) {
+    fn covering_impl(&self, texels: usize, with_coords: bool) -> Covering {
         let mut count = vec![0u32; texels + 1];
         for &t in &self.texels {
             count[t as usize + 1] += 1;
@@ -696,24 +709,83 @@ impl Footprints {
         }
         let mut fill = count.clone();
         let mut list = vec![0u32; self.texels.len()];
-        let mut coords = vec![[0.0f32; 2]; if with_coords { list.len() } else { 0 }];
+        let kept = if with_coords { list.len() } else { 0 };
+        let mut coords = vec![[0.0f32; 2]; kept];
+        let mut turns = vec![Turn::ZERO; kept];
         for p in 0..self.len() {
             let (ts, ls) = self.get(p);
-            for (&t, &l) in ts.iter().zip(ls) {
+            for ((&t, &l), &b) in ts.iter().zip(ls).zip(self.turns(p)) {
                 let k = &mut fill[t as usize];
                 list[*k as usize] = p as u32;
                 if with_coords {
                     coords[*k as usize] = l;
+                    turns[*k as usize] = b;
                 }
                 *k += 1;
             }
         }
-        (count, list, coords)
+        Covering {
+            start: count,
+            patch: list,
+            coords,
+            turns,
+        }
     }
 }
 
+/// For every texel, the patches whose footprint holds it ([`Footprints::covering_coords`]):
+/// texel `t`'s are `patch[start[t]..start[t + 1]]` (ascending), with `t`'s coordinates and
+/// turn in each at the same indices of `coords` and `turns`.
+pub struct Covering {
+    pub start: Vec<u32>,
+    pub patch: Vec<u32>,
+    pub coords: Vec<[f32; 2]>,
+    pub turns: Vec<Turn>,
+}
+
+/// A turn — an angle in (−π, π] — in 16 bits: 2π / 65,536 ≈ 1e-4 rad, 0.002 px at the edge of
+/// a 32-pixel patch. Footprints hold one per membership (four or so per texel) and the
+/// synthesis one per texel, so a float there cost ~30 B per texel at the finest level.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Turn(i16);
+
+impl Turn {
+    pub const ZERO: Turn = Turn(0);
+
+    /// The turn nearest `a` radians (a in [−π, π]).
+    pub fn from_radians(a: f32) -> Self {
+        let q = (a * (32768.0 / std::f32::consts::PI)).round();
+        Turn(q.clamp(-32768.0, 32767.0) as i16)
+    }
+
+    /// In radians.
+    pub fn radians(self) -> f32 {
+        self.0 as f32 * (std::f32::consts::PI / 32768.0)
+    }
+}
+
+/// The offset `e` (example pixels, in the field's frame at a texel) turned by the texel's
+/// source orientation `psi`: where the example continues from the texel's source, for a
+/// texture that runs at `psi` against the field there. A zero turn gives `e` exactly.
+#[inline]
+pub fn turned(e: [f32; 2], psi: Turn) -> [f32; 2] {
+    if psi == Turn::ZERO {
+        return e;
+    }
+    let (s, c) = psi.radians().sin_cos();
+    [c * e[0] - s * e[1], s * e[0] + c * e[1]]
+}
+
+/// One flooded footprint: texels, coordinates and turns.
+#[derive(Default)]
+struct Flooded {
+    texels: Vec<u32>,
+    coords: Vec<[f32; 2]>,
+    turns: Vec<Turn>,
+}
+
 /// One footprint (see the module docs).
-fn flood(level: &LevelTexels, fl: &mut Flood, c: usize, half: f32) -> (Vec<u32>, Vec<[f32; 2]>) {
+fn flood(level: &LevelTexels, fl: &mut Flood, c: usize, half: f32) -> Flooded {
     fl.gen = fl.gen.wrapping_add(1);
     if fl.gen == 0 {
         fl.nodes.iter_mut().for_each(|s| s.stamp = 0);
@@ -842,22 +914,94 @@ fn flood(level: &LevelTexels, fl: &mut Flood, c: usize, half: f32) -> (Vec<u32>,
         }
     }
     let order = std::mem::take(&mut fl.reached);
-    let mut texels = Vec::new();
-    let mut coords = Vec::new();
+    let mut out = Flooded::default();
     for &t in &order {
-        let l = fl.nodes[t as usize].coord;
+        let node = &fl.nodes[t as usize];
+        let l = node.coord;
         if l[0].abs() <= half && l[1].abs() <= half {
-            texels.push(t);
-            coords.push(l);
+            out.texels.push(t);
+            out.coords.push(l);
+            // β: the transported frame's v1 against the field's frame at t.
+            let [v1, v2] = level.frames[t as usize];
+            out.turns.push(if t as usize == c {
+                Turn::ZERO
+            } else {
+                Turn::from_radians(node.e1.dot(v2).atan2(node.e1.dot(v1)))
+            });
         }
     }
     fl.reached = order;
-    (texels, coords)
+    out
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn turns_round_trip_and_turn_offsets_the_right_way() {
+        for a in [0.0f32, 0.3, -1.2, 3.1, -3.1] {
+            let t = Turn::from_radians(a);
+            assert!((t.radians() - a).abs() < 1e-4, "{a}");
+        }
+        assert_eq!(Turn::from_radians(std::f32::consts::PI).0, i16::MAX);
+        // A zero turn leaves the offset exactly; a quarter turn takes +x to +y.
+        assert_eq!(turned([1.5, -2.0], Turn::ZERO), [1.5, -2.0]);
+        let q = turned([1.0, 0.0], Turn::from_radians(std::f32::consts::FRAC_PI_2));
+        assert!((q[0]).abs() < 1e-4 && (q[1] - 1.0).abs() < 1e-4, "{q:?}");
+    }
+
+    /// The turn β a footprint records at a texel is what makes the field's offsets into the
+    /// patch's own: between neighbouring texels s, t of one footprint, l(t) − l(s) is the
+    /// offset from s to t in the field's frame turned by β(s) — on a curved mesh, where β
+    /// reaches tens of degrees; without the turn the offsets would miss by that angle.
+    #[test]
+    fn footprint_turns_carry_field_offsets_into_the_patch_frame() {
+        let p = std::env::var_os("SURFSYNTH_SHARED")
+            .map(std::path::PathBuf::from)
+            .unwrap_or_else(|| std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared"))
+            .join("data/meshes/spot_control_mesh.obj");
+        let surface = Surface::load_obj(p).unwrap();
+        let field = OrientationField::compute(&surface, &crate::field::Orientation::Auto).unwrap();
+        let n = 8;
+        let probe = TexelGeometry::compute(&surface, n);
+        let step = probe.median_spacing(&surface);
+        let level = LevelTexels::new(&surface, &field, n, step);
+        let cs: Vec<u32> = (0..level.len() as u32).step_by(97).collect();
+        let fp = Footprints::build(&level, cs, 8.0);
+        let (mut turned_err, mut plain_err, mut largest) = (0.0f64, 0.0f64, 0.0f32);
+        let mut pairs = 0usize;
+        for p in 0..fp.len() {
+            let (ts, ls) = fp.get(p);
+            let bs = fp.turns(p);
+            let at: std::collections::HashMap<u32, usize> =
+                ts.iter().enumerate().map(|(i, &t)| (t, i)).collect();
+            for (i, &s) in ts.iter().enumerate() {
+                largest = largest.max(bs[i].radians().abs());
+                for &t in level.edges().of(s as usize) {
+                    let Some(&j) = at.get(&t) else { continue };
+                    let dl = [ls[j][0] - ls[i][0], ls[j][1] - ls[i][1]];
+                    let e = level.offset(s as usize, t as usize);
+                    let r = turned(e, bs[i]);
+                    turned_err += ((dl[0] - r[0]).hypot(dl[1] - r[1])) as f64;
+                    plain_err += ((dl[0] - e[0]).hypot(dl[1] - e[1])) as f64;
+                    pairs += 1;
+                }
+            }
+        }
+        let (turned_err, plain_err) = (turned_err / pairs as f64, plain_err / pairs as f64);
+        eprintln!("{pairs} pairs, largest turn {largest:.2} rad: mean miss {turned_err:.4} px turned, {plain_err:.4} px not");
+        assert!(pairs > 10_000, "{pairs} pairs");
+        assert!(largest > 0.3, "the test needs turns: largest {largest} rad");
+        assert!(
+            turned_err < 0.05,
+            "turned offsets miss by {turned_err} px on average"
+        );
+        assert!(
+            plain_err > 4.0 * turned_err,
+            "unturned {plain_err} vs {turned_err}"
+        );
+    }
 
     /// A 33x33 patch of texels whose rows are 0.2% closer than its columns, in the order a
     /// flood reaches them (path length from the centre, then index).

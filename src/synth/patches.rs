@@ -39,7 +39,7 @@
 //! so each patch sees exactly the patches before it that it overlaps, as in the sequential
 //! order, whatever the thread count. Random draws hash (seed, patch, draw).
 
-use super::footprint::{centres, spread, Footprints, LevelTexels};
+use super::footprint::{centres, spread, turned, Footprints, LevelTexels, Turn};
 use super::matching::exemplar::Exemplar;
 use super::matching::features::dist2;
 use super::matching::search::hash;
@@ -130,6 +130,10 @@ pub struct Stats {
 /// Source position per texel and counters.
 pub struct Output {
     pub source: Vec<[f32; 2]>,
+    /// Each texel's source orientation ψ against the field: the turn β the patch it copies
+    /// has there ([`Footprints::turns`]). What continues its source to a neighbour: source
+    /// + the offset turned by ψ ([`turned`]); texture optimisation's levels use it.
+    pub turn: Vec<Turn>,
     pub stats: Stats,
 }
 
@@ -198,12 +202,13 @@ impl Scratch {
     }
 }
 
-/// What one patch writes: texels taking the new patch, with their sources.
+/// What one patch writes: texels taking the new patch, with their sources and turns.
 struct Paste {
     /// The position the patch was pasted at.
     z: [f32; 2],
     texels: Vec<u32>,
     sources: Vec<[f32; 2]>,
+    turns: Vec<Turn>,
     candidates: u64,
     seeded: bool,
     replaced: u64,
@@ -275,16 +280,19 @@ pub fn run<const K: usize>(
         }
         size = (size / 2).max(MIN_SIZE);
     }
-    stats.filled = fill_uncovered(surface, level, &mut state.src, &mut state.set, ex, seed);
+    stats.filled = fill_uncovered(surface, level, &mut state, ex);
     Output {
         source: state.src,
+        turn: state.turn,
         stats,
     }
 }
 
-/// The texture pasted so far: source, whether set, and appearance per texel.
+/// The texture pasted so far: source, source orientation, whether set, and appearance per
+/// texel.
 struct State<const K: usize> {
     src: Vec<[f32; 2]>,
+    turn: Vec<Turn>,
     set: Vec<bool>,
     app: Vec<[f32; K]>,
 }
@@ -293,6 +301,7 @@ impl<const K: usize> State<K> {
     fn new(n: usize) -> Self {
         Self {
             src: vec![[0.0; 2]; n],
+            turn: vec![Turn::ZERO; n],
             set: vec![false; n],
             app: vec![[0.0; K]; n],
         }
@@ -327,9 +336,10 @@ fn paste_waves<const K: usize>(
             if let Some(z) = positions.as_deref_mut() {
                 z[p as usize] = r.z;
             }
-            for (&t, &s) in r.texels.iter().zip(&r.sources) {
+            for ((&t, &s), &o) in r.texels.iter().zip(&r.sources).zip(&r.turns) {
                 let t = t as usize;
                 state.src[t] = s;
+                state.turn[t] = o;
                 state.set[t] = true;
                 state.app[t] = ctx.ex.features.sample(s[0], s[1]);
             }
@@ -421,7 +431,8 @@ fn blend_joins(
     tau: f32,
 ) {
     let n = src.len();
-    let (start, list, coords) = fp.covering_coords(n);
+    let cover = fp.covering_coords(n);
+    let (start, list, coords) = (&cover.start, &cover.patch, &cover.coords);
     let half = fp.half;
     let out: Vec<[f32; 2]> = (0..n)
         .into_par_iter()
@@ -545,16 +556,18 @@ fn paste<const K: usize>(
             z,
             texels: texels.to_vec(),
             sources: coords.iter().map(|l| [z[0] + l[0], z[1] + l[1]]).collect(),
+            turns: c.fp.turns(p).to_vec(),
             candidates,
             seeded: true,
             replaced: 0,
         };
     }
-    let (texels, sources, replaced) = join(c, p, z, set, app, s);
+    let (texels, sources, turns, replaced) = join(c, p, z, set, app, s);
     Paste {
         z,
         texels,
         sources,
+        turns,
         candidates,
         seeded: false,
         replaced,
@@ -843,7 +856,7 @@ fn join<const K: usize>(
     set: &[bool],
     app: &[[f32; K]],
     s: &mut Scratch,
-) -> (Vec<u32>, Vec<[f32; 2]>, u64) {
+) -> (Vec<u32>, Vec<[f32; 2]>, Vec<Turn>, u64) {
     let (texels, coords) = c.fp.get(p);
     let m = texels.len();
     let f = &c.ex.features;
@@ -931,6 +944,8 @@ fn join<const K: usize>(
     s.graph.solve(&mut side);
     let mut out_t = Vec::new();
     let mut out_s = Vec::new();
+    let mut out_o = Vec::new();
+    let turns = c.fp.turns(p);
     let mut replaced = 0;
     for i in 0..m {
         let keep_old = match s.class[i] {
@@ -945,23 +960,23 @@ fn join<const K: usize>(
             }
             out_t.push(t);
             out_s.push([z[0] + coords[i][0], z[1] + coords[i][1]]);
+            out_o.push(turns[i]);
         }
     }
     s.side = side;
-    (out_t, out_s, replaced)
+    (out_t, out_s, out_o, replaced)
 }
 
 /// Gives every texel no footprint reached the continuation of a synthesized neighbour
-/// (breadth-first, nearest neighbour first); isolated texels get the example's centre.
-/// Returns how many were filled.
+/// (breadth-first, nearest neighbour first), in that neighbour's source orientation;
+/// isolated texels get the example's centre. Returns how many were filled.
 fn fill_uncovered<const K: usize>(
     surface: &subdiv::Surface,
     level: &LevelTexels,
-    src: &mut [[f32; 2]],
-    set: &mut [bool],
+    state: &mut State<K>,
     ex: &Exemplar<K>,
-    _seed: u64,
 ) -> u64 {
+    let State { src, turn, set, .. } = state;
     let n = src.len();
     let mut filled = 0u64;
     let mut frontier: Vec<usize> = (0..n).filter(|&t| !set[t]).collect();
@@ -979,12 +994,12 @@ fn fill_uncovered<const K: usize>(
             graph.neighbours(t, &mut nb);
             match nb.iter().map(|&u| u as usize).find(|&u| set[u]) {
                 Some(u) => {
-                    let e = level.offset(u, t);
+                    let e = turned(level.offset(u, t), turn[u]);
                     let s = [
                         (src[u][0] + e[0]).clamp(0.5, w - 0.5),
                         (src[u][1] + e[1]).clamp(0.5, h - 0.5),
                     ];
-                    updates.push((t, s));
+                    updates.push((t, s, turn[u]));
                 }
                 None => next.push(t),
             }
@@ -997,8 +1012,9 @@ fn fill_uncovered<const K: usize>(
             }
             break;
         }
-        for (t, s) in updates {
+        for (t, s, o) in updates {
             src[t] = s;
+            turn[t] = o;
             set[t] = true;
             filled += 1;
         }
