@@ -110,14 +110,10 @@ fn jump_meets_the_bar_on_the_flat_grid_and_spot() {
             Orientation::Auto,
             1,
         );
-        // Known gap (docs/jump.md): with the smooth, high-contrast reptile example the
-        // seam ratio on Spot is 1.37 with the Gauss–Seidel field and 1.49 with the
-        // multigrid one (a smoother field, E 125.03 -> 124.70, but other seam pairs;
-        // seam pairs across faces that are not texel-graph edges, mostly diagonal, and
-        // more patch borders along face edges). Guarded here against getting worse, not
-        // at the bar.
-        let seam_max = if name.contains("reptile") { 1.55 } else { 1.2 };
-        assert_bar_with(&format!("spot N = 32, {name}"), &r, seam_max);
+        // The smooth, high-contrast reptile example measured 1.37–1.49 on Spot while the
+        // growth filled one face after another (its regions met along face edges); grown
+        // by geodesic distance, 0.95 (docs/jump.md, "Growth order"): the bar holds.
+        assert_bar(&format!("spot N = 32, {name}"), &r);
         let s = stats(&r);
         assert_eq!(s.texels, r.report.texels);
         assert!(s.jumps > 0 && s.continuations > s.jumps * 10, "{s:?}");

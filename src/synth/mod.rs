@@ -182,8 +182,9 @@ pub struct Derived {
 impl Derived {
     /// The region-growing order of `texels`.
     pub fn growth(&self, texels: &LevelTexels) -> &[u32] {
-        self.growth
-            .get_or_init(|| jump::growth_order(texels.edges(), texels.layout()))
+        self.growth.get_or_init(|| {
+            jump::growth_order(texels.edges(), texels.layout(), &texels.geometry.pos)
+        })
     }
 }
 
