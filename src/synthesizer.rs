@@ -1194,6 +1194,9 @@ impl SynthResult {
                 }
                 (Ok(()), Err(e)) | (Err(e), Err(_)) => return Err(e),
             }
+            // The files' background fsyncs (in a transaction's staging folder) count as
+            // writing.
+            crate::io::atomic::finish_syncs_in(dir)?;
             let mut report = self.report.clone();
             report.seconds.write = t0.elapsed().as_secs_f64();
             report.seconds.total = self.started.elapsed().as_secs_f64();

@@ -2,7 +2,10 @@
 //!
 //! Every file the tool writes goes through [`AtomicFile`]: the bytes go to a hidden
 //! temporary `DIR/.NAME.tmp-PID` beside the target, are flushed and fsynced, and only then
-//! renamed to `DIR/NAME`. A reader (a renderer, a DCC tool watching the directory, our own
+//! renamed to `DIR/NAME`. Inside a transaction's staging folder ([`crate::io::txn`]) the
+//! fsync runs on a background thread instead and the transaction waits for all of them
+//! before anything becomes visible ([`defer_syncs_in`]): the writer goes on with the next
+//! file while the kernel flushes this one. A reader (a renderer, a DCC tool watching the directory, our own
 //! `render`) therefore never sees a half-written file, a crash or error leaves the previous
 //! version intact, and an error removes the temporary (via `Drop`, which also runs while a
 //! panic unwinds). The temporary lives in the same directory because `rename` is only
@@ -12,6 +15,71 @@ use crate::error::{Error, Result};
 use std::fs::{self, File};
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+use std::thread::JoinHandle;
+
+/// A file's background fsync: its final path (for messages) and the thread.
+type PendingSync = (PathBuf, JoinHandle<std::io::Result<()>>);
+
+/// Folders whose files' fsyncs are deferred, with the syncs still running.
+static DEFERRED: Mutex<Vec<(PathBuf, Vec<PendingSync>)>> = Mutex::new(Vec::new());
+
+/// From now on, files committed directly in `dir` are renamed at once and fsynced on a
+/// background thread; [`finish_syncs_in`] waits for them. For staging folders only, whose
+/// content nobody sees before the owner has waited: the name may then exist before its
+/// bytes are durable. Measured: Spot N = 128, 1 thread, the writer threads spent 0.13 s of
+/// a 0.9 s write stage in fsync (400 MB of maps).
+pub(crate) fn defer_syncs_in(dir: &Path) {
+    let mut d = DEFERRED.lock().unwrap_or_else(|e| e.into_inner());
+    if !d.iter().any(|(p, _)| p == dir) {
+        d.push((dir.to_path_buf(), Vec::new()));
+    }
+}
+
+/// Waits for every background fsync of `dir` started so far; the first failure is the
+/// error, naming its file. `dir` stays deferred.
+pub(crate) fn finish_syncs_in(dir: &Path) -> Result<()> {
+    let pending = {
+        let mut d = DEFERRED.lock().unwrap_or_else(|e| e.into_inner());
+        match d.iter_mut().find(|(p, _)| p == dir) {
+            Some((_, v)) => std::mem::take(v),
+            None => return Ok(()),
+        }
+    };
+    let mut first = Ok(());
+    for (target, h) in pending {
+        let r = match h.join() {
+            Ok(r) => r.map_err(|e| Error::io(&target, "cannot write", e)),
+            Err(_) => Err(Error::file(&target, "the background fsync panicked")),
+        };
+        if first.is_ok() {
+            first = r;
+        }
+    }
+    first
+}
+
+/// Ends [`defer_syncs_in`] for `dir`, waiting for its syncs (their errors are the caller's
+/// concern through [`finish_syncs_in`]; here they only must not outlive the folder).
+pub(crate) fn stop_deferring(dir: &Path) {
+    let _ = finish_syncs_in(dir);
+    let mut d = DEFERRED.lock().unwrap_or_else(|e| e.into_inner());
+    d.retain(|(p, _)| p != dir);
+}
+
+/// Starts `file`'s fsync in the background when its folder is deferred; gives the file
+/// back otherwise.
+fn sync_later(dir: &Path, target: &Path, file: File) -> Option<File> {
+    let mut d = DEFERRED.lock().unwrap_or_else(|e| e.into_inner());
+    let Some((_, pending)) = d.iter_mut().find(|(p, _)| p == dir) else {
+        return Some(file);
+    };
+    pending.push((
+        target.to_path_buf(),
+        std::thread::spawn(move || file.sync_all()),
+    ));
+    None
+}
 
 /// A file being written under a temporary name; [`AtomicFile::commit`] publishes it.
 #[derive(Debug)]
@@ -68,14 +136,34 @@ impl AtomicFile {
         let file = writer
             .into_inner()
             .map_err(|e| Error::io(&self.target, "cannot write", e.into_error()))?;
-        file.sync_all()
-            .map_err(|e| Error::io(&self.target, "cannot write", e))?;
-        drop(file);
+        let dir = match self.target.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        let deferred = dir.as_path() != Path::new(".")
+            && DEFERRED
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .iter()
+                .any(|(p, _)| *p == dir);
+        if !deferred {
+            file.sync_all()
+                .map_err(|e| Error::io(&self.target, "cannot write", e))?;
+        }
         fs::rename(&self.temp, &self.target)
             .map_err(|e| Error::io(&self.target, "cannot rename temporary file into place", e))?;
         // The rename is done: nothing to clean up any more.
         self.temp.clear();
         self._interrupt = None;
+        if deferred {
+            // The staging folder's owner syncs the folder itself after waiting.
+            match sync_later(&dir, &self.target, file) {
+                None => return Ok(()),
+                Some(file) => file
+                    .sync_all()
+                    .map_err(|e| Error::io(&self.target, "cannot write", e))?,
+            }
+        }
         // Persist the directory entry too (best effort: not every file system allows
         // opening a directory for sync, and the data itself is already safe).
         if let Some(dir) = self.target.parent() {
@@ -169,6 +257,32 @@ mod tests {
             .collect();
         v.sort();
         v
+    }
+
+    #[test]
+    fn deferred_folders_publish_at_once_and_sync_in_the_background() {
+        let d = tempfile::tempdir().unwrap();
+        let dir = d.path().to_path_buf();
+        defer_syncs_in(&dir);
+        for k in 0..3 {
+            write_bytes_atomic(dir.join(format!("f{k}")), &[k as u8; 4096]).unwrap();
+        }
+        assert_eq!(names(&dir), ["f0", "f1", "f2"]);
+        assert_eq!(
+            DEFERRED
+                .lock()
+                .unwrap()
+                .iter()
+                .find(|(p, _)| *p == dir)
+                .map(|(_, v)| v.len()),
+            Some(3)
+        );
+        finish_syncs_in(&dir).unwrap();
+        stop_deferring(&dir);
+        // No longer deferred: synced inline, nothing pending.
+        write_bytes_atomic(dir.join("g"), b"x").unwrap();
+        assert!(!DEFERRED.lock().unwrap().iter().any(|(p, _)| *p == dir));
+        assert_eq!(fs::read(dir.join("f2")).unwrap(), [2u8; 4096]);
     }
 
     #[test]

@@ -334,6 +334,11 @@ pub fn check_finite(what: &str, data: &[f32], layout: &TexelLayout) -> Result<()
     check_finite_by(what, data.len(), |i| data[i].is_finite(), layout)
 }
 
+/// Texels per work item of [`check_finite_by`]: rayon's per-item searches cost ~10 ns a
+/// texel (0.23 s for Spot's five face-map channels at N = 128), a plain loop over a chunk
+/// well under one.
+const FINITE_CHUNK: usize = 1 << 15;
+
 /// [`check_finite`] for per-texel values of any type (`finite(i)` says whether texel `i`'s
 /// value is finite).
 pub fn check_finite_by(
@@ -343,9 +348,18 @@ pub fn check_finite_by(
     layout: &TexelLayout,
 ) -> Result<()> {
     use rayon::prelude::*;
-    let Some(i) = (0..len).into_par_iter().position_first(|i| !finite(i)) else {
+    let span = |k: usize| k * FINITE_CHUNK..((k + 1) * FINITE_CHUNK).min(len);
+    // `fold`, not `all`: no early exit in the common all-finite case, so the loop stays
+    // branch-free.
+    let Some(k) = (0..len.div_ceil(FINITE_CHUNK))
+        .into_par_iter()
+        .position_first(|k| !span(k).fold(true, |ok, i| ok & finite(i)))
+    else {
         return Ok(());
     };
+    let i = span(k)
+        .find(|&i| !finite(i))
+        .expect("the chunk holds a non-finite value");
     let (d, x, y) = layout.coords(i);
     Err(Error::invalid(format!(
         "{what} is not finite at face domain {d}, texel ({x}, {y}); nothing was written"
@@ -815,6 +829,15 @@ mod tests {
         }
         let m = FaceMaps::new(3, 4, &["R"]);
         assert!(check_finite("R", m.channel("R").unwrap(), &m.layout).is_ok());
+        // Beyond the first work chunk, two bad values: the first one is named.
+        let mut m = FaceMaps::new(3, 128, &["R"]);
+        let r = m.channel_mut("R").unwrap();
+        r[2 * 128 * 128 + 56 * 128 + 32] = f32::NAN;
+        r[2 * 128 * 128 + 60 * 128] = f32::NAN;
+        let e = check_finite("R", m.channel("R").unwrap(), &m.layout)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("domain 2") && e.contains("(32, 56)"), "{e}");
     }
 
     #[test]

@@ -13,8 +13,9 @@
 //!    when it exists (`--out/.surfsynth-staging-PID`), else beside it
 //!    (`PARENT/.NAME.surfsynth-staging-PID`), creating missing parents (which are removed
 //!    again if the run fails).
-//! 2. Writers write the whole result into [`OutputTxn::dir`], each file atomically and
-//!    fsynced.
+//! 2. Writers write the whole result into [`OutputTxn::dir`], each file atomically; the
+//!    fsyncs run in the background ([`crate::io::atomic::defer_syncs_in`]) and the commit
+//!    waits for them first.
 //! 3. [`OutputTxn::commit`] moves them into place. A new `--out` is the staging folder
 //!    renamed (one atomic step). An existing one is swapped file by file, with the previous
 //!    files kept in the staging folder (hard links, so a reader never sees a file missing)
@@ -171,6 +172,7 @@ impl OutputTxn {
             };
             return Err(Error::io(&target, what, e));
         }
+        crate::io::atomic::defer_syncs_in(&txn.staging);
         Ok(txn)
     }
 
@@ -262,6 +264,10 @@ impl OutputTxn {
         if let Some(sig) = interrupt::interrupted() {
             return Err(Error::invalid(format!("interrupted by signal {sig}")));
         }
+        // Every staged file durable (their fsyncs ran in the background), and their names.
+        crate::io::atomic::finish_syncs_in(&self.staging).map_err(|e| self.explain(e))?;
+        crate::io::atomic::stop_deferring(&self.staging);
+        sync_dir(&self.staging);
         let mut staged: Vec<String> = Vec::new();
         let rd = fs::read_dir(&self.staging)
             .map_err(|e| Error::io(&self.target, "cannot read the staged output", e))?;
@@ -393,6 +399,9 @@ impl OutputTxn {
 
 impl Drop for OutputTxn {
     fn drop(&mut self) {
+        if !self.staging.as_os_str().is_empty() {
+            crate::io::atomic::stop_deferring(&self.staging);
+        }
         if self.done {
             return;
         }
