@@ -118,12 +118,18 @@ const OPTIMISE_TEXEL: u64 = 330;
 /// `synth --method jump`, per example pixel: the jump map (4 targets, 4 weights, their
 /// sum: 36 B) and, while it is built (a cache miss), the 3x3-lattice vectors (72 floats),
 /// their tree projections and the kd-tree. Measured: a 512² example peaked 82 MB higher
-/// on a miss than on a hit (flat grid, N = 32). Per texel jump needs nothing on top of
-/// [`SYNTH_TEXEL`]: its growth order, buckets and sources (~16 B) take the room the
-/// other methods' appearance-space texels take (Spot with a 128² example, `--no-cache`,
+/// on a miss than on a hit (flat grid, N = 32). Per texel, before its plan
+/// ([`JUMP_TEXEL`]), jump needed nothing on top of [`SYNTH_TEXEL`]: its growth order,
+/// buckets and sources (~16 B) took the room the other methods' appearance-space texels take (Spot with a 128² example, `--no-cache`,
 /// N = 32, 64, 128: 124, 281, 814 MB peak, 479, 272, 197 B/texel before the compact pf
 /// summary; 135, 154, 428 MiB after it, the estimate 0.91, 1.22, 1.03x of that).
 const JUMP_MAP_PIXEL: u64 = 360;
+/// `synth --method jump`, per texel: its plan ([`crate::synth::jump::Plan`]: rank order,
+/// the earlier neighbours' ranks and offsets, ~2 per texel at 12 B, the margins) and
+/// the sources scattered back to texel order. Measured (Spot, 128² example, `--no-cache`,
+/// 2026-12-04): peak 464 → 538 MiB at N = 128 when the plan came, 135 MiB at N = 32; the
+/// estimate without this term 441 and 124 MiB (0.82x, 0.91x), with it 1.05x and 0.97x.
+const JUMP_TEXEL: u64 = 32;
 /// `synth`, per border texel (4N per domain): its neighbour list across the face edges.
 const SYNTH_BORDER_TEXEL: u64 = 64;
 /// `synth`, per example pixel: decoded image, linear copy, alpha/height, the appearance
@@ -555,6 +561,7 @@ pub fn estimate_texels(size: &MeshSize, count: &TexelCount, job: &Job) -> Estima
                 }
                 Method::Jump => {
                     parts.push(("jump map", sat(example_pixels as u64, JUMP_MAP_PIXEL)));
+                    parts.push(("jump plan", sat(texels, JUMP_TEXEL)));
                 }
                 Method::Textons | Method::Multiscale => {
                     parts.push(("multiscale levels", sat(texels, MULTISCALE_TEXEL)));

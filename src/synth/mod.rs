@@ -175,15 +175,17 @@ pub struct Target<'a> {
 /// (a prepared session computes each once for all its runs).
 #[derive(Debug, Default)]
 pub struct Derived {
-    /// The jump method's region-growing order ([`jump::growth_order`]).
-    pub growth: std::sync::OnceLock<Vec<u32>>,
+    /// The jump method's region-growing order ([`jump::growth_order`]) and what its texel
+    /// pass reads, in that order.
+    pub jump: std::sync::OnceLock<jump::Plan>,
 }
 
 impl Derived {
-    /// The region-growing order of `texels`.
-    pub fn growth(&self, texels: &LevelTexels) -> &[u32] {
-        self.growth.get_or_init(|| {
-            jump::growth_order(texels.edges(), texels.layout(), &texels.geometry.pos)
+    /// The jump method's plan of `texels`.
+    pub fn jump_plan(&self, texels: &LevelTexels) -> &jump::Plan {
+        self.jump.get_or_init(|| {
+            let order = jump::growth_order(texels.edges(), texels.layout(), &texels.geometry.pos);
+            jump::Plan::new(texels, order)
         })
     }
 }
@@ -364,8 +366,8 @@ pub fn synthesize(
             let map = analyses.get("jumpmap", key, || {
                 matching::jumpmap::JumpMap::from_appearance(&app.image, app.info, p.map)
             });
-            let order = target.derived.growth(target.texels);
-            let (source, stats) = jump::run(&map, target.texels, order, &p, target.seed, progress);
+            let plan = target.derived.jump_plan(target.texels);
+            let (source, stats) = jump::run(&map, target.texels, plan, &p, target.seed, progress);
             Ok(Output {
                 source,
                 appearance: map.appearance,

@@ -524,7 +524,7 @@ impl Session {
     pub fn prepare_method(&self, method: Method) -> f64 {
         let t0 = Instant::now();
         if method == Method::Jump {
-            self.derived.growth(&self.texels);
+            self.derived.jump_plan(&self.texels);
         }
         if method == Method::Coherent {
             self.texels.graph(&self.surface);
