@@ -548,11 +548,9 @@ mod tests {
     #[test]
     fn plan_lists_each_texels_earlier_neighbours_in_edge_order() {
         let surface = Surface::new(ControlMesh::grid(3));
-        let field = crate::field::OrientationField::compute(
-            &surface,
-            &crate::field::Orientation::Auto,
-        )
-        .unwrap();
+        let field =
+            crate::field::OrientationField::compute(&surface, &crate::field::Orientation::Auto)
+                .unwrap();
         let level = LevelTexels::new(&surface, &field, 6, 0.01);
         let e = level.edges();
         let order = growth_order(e, level.layout(), &level.geometry.pos);
