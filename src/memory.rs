@@ -120,8 +120,8 @@ const OPTIMISE_TEXEL: u64 = 330;
 /// their tree projections and the kd-tree. Measured: a 512² example peaked 82 MB higher
 /// on a miss than on a hit (flat grid, N = 32). Per texel, before its plan
 /// ([`JUMP_TEXEL`]), jump needed nothing on top of [`SYNTH_TEXEL`]: its growth order,
-/// buckets and sources (~16 B) took the room the other methods' appearance-space texels take (Spot with a 128² example, `--no-cache`,
-/// N = 32, 64, 128: 124, 281, 814 MB peak, 479, 272, 197 B/texel before the compact pf
+/// buckets and sources (~16 B) took the room the other methods' appearance-space texels
+/// take (Spot with a 128² example, `--no-cache`, N = 32, 64, 128: 124, 281, 814 MB peak, 479, 272, 197 B/texel before the compact pf
 /// summary; 135, 154, 428 MiB after it, the estimate 0.91, 1.22, 1.03x of that).
 const JUMP_MAP_PIXEL: u64 = 360;
 /// `synth --method jump`, per texel: its plan ([`crate::synth::jump::Plan`]: rank order,

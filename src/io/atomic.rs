@@ -5,10 +5,10 @@
 //! renamed to `DIR/NAME`. Inside a transaction's staging folder ([`crate::io::txn`]) the
 //! fsync runs on a background thread instead and the transaction waits for all of them
 //! before anything becomes visible ([`defer_syncs_in`]): the writer goes on with the next
-//! file while the kernel flushes this one. A reader (a renderer, a DCC tool watching the directory, our own
-//! `render`) therefore never sees a half-written file, a crash or error leaves the previous
-//! version intact, and an error removes the temporary (via `Drop`, which also runs while a
-//! panic unwinds). The temporary lives in the same directory because `rename` is only
+//! file while the kernel flushes this one. A reader (a renderer, a DCC tool watching the
+//! directory, our own `render`) therefore never sees a half-written file, a crash or error
+//! leaves the previous version intact, and an error removes the temporary (via `Drop`,
+//! which also runs while a panic unwinds). The temporary lives in the same directory because `rename` is only
 //! atomic within one file system.
 
 use crate::error::{Error, Result};
@@ -140,39 +140,26 @@ impl AtomicFile {
             Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
             _ => PathBuf::from("."),
         };
-        let deferred = dir.as_path() != Path::new(".")
-            && DEFERRED
-                .lock()
-                .unwrap_or_else(|e| e.into_inner())
-                .iter()
-                .any(|(p, _)| *p == dir);
-        if !deferred {
-            file.sync_all()
-                .map_err(|e| Error::io(&self.target, "cannot write", e))?;
-        }
+        // In a deferred folder the fsync starts on its own thread (before or after the
+        // rename makes no difference to a folder nobody sees yet); elsewhere it comes first.
+        let deferred = match sync_later(&dir, &self.target, file) {
+            None => true,
+            Some(file) => {
+                file.sync_all()
+                    .map_err(|e| Error::io(&self.target, "cannot write", e))?;
+                false
+            }
+        };
         fs::rename(&self.temp, &self.target)
             .map_err(|e| Error::io(&self.target, "cannot rename temporary file into place", e))?;
         // The rename is done: nothing to clean up any more.
         self.temp.clear();
         self._interrupt = None;
-        if deferred {
-            // The staging folder's owner syncs the folder itself after waiting.
-            match sync_later(&dir, &self.target, file) {
-                None => return Ok(()),
-                Some(file) => file
-                    .sync_all()
-                    .map_err(|e| Error::io(&self.target, "cannot write", e))?,
-            }
-        }
         // Persist the directory entry too (best effort: not every file system allows
-        // opening a directory for sync, and the data itself is already safe).
-        if let Some(dir) = self.target.parent() {
-            let dir = if dir.as_os_str().is_empty() {
-                Path::new(".")
-            } else {
-                dir
-            };
-            if let Ok(d) = File::open(dir) {
+        // opening a directory for sync, and the data itself is already safe). A deferred
+        // folder's owner syncs it once, after waiting.
+        if !deferred {
+            if let Ok(d) = File::open(&dir) {
                 let _ = d.sync_all();
             }
         }

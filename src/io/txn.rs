@@ -266,7 +266,6 @@ impl OutputTxn {
         }
         // Every staged file durable (their fsyncs ran in the background), and their names.
         crate::io::atomic::finish_syncs_in(&self.staging).map_err(|e| self.explain(e))?;
-        crate::io::atomic::stop_deferring(&self.staging);
         sync_dir(&self.staging);
         let mut staged: Vec<String> = Vec::new();
         let rd = fs::read_dir(&self.staging)

@@ -363,14 +363,6 @@ impl Plan {
     pub fn is_empty(&self) -> bool {
         self.order.is_empty()
     }
-
-    /// Bytes held (for the memory guard's calibration).
-    pub fn bytes(&self) -> usize {
-        self.order.len() * 4
-            + self.first.len() * 4
-            + self.earlier.len() * std::mem::size_of::<Earlier>()
-            + self.reach.len() * 4
-    }
 }
 
 /// Runs jump-map synthesis over `level` with its [`Plan`].
