@@ -185,17 +185,40 @@ pub(crate) fn splitmix(state: &mut u64) -> u64 {
 /// `count` distinct indices drawn uniformly from `candidates` (all of them, in order, when
 /// there are no more): a partial Fisher–Yates shuffle with [`splitmix`], so the draw
 /// depends only on the candidates and the seed.
-pub(crate) fn draw(mut candidates: Vec<usize>, count: usize, seed: u64) -> Vec<usize> {
+pub(crate) fn draw(candidates: Vec<usize>, count: usize, seed: u64) -> Vec<usize> {
     if candidates.len() <= count {
         return candidates;
     }
-    let mut state = seed;
-    for i in 0..count {
-        let j = i + (splitmix(&mut state) % (candidates.len() - i) as u64) as usize;
-        candidates.swap(i, j);
+    draw_from(candidates.len(), |i| candidates[i], count, seed)
+}
+
+/// [`draw`] from the virtual list `at(0), …, at(len − 1)`, without building it: the same
+/// partial Fisher–Yates shuffle, the moved entries kept in a map. Why: the surface method
+/// draws a few hundred centres among every texel, and the list of all of them (8 B per
+/// texel, 4 M at N = 128 on Spot) cost more than the drawing.
+pub(crate) fn draw_from(
+    len: usize,
+    at: impl Fn(usize) -> usize,
+    count: usize,
+    seed: u64,
+) -> Vec<usize> {
+    if len <= count {
+        return (0..len).map(at).collect();
     }
-    candidates.truncate(count);
-    candidates
+    let mut moved: std::collections::HashMap<usize, usize> = Default::default();
+    let get = |m: &std::collections::HashMap<usize, usize>, i: usize| {
+        m.get(&i).copied().unwrap_or_else(|| at(i))
+    };
+    let mut state = seed;
+    let mut out = Vec::with_capacity(count);
+    for i in 0..count {
+        let j = i + (splitmix(&mut state) % (len - i) as u64) as usize;
+        let (vi, vj) = (get(&moved, i), get(&moved, j));
+        out.push(vj);
+        // Slot i is never read again; slot j now holds what was at i.
+        moved.insert(j, vi);
+    }
+    out
 }
 
 /// Integer offsets of the disc of diameter `s` pixels: pixel centres within s/2 of the
@@ -921,5 +944,30 @@ mod tests {
         s.dedup();
         assert_eq!(s.len(), 100);
         assert_eq!(draw((0..10).collect(), 100, 5), (0..10).collect::<Vec<_>>());
+    }
+
+    /// The sparse shuffle draws exactly what the shuffle of the whole list draws.
+    #[test]
+    fn draw_from_matches_the_full_shuffle() {
+        fn full(mut c: Vec<usize>, count: usize, seed: u64) -> Vec<usize> {
+            if c.len() <= count {
+                return c;
+            }
+            let mut state = seed;
+            for i in 0..count {
+                let j = i + (splitmix(&mut state) % (c.len() - i) as u64) as usize;
+                c.swap(i, j);
+            }
+            c.truncate(count);
+            c
+        }
+        for (len, count, seed) in [(1000, 100, 5), (50, 49, 1), (7, 7, 3), (100_000, 768, 9)] {
+            let list: Vec<usize> = (0..len).map(|i| 3 * i + 1).collect();
+            assert_eq!(
+                draw_from(len, |i| list[i], count, seed),
+                full(list.clone(), count, seed),
+                "len {len}, count {count}, seed {seed}"
+            );
+        }
     }
 }

@@ -35,8 +35,8 @@
 //!    An empty disc takes the nearest texel.
 
 use super::pf::{
-    draw, image_patch_fidelities_as, score_scale, PatchFidelity, PfMethod, PfOptions, Rgb, DIMS,
-    PF_SCALES, WINDOW,
+    draw, draw_from, image_patch_fidelities_as, score_scale, PatchFidelity, PfMethod, PfOptions,
+    Rgb, DIMS, PF_SCALES, WINDOW,
 };
 use crate::example::Example;
 use crate::io::exr::FaceMaps;
@@ -184,6 +184,8 @@ pub(crate) struct Cloud<'a> {
     src: Option<(&'a [f32], &'a [f32])>,
     /// Items are texel indices.
     tree: ImmutableKdTree<f64, 3>,
+    /// Every texel has a finite position and colour (the usual case).
+    all_valid: bool,
     /// Per texel, the spacing that decides whether a point nearest to it is on the
     /// surface ([`Cloud::cover`]), computed on first use: [`COVER_UNKNOWN`] while unknown,
     /// else the f32 bits. Only texels walked near are asked (a few per window); at small N
@@ -238,16 +240,12 @@ impl<'a> Cloud<'a> {
             col,
             src,
             tree: ImmutableKdTree::new_from_slice(&[]).ok()?,
+            all_valid: false,
             cover: Vec::new(),
             h: 0.0,
             scale: 0.0,
             local: geometry.local_scale.filter(|c| c.len() == total),
         };
-        // h first: its spacings (16 B per texel) are gone before the tree is built.
-        cloud.h = median_spacing(&cloud)?;
-        cloud.scale = scale
-            .filter(|s| s.is_finite() && *s > 0.0)
-            .unwrap_or(cloud.h);
         // The tree straight from the positions, its items the texel indices: the same
         // tree (coordinates, splits, leaf order) as one built from a copied f64 point
         // list whose items were positions in the list of valid texels (that list is
@@ -255,11 +253,12 @@ impl<'a> Cloud<'a> {
         // When every texel is valid (the usual case) and the positions are packed (the
         // texel geometry), the tree reads them directly: one lookup per coordinate instead
         // of two (pf's time; issue 14's no-slower rule).
-        let all_valid = (0..total).into_par_iter().all(|i| cloud.valid(i));
+        cloud.all_valid = (0..total).into_par_iter().all(|i| cloud.valid(i));
         let pos = cloud.pos;
-        cloud.tree = match pos {
+        let all_valid = cloud.all_valid;
+        let tree = || match pos {
             Xyz::Packed(v) if all_valid && total > 0 => {
-                ImmutableKdTree::new_from_source(v, |p, dim| p[dim] as f64, |i, _| i as u32).ok()?
+                ImmutableKdTree::new_from_source(v, |p, dim| p[dim] as f64, |i, _| i as u32).ok()
             }
             _ => {
                 let items: Vec<u32> = (0..total as u32)
@@ -273,9 +272,18 @@ impl<'a> Cloud<'a> {
                     |&i, dim| pos.coord(i as usize, dim),
                     |_, &i| i,
                 )
-                .ok()?
+                .ok()
             }
         };
+        // h first: its spacings (16 B per texel) are gone before the tree is built. (Side
+        // by side they took as long as one after the other: both are parallel.)
+        let h = median_spacing(&cloud)?;
+        let tree = tree()?;
+        cloud.h = h;
+        cloud.tree = tree;
+        cloud.scale = scale
+            .filter(|s| s.is_finite() && *s > 0.0)
+            .unwrap_or(cloud.h);
         cloud.cover = (0..total).map(|_| AtomicU32::new(COVER_UNKNOWN)).collect();
         Some(cloud)
     }
@@ -365,6 +373,16 @@ impl<'a> Cloud<'a> {
     /// Texels that can be window centres.
     pub fn candidates(&self) -> Vec<usize> {
         (0..self.layout.len()).filter(|&i| self.valid(i)).collect()
+    }
+
+    /// `count` window centres drawn among [`Cloud::candidates`] ([`draw`]), without
+    /// listing them when every texel is one.
+    pub fn draw_centres(&self, count: usize, seed: u64) -> Vec<usize> {
+        if self.all_valid {
+            draw_from(self.layout.len(), |i| i, count, seed)
+        } else {
+            draw(self.candidates(), count, seed)
+        }
     }
 
     #[inline]
@@ -697,27 +715,33 @@ fn grid_normal(c: &Cloud, i: usize) -> DVec3 {
 }
 
 /// Median distance between horizontally or vertically adjacent valid texels of one face.
+/// Faces in parallel (the median is the same whatever the order the spacings are listed
+/// in).
 fn median_spacing(c: &Cloud) -> Option<f64> {
     let l = &c.layout;
-    let mut d: Vec<f64> = Vec::with_capacity(2 * l.len());
-    for face in 0..l.faces() {
-        let (n, nv) = l.dims(face);
-        for y in 0..nv {
-            for x in 0..n {
-                let i = l.index(face, x, y);
-                if !c.valid(i) {
-                    continue;
-                }
-                let pi = c.pos(i);
-                if x + 1 < n && c.valid(i + 1) {
-                    d.push((c.pos(i + 1) - pi).length());
-                }
-                if y + 1 < nv && c.valid(i + n) {
-                    d.push((c.pos(i + n) - pi).length());
+    let mut d: Vec<f64> = (0..l.faces())
+        .into_par_iter()
+        .flat_map_iter(|face| {
+            let (n, nv) = l.dims(face);
+            let mut d = Vec::with_capacity(2 * n * nv);
+            for y in 0..nv {
+                for x in 0..n {
+                    let i = l.index(face, x, y);
+                    if !c.valid(i) {
+                        continue;
+                    }
+                    let pi = c.pos(i);
+                    if x + 1 < n && c.valid(i + 1) {
+                        d.push((c.pos(i + 1) - pi).length());
+                    }
+                    if y + 1 < nv && c.valid(i + n) {
+                        d.push((c.pos(i + n) - pi).length());
+                    }
                 }
             }
-        }
-    }
+            d
+        })
+        .collect();
     if d.is_empty() {
         return None;
     }
@@ -901,7 +925,7 @@ pub fn patch_fidelities_of(
     let Some(cloud) = Cloud::build(colour, geometry, scale) else {
         return PatchFidelity::empty(PfMethod::Surface);
     };
-    let drawn = draw(cloud.candidates(), opts.samples, opts.seed);
+    let drawn = cloud.draw_centres(opts.samples, opts.seed);
     let frames: Vec<Frame> = drawn.par_iter().map(|&t| cloud.frame(t)).collect();
     let fallbacks = frames.iter().filter(|f| f.fallback).count();
     let scales = PF_SCALES
