@@ -80,9 +80,9 @@ fn measure(r: &SynthResult) -> Measured {
 }
 
 /// BRIEF's stretch bar as the project holds it: scale fidelity median within 1 ± 0.03 and
-/// p10–p90 inside `spread` — [0.9, 1.1] for the methods that copy whole patches, [0.85,
-/// 1.15] for the per-texel ones (coherent, multiscale), whose sources are only pieced
-/// together into continuations (docs/synthesis.md).
+/// p10–p90 inside `spread` — [0.9, 1.1] (issue 13) for every method but coherent
+/// synthesis, [0.85, 1.15] for that one, whose sources are only pieced together into
+/// continuations (docs/synthesis.md).
 fn unstretched(q: &surfsynth::eval::Quality, spread: (f64, f64)) -> bool {
     let s = q.scale_fidelity.unwrap();
     (s.median - 1.0).abs() <= 0.03 && s.p10 >= spread.0 && s.p90 <= spread.1
@@ -90,7 +90,7 @@ fn unstretched(q: &surfsynth::eval::Quality, spread: (f64, f64)) -> bool {
 
 fn spread_of(method: Method) -> (f64, f64) {
     match method {
-        Method::Coherent | Method::Multiscale => (0.85, 1.15),
+        Method::Coherent => (0.85, 1.15),
         _ => (0.9, 1.1),
     }
 }
@@ -229,6 +229,34 @@ fn every_method_meets_the_bar_on_curved_meshes() {
         }
     }
     assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+/// Multiscale with a brick example on a curved mesh, where a brick's face looks alike
+/// everywhere: without the finest level's coherent choice its randomised choice put
+/// neighbouring texels' sources 2–4 pixels apart, which BRIEF reads as stretch (Spot,
+/// N = 16, seed 2: p10–p90 0.97–2.81; with it 0.97–1.07; docs/multiscale.md, "Coherent
+/// choice").
+#[test]
+fn multiscale_keeps_bricks_unstretched_on_a_curved_mesh() {
+    let r = Synthesizer::new(data("meshes/spot_control_mesh.obj"), load(&STRUCTURED[0]))
+        .method(Method::Multiscale)
+        .resolution(16)
+        .seed(2)
+        .analyses(common::analyses())
+        .run()
+        .unwrap();
+    let m = measure(&r);
+    let what = format!(
+        "multiscale bricks on Spot N=16: seam {:?}, pf8 {:.3}, scale fidelity {:?}",
+        m.q.seam_ratio, m.pf8, m.q.scale_fidelity
+    );
+    println!("{what}");
+    assert_eq!(m.q.coverage, 1.0, "{what}");
+    assert!(
+        m.q.seam_ratio.unwrap() <= seam_bar(Method::Multiscale),
+        "{what}"
+    );
+    assert!(unstretched(&m.q, (0.9, 1.1)), "{what}");
 }
 
 /// The structure methods give bit-identical maps for 1 and 2 threads.
