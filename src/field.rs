@@ -790,6 +790,8 @@ impl Problem<'_> {
             let w: Vec<f64> = self.mass.iter().map(|m| 1e-6 * m).collect();
             let mut x = vec![DVec2::ZERO; n];
             let mut b = vec![DVec2::ZERO; n];
+            // 1 − |⟨z_k, z_k+1⟩| of the last step (unit vectors): how far from converged.
+            let mut change = 1.0f64;
             for _ in 0..30 {
                 let norm = z.iter().map(|c| c.length_squared()).sum::<f64>().sqrt();
                 for c in z.iter_mut() {
@@ -799,7 +801,24 @@ impl Problem<'_> {
                 for i in 0..n {
                     b[i] = z[i] * self.mass[i];
                 }
-                self.solve(&w, &b, &mut x, 2 * n + 100, 1e-8);
+                // Inexact inverse iteration: each solve only as exact as the eigenvector
+                // estimate is, down to the old fixed 1e-8 once it has converged. The first
+                // solves from the random start took 500 CG iterations each for a vector
+                // that was still mostly wrong (bunny, level 1 with 19,796 vertices: 6,500
+                // iterations in all, 0.81 s; now ~4,000, 0.51 s; E at the finest level the
+                // same to 1e-10).
+                let tol = (0.1 * change).clamp(1e-8, 1e-2);
+                self.solve(&w, &b, &mut x, 2 * n + 100, tol);
+                let nx = x.iter().map(|c| c.length_squared()).sum::<f64>().sqrt();
+                // z is a unit vector here; Hermitian ⟨z, x⟩ = Σ conj(z_i) x_i.
+                let ip = z
+                    .iter()
+                    .zip(&x)
+                    .fold(DVec2::ZERO, |a, (p, q)| {
+                        a + DVec2::new(p.x * q.x + p.y * q.y, p.x * q.y - p.y * q.x)
+                    })
+                    .length();
+                change = if nx > 0.0 { 1.0 - ip / nx } else { 1.0 };
                 std::mem::swap(&mut z, &mut x);
             }
         }
