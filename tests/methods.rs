@@ -234,7 +234,7 @@ fn every_method_meets_the_bar_on_curved_meshes() {
 /// Multiscale with a brick example on a curved mesh, where a brick's face looks alike
 /// everywhere: without the finest level's coherent choice its randomised choice put
 /// neighbouring texels' sources 2–4 pixels apart, which BRIEF reads as stretch (Spot,
-/// N = 16, seed 2: p10–p90 0.97–2.81; with it 0.97–1.07; docs/multiscale.md, "Coherent
+/// N = 16, seed 2: p10–p90 0.97–2.81; with it 0.96–1.06; docs/multiscale.md, "Coherent
 /// choice").
 #[test]
 fn multiscale_keeps_bricks_unstretched_on_a_curved_mesh() {
