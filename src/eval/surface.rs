@@ -246,6 +246,11 @@ impl<'a> Cloud<'a> {
             scale: 0.0,
             local: geometry.local_scale.filter(|c| c.len() == total),
         };
+        // h first: its spacings (16 B per texel) are gone before the tree is built.
+        cloud.h = median_spacing(&cloud)?;
+        cloud.scale = scale
+            .filter(|s| s.is_finite() && *s > 0.0)
+            .unwrap_or(cloud.h);
         // The tree straight from the positions, its items the texel indices: the same
         // tree (coordinates, splits, leaf order) as one built from a copied f64 point
         // list whose items were positions in the list of valid texels (that list is
@@ -255,10 +260,9 @@ impl<'a> Cloud<'a> {
         // of two (pf's time; issue 14's no-slower rule).
         cloud.all_valid = (0..total).into_par_iter().all(|i| cloud.valid(i));
         let pos = cloud.pos;
-        let all_valid = cloud.all_valid;
-        let tree = || match pos {
-            Xyz::Packed(v) if all_valid && total > 0 => {
-                ImmutableKdTree::new_from_source(v, |p, dim| p[dim] as f64, |i, _| i as u32).ok()
+        cloud.tree = match pos {
+            Xyz::Packed(v) if cloud.all_valid && total > 0 => {
+                ImmutableKdTree::new_from_source(v, |p, dim| p[dim] as f64, |i, _| i as u32).ok()?
             }
             _ => {
                 let items: Vec<u32> = (0..total as u32)
@@ -272,18 +276,9 @@ impl<'a> Cloud<'a> {
                     |&i, dim| pos.coord(i as usize, dim),
                     |_, &i| i,
                 )
-                .ok()
+                .ok()?
             }
         };
-        // h first: its spacings (16 B per texel) are gone before the tree is built. (Side
-        // by side they took as long as one after the other: both are parallel.)
-        let h = median_spacing(&cloud)?;
-        let tree = tree()?;
-        cloud.h = h;
-        cloud.tree = tree;
-        cloud.scale = scale
-            .filter(|s| s.is_finite() && *s > 0.0)
-            .unwrap_or(cloud.h);
         cloud.cover = (0..total).map(|_| AtomicU32::new(COVER_UNKNOWN)).collect();
         Some(cloud)
     }

@@ -48,7 +48,7 @@
 //! line starts at the end whose perpendicular side has more synthesized texture.
 
 use super::matching::features::{dist2, Features};
-use super::schedule::Schedule;
+use super::schedule::{inward_order, Schedule};
 use crate::texels::{TexelGeometry, TexelGraph};
 use glam::Vec3;
 use rayon::prelude::*;
@@ -373,74 +373,21 @@ fn scan_order<const K: usize>(c: &Ctx<'_, K>, done_g: &[bool], d: usize) -> Vec<
 }
 
 /// Texels by 4-neighbour grid distance from the outermost texels that have synthesized
-/// foreign neighbours, scan-line order within one distance; `None` when nothing around the
-/// domain is synthesized yet.
+/// foreign neighbours ([`inward_order`]); `None` when nothing around the domain is
+/// synthesized yet.
 fn front_order<const K: usize>(c: &Ctx<'_, K>, done_g: &[bool], d: usize) -> Option<Vec<u32>> {
     let layout = &c.inp.geometry.layout;
     let (nu, nv) = layout.dims(d);
-    let nn = nu * nv;
     let base = layout.start(d);
-    let mut dist = vec![u32::MAX; nn];
-    let mut queue = std::collections::VecDeque::new();
     let mut buf = Vec::with_capacity(64);
-    for y in 0..nv {
-        for x in 0..nu {
-            if !(x == 0 || y == 0 || x + 1 == nu || y + 1 == nv) {
-                continue;
-            }
-            buf.clear();
-            c.inp.graph.neighbours(base + y * nu + x, &mut buf);
-            let touches = buf.iter().any(|&j| {
-                let e = layout.domain_of(j as usize);
-                e != d && done_g[e]
-            });
-            if touches {
-                dist[y * nu + x] = 0;
-                queue.push_back(y * nu + x);
-            }
-        }
-    }
-    if queue.is_empty() {
-        return None;
-    }
-    let mut max = 0;
-    while let Some(i) = queue.pop_front() {
-        let (x, y) = (i % nu, i / nu);
-        let dn = dist[i] + 1;
-        let mut visit = |j: usize| {
-            if dist[j] == u32::MAX {
-                dist[j] = dn;
-                max = max.max(dn);
-                queue.push_back(j);
-            }
-        };
-        if x > 0 {
-            visit(i - 1);
-        }
-        if x + 1 < nu {
-            visit(i + 1);
-        }
-        if y > 0 {
-            visit(i - nu);
-        }
-        if y + 1 < nv {
-            visit(i + nu);
-        }
-    }
-    // Counting sort by distance keeps scan-line order inside a front.
-    let mut start = vec![0u32; max as usize + 2];
-    for &k in &dist {
-        start[k as usize + 1] += 1;
-    }
-    for k in 1..start.len() {
-        start[k] += start[k - 1];
-    }
-    let mut order = vec![0u32; nn];
-    for (i, &k) in dist.iter().enumerate() {
-        order[start[k as usize] as usize] = i as u32;
-        start[k as usize] += 1;
-    }
-    Some(order)
+    inward_order(nu, nv, |x, y| {
+        buf.clear();
+        c.inp.graph.neighbours(base + y * nu + x, &mut buf);
+        buf.iter().any(|&j| {
+            let e = layout.domain_of(j as usize);
+            e != d && done_g[e]
+        })
+    })
 }
 
 /// The texels some other domain's texels have as neighbours (ascending, unique): those

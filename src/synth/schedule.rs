@@ -218,6 +218,72 @@ fn waves_for(order: &[u32], conflicts: &[Vec<u32>]) -> Vec<Vec<u32>> {
     waves
 }
 
+/// A domain's texels (local indices, rows of `nu`) by 4-neighbour grid distance from its
+/// border texels for which `touches(x, y)` holds — those next to texels already
+/// synthesized in other domains — scan-line order within one distance; `None` when no
+/// border texel touches. Grown this way, a domain continues its finished neighbours'
+/// patches across the shared edges instead of growing its own from a corner and meeting
+/// theirs along every edge (coherent synthesis, docs/coherent.md; multiscale's finest
+/// level, docs/multiscale.md).
+pub fn inward_order(
+    nu: usize,
+    nv: usize,
+    mut touches: impl FnMut(usize, usize) -> bool,
+) -> Option<Vec<u32>> {
+    let nn = nu * nv;
+    let mut dist = vec![u32::MAX; nn];
+    let mut queue = std::collections::VecDeque::new();
+    for y in 0..nv {
+        for x in 0..nu {
+            if (x == 0 || y == 0 || x + 1 == nu || y + 1 == nv) && touches(x, y) {
+                dist[y * nu + x] = 0;
+                queue.push_back(y * nu + x);
+            }
+        }
+    }
+    if queue.is_empty() {
+        return None;
+    }
+    let mut max = 0;
+    while let Some(i) = queue.pop_front() {
+        let (x, y) = (i % nu, i / nu);
+        let dn = dist[i] + 1;
+        let mut visit = |j: usize| {
+            if dist[j] == u32::MAX {
+                dist[j] = dn;
+                max = max.max(dn);
+                queue.push_back(j);
+            }
+        };
+        if x > 0 {
+            visit(i - 1);
+        }
+        if x + 1 < nu {
+            visit(i + 1);
+        }
+        if y > 0 {
+            visit(i - nu);
+        }
+        if y + 1 < nv {
+            visit(i + nu);
+        }
+    }
+    // Counting sort by distance keeps scan-line order inside a front.
+    let mut start = vec![0u32; max as usize + 2];
+    for &k in &dist {
+        start[k as usize + 1] += 1;
+    }
+    for k in 1..start.len() {
+        start[k] += start[k - 1];
+    }
+    let mut order = vec![0u32; nn];
+    for (i, &k) in dist.iter().enumerate() {
+        order[start[k as usize] as usize] = i as u32;
+        start[k as usize] += 1;
+    }
+    Some(order)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -325,5 +391,15 @@ mod tests {
         );
         let s = Schedule::plan_weighted(&two, &two, &[1.0, 1.0, 0.5, 1.0, 1.0, 0.2, 1.0, 1.0]);
         assert_eq!(s.waves[0], vec![5, 2]);
+    }
+
+    #[test]
+    fn inward_order_grows_from_the_touching_border_in_scan_order() {
+        // 3x2, the left column touches: distance 0, 1, 2 by column, rows inside each.
+        assert_eq!(
+            inward_order(3, 2, |x, _| x == 0),
+            Some(vec![0, 3, 1, 4, 2, 5])
+        );
+        assert_eq!(inward_order(3, 2, |_, _| false), None);
     }
 }

@@ -59,7 +59,7 @@ use crate::synth::matching::appearance::{
 };
 use crate::synth::matching::search::model::{ExampleModel, Method, ModelParams, Pass, Scratch};
 use crate::synth::matching::search::{hash, pick, Prepared, Query};
-use crate::synth::schedule::Schedule;
+use crate::synth::schedule::{inward_order, Schedule};
 use level::{
     nearest_texel, pattern, LevelGeometry, Lookup, Own, PatternScratch, PatternStats, View,
 };
@@ -402,20 +402,22 @@ impl Ctx<'_> {
         w.candidates += n as u64;
         let key = self.key(level, pass, t);
         let top = w.scratch.top.as_slice();
-        match (pass, self.coherence) {
-            (Pass::Two, Some(kappa)) if level == 0 && !w.coherent.is_empty() && !top.is_empty() => {
-                let bound = top[0].dist2 * (1.0 + kappa) * (1.0 + kappa);
-                let mut best: Option<(f32, u32)> = None;
-                for &c in &w.coherent {
-                    let d = f.distance(&w.prep, c as usize, bound);
-                    if d <= bound && best.is_none_or(|(bd, bi)| d < bd || (d == bd && c < bi)) {
-                        best = Some((d, c));
-                    }
-                }
-                best.map_or_else(|| pick(top, key).index, |(_, c)| c)
+        // `w.coherent` is filled only in pass 2 of the finest level ([`COHERENCE`]).
+        let Some(kappa) = self
+            .coherence
+            .filter(|_| !w.coherent.is_empty() && !top.is_empty())
+        else {
+            return pick(top, key).index;
+        };
+        let bound = top[0].dist2 * (1.0 + kappa) * (1.0 + kappa);
+        let mut best: Option<(f32, u32)> = None;
+        for &c in &w.coherent {
+            let d = f.distance(&w.prep, c as usize, bound);
+            if d <= bound && best.is_none_or(|(bd, bi)| d < bd || (d == bd && c < bi)) {
+                best = Some((d, c));
             }
-            _ => pick(top, key).index,
         }
+        best.map_or_else(|| pick(top, key).index, |(_, c)| c)
     }
 
     /// The K×K pattern of texel `t` of `geo` at step `delta` into `w.locs`
@@ -1442,14 +1444,15 @@ fn pass_two(
     state
 }
 
-/// The finest level's refinement order inside domain `d` (local texel indices): texels
-/// by their grid distance (4-neighbour steps inside the domain) from the texels that touch
-/// an already finished domain, ties and unreached texels in scan-line order; plain scan
-/// order when no neighbour is finished. Why: with the coherent choice ([`COHERENCE`]) a
-/// domain's patches grow from where its refinement starts; in scan-line order they grew
-/// from its first corner and met the finished neighbours' patches along the shared edge,
-/// so every domain edge became a patch border (seams rose: double torus bricks 1.16 →
-/// 1.53). Grown from the finished edges, the neighbours' patches continue across them.
+/// The finest level's refinement order inside domain `d` (local texel indices): inwards
+/// from the texels that touch an already finished domain ([`inward_order`], as coherent
+/// synthesis orders its domains), plain scan order when no neighbour is finished. Why: with
+/// the coherent choice ([`COHERENCE`]) a domain's patches grow from where its refinement
+/// starts; in scan-line order they grew from its first corner and met the finished
+/// neighbours' patches along the shared edge, so every domain edge became a patch border
+/// (seams rose: double torus bricks 1.16 → 1.53). Grown from the finished edges, the
+/// neighbours' patches continue across them. A border texel touches a domain when the
+/// texel one step outside it lies there (the walk [`continuous_sources`] links by).
 fn growth_order(
     surface: &Surface,
     geo: &LevelGeometry,
@@ -1459,59 +1462,23 @@ fn growth_order(
     let texels = geo.texels();
     let (start, nn) = (texels.start(d), texels.count(d));
     let (nu, nv) = texels.dims(d);
-    let mut dist = vec![u32::MAX; nn];
-    let mut queue = std::collections::VecDeque::new();
-    for y in 0..nv {
-        for x in 0..nu {
-            if !(x == 0 || y == 0 || x + 1 == nu || y + 1 == nv) {
-                continue;
-            }
-            let li = y * nu + x;
-            let loc = geo.location(start + li);
-            let outward = [
-                (x == 0, -1.0, 0.0),
-                (x + 1 == nu, 1.0, 0.0),
-                (y == 0, 0.0, -1.0),
-                (y + 1 == nv, 0.0, 1.0),
-            ];
-            let touches = outward.iter().any(|&(at, a, b)| {
-                at && surface
-                    .walk(loc, a / nu as f64, b / nv as f64)
-                    .and_then(|l| nearest_texel(&geo.layout.taps(l)))
-                    .map(|q| texels.domain_of(q))
-                    .is_some_and(|e| e != d && finished[e].is_some())
-            });
-            if touches {
-                dist[li] = 0;
-                queue.push_back(li);
-            }
-        }
-    }
-    while let Some(li) = queue.pop_front() {
-        let (x, y) = (li % nu, li / nu);
-        let next = dist[li] + 1;
-        let mut visit = |j: usize| {
-            if dist[j] == u32::MAX {
-                dist[j] = next;
-                queue.push_back(j);
-            }
-        };
-        if x > 0 {
-            visit(li - 1);
-        }
-        if x + 1 < nu {
-            visit(li + 1);
-        }
-        if y > 0 {
-            visit(li - nu);
-        }
-        if y + 1 < nv {
-            visit(li + nu);
-        }
-    }
-    let mut order: Vec<u32> = (0..nn as u32).collect();
-    order.sort_by_key(|&li| dist[li as usize]);
-    order
+    inward_order(nu, nv, |x, y| {
+        let loc = geo.location(start + y * nu + x);
+        let outward = [
+            (x == 0, -1.0, 0.0),
+            (x + 1 == nu, 1.0, 0.0),
+            (y == 0, 0.0, -1.0),
+            (y + 1 == nv, 0.0, 1.0),
+        ];
+        outward.iter().any(|&(at, a, b)| {
+            at && surface
+                .walk(loc, a / nu as f64, b / nv as f64)
+                .and_then(|l| nearest_texel(&geo.layout.taps(l)))
+                .map(|q| texels.domain_of(q))
+                .is_some_and(|e| e != d && finished[e].is_some())
+        })
+    })
+    .unwrap_or_else(|| (0..nn as u32).collect())
 }
 
 /// The cache key of a [`Model`]: the weighted example level it starts from, the number of
