@@ -207,7 +207,7 @@ const SAMPLING_FIELD_FACE: u64 = 480;
 /// Peak-memory estimate of `bench sampling` on a mesh of `size` at `n`: the surface, the
 /// orientation field and the samplers over its limit mesh.
 pub fn sampling_bench_estimate(size: &MeshSize, n: usize) -> Estimate {
-    let faces = memory::field_faces(size.base_quads);
+    let faces = memory::field_faces(size.base_quads, None);
     let mut parts = vec![
         ("process", memory::BASELINE),
         ("surface", memory::surface_bytes(size, n)),

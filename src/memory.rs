@@ -446,16 +446,15 @@ pub struct Estimate {
     pub shape: String,
 }
 
-/// Faces of the orientation field's limit mesh: the finest level in 1..=max_level with at
-/// most max_faces faces (as `field::OrientationField::compute` chooses it).
-pub fn field_faces(base_quads: usize) -> u64 {
-    let o = crate::field::FieldOptions::default();
-    let at = |l: u32| (base_quads as u64) << (2 * (l - 1));
-    let mut l = 1;
-    while l < o.max_level.max(1) && at(l + 1) <= o.max_faces as u64 {
-        l += 1;
-    }
-    at(l)
+/// Faces of the orientation field's limit mesh for a run of `texels` texels (as
+/// `field::auto_level` chooses it: the builder gives the texel count, `None` is the face
+/// budget alone, as `OrientationField::compute`).
+pub fn field_faces(base_quads: usize, texels: Option<u64>) -> u64 {
+    let o = crate::field::FieldOptions {
+        texels,
+        ..Default::default()
+    };
+    (base_quads as u64) << (2 * (crate::field::auto_level(base_quads, &o) - 1))
 }
 
 /// How many texels a run has: F·N² at one resolution N, or the sum of the per-face
@@ -544,10 +543,16 @@ pub fn estimate_texels(size: &MeshSize, count: &TexelCount, job: &Job) -> Estima
             displace,
             scale_map,
         } => {
-            parts.push((
-                "orientation field",
-                sat(field_faces(size.base_quads), FIELD_FACE),
-            ));
+            // Multiscale and textons add the field at the finest level within the budget
+            // (`Session::field_for`).
+            let fine = matches!(method, Method::Multiscale | Method::Textons);
+            let field = field_faces(size.base_quads, Some(texels))
+                + if fine {
+                    field_faces(size.base_quads, None)
+                } else {
+                    0
+                };
+            parts.push(("orientation field", sat(field, FIELD_FACE)));
             parts.push(("texel maps", sat(texels, SYNTH_TEXEL + 4 * channels as u64)));
             parts.push(("neighbour lists", sat(count.border, SYNTH_BORDER_TEXEL)));
             parts.push(("example", sat(example_pixels as u64, EXAMPLE_PIXEL)));
@@ -574,7 +579,7 @@ pub fn estimate_texels(size: &MeshSize, count: &TexelCount, job: &Job) -> Estima
                     }
                     parts.push((
                         "multiscale sampler",
-                        sat(field_faces(size.base_quads), MULTISCALE_FIELD_FACE)
+                        sat(field_faces(size.base_quads, None), MULTISCALE_FIELD_FACE)
                             .saturating_add(MULTISCALE_FIXED),
                     ));
                     if method == Method::Textons {
@@ -1228,12 +1233,13 @@ mod tests {
         .into();
         assert_eq!(costs[0], b.bytes);
         assert!(costs.windows(2).all(|w| w[0] < w[1]), "{costs:?}");
-        // Multiscale: its levels per texel, its model per example pixel, the sampler.
+        // Multiscale: its levels per texel, its model per example pixel, the sampler and
+        // the field at the finest level within the budget beside the prepared one.
         assert_eq!(
             costs[3] - b.bytes,
             16 * 4096 * MULTISCALE_TEXEL
                 + 128 * 128 * MULTISCALE_PIXEL
-                + field_faces(s.base_quads) * MULTISCALE_FIELD_FACE
+                + field_faces(s.base_quads, None) * (MULTISCALE_FIELD_FACE + FIELD_FACE)
                 + MULTISCALE_FIXED
         );
         // A scale map adds its factor and channel per texel (more for multiscale).

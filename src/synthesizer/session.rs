@@ -37,7 +37,7 @@ use super::{
 };
 use crate::error::{Error, Result};
 use crate::example::Example;
-use crate::field::{Orientation, OrientationField};
+use crate::field::{FieldOptions, Orientation, OrientationField};
 use crate::io::exr::MAX_RESOLUTION;
 use crate::layout::TexelLayout;
 use crate::memory::{Job, MeshSize};
@@ -190,7 +190,12 @@ pub struct Session {
     orientation: Orientation,
     /// The surface and texels in working units (the user's divided by `unit`).
     surface: Arc<Surface>,
+    /// The field at the level the texel count needs (`field::TEXELS_PER_FACE`).
     field: OrientationField,
+    /// The field at the finest level within the face budget, for the methods that sample
+    /// neighbourhood patterns along it (multiscale, textons), computed on first use when
+    /// `field` is coarser ([`Session::field_for`]).
+    fine_field: OnceLock<OrientationField>,
     texels: LevelTexels,
     derived: Derived,
     /// Median texel spacing and scale, working units.
@@ -423,10 +428,9 @@ impl Session {
         report(Stage::Field, 0, 1);
         let t0 = Instant::now();
         // `straight` wants the field straight over half of pf8's window (BRIEF).
-        let field_options = crate::field::FieldOptions {
-            structure_length: Some(crate::field::STRUCTURE_PIXELS * scale),
-            unit,
-            ..Default::default()
+        let field_options = FieldOptions {
+            texels: Some(layout.len() as u64),
+            ..field_options(scale, unit)
         };
         let field = OrientationField::compute_with(&surface, &settings.orientation, &field_options)
             .map_err(|e| Error::invalid(format!("orientation field for {mesh_label}: {e:#}")))?;
@@ -457,6 +461,7 @@ impl Session {
             orientation: settings.orientation.clone(),
             surface: Arc::new(surface),
             field,
+            fine_field: OnceLock::new(),
             texels,
             derived: Derived::default(),
             spacing,
@@ -535,6 +540,33 @@ impl Session {
     /// Synthesizes `example` with `params` on the prepared mesh. The result's report has
     /// zero seconds for the prepared stages (load, geometry, field, graph: see
     /// [`Session::prepare_seconds`]) and its total counts from this call.
+    /// The orientation field `method` runs on. Multiscale and textons sample neighbourhood
+    /// patterns along the field at every texel and compare them between neighbours: they
+    /// get the field at the finest level within the face budget, as before the field was
+    /// sized by the texel count (on a level-3 or level-4 field their double torus pf4 rose
+    /// 0.092–0.099 → 0.105–0.109 over seeds 1–3, docs/field.md). Every other method gets
+    /// the prepared field.
+    fn field_for(&self, method: Method) -> Result<&OrientationField> {
+        if !matches!(method, Method::Multiscale | Method::Textons) {
+            return Ok(&self.field);
+        }
+        let finest =
+            crate::field::auto_level(self.surface.num_base_quads(), &FieldOptions::default());
+        if self.field.level() >= finest {
+            return Ok(&self.field);
+        }
+        if let Some(f) = self.fine_field.get() {
+            return Ok(f);
+        }
+        let f = OrientationField::compute_with(
+            &self.surface,
+            &self.orientation,
+            &field_options(self.scale, self.unit),
+        )
+        .map_err(|e| Error::invalid(format!("orientation field for {}: {e:#}", self.mesh_label)))?;
+        Ok(self.fine_field.get_or_init(|| f))
+    }
+
     pub fn synthesize(&self, example: &Example, params: &SynthParams) -> Result<SynthResult> {
         let label = if example.path.as_os_str().is_empty() {
             "<in memory>".to_string()
@@ -706,7 +738,7 @@ impl Session {
         };
         let target = Target {
             surface: &self.surface,
-            field: &self.field,
+            field: self.field_for(settings.method)?,
             texels: &self.texels,
             spacing: self.spacing,
             seed: params.seed,
@@ -916,4 +948,15 @@ struct Synthesized {
 pub(super) struct Labels {
     pub example: String,
     pub height: Option<String>,
+}
+
+/// The field options of a prepared mesh whose scale is `scale` (working units) and whose
+/// user mesh was divided by `unit`: `straight` wants the field straight over half of pf8's
+/// window (BRIEF).
+fn field_options(scale: f64, unit: f64) -> FieldOptions {
+    FieldOptions {
+        structure_length: Some(crate::field::STRUCTURE_PIXELS * scale),
+        unit,
+        ..Default::default()
+    }
 }
