@@ -85,8 +85,17 @@ pub struct OptimiseParams {
     /// raised it on 3 by ≤ 2%, and raised the flat grid's pf8 by 0–5%
     /// (docs/synthesis.md, "Guided final assembly").
     pub guided_assembly: bool,
-    /// How the M-step turns the votes of the patches covering a texel into its value.
+    /// How the M-step turns the votes of the patches covering a texel into its value, at
+    /// the output level.
     pub vote: Vote,
+    /// The same at the coarser levels. The mode there (the default) and the mean at the
+    /// output level: measured over seeds 1–3 on eight mesh × example pairs (Spot, the
+    /// double torus, Blub, the open cube, the all-triangle Spot, the flat grid; bricks,
+    /// reptile scales, a weave), pf8 fell in every pair, by 0–7% (the open cube's scales
+    /// 7%, bricks 4% on the double torus and Blub), and the mean seam ratio fell or held
+    /// in seven (double torus N = 16, scales, seeds 1–5: 1.01 → 0.92); docs/synthesis.md,
+    /// "The M-step's vote, per level".
+    pub coarse_vote: Vote,
     /// Final assembly: where patches that nearly continue each other meet (their sources
     /// for a texel within this many pixels of the final level), the texel's source is
     /// their weighted mean instead of one side of the cut (`patches::blend_joins`). `None`
@@ -99,7 +108,8 @@ pub struct OptimiseParams {
 #[serde(rename_all = "lowercase")]
 pub enum Vote {
     /// Kwatra et al.'s robust weighted average (IRLS with r = 0.8); the heaviest vote gives
-    /// the source. The default: [`Vote::Mode`] raised seams (below).
+    /// the source. The default at the output level: [`Vote::Mode`] raised seams there
+    /// (below).
     #[default]
     Mean,
     /// The weighted medoid: the vote nearest (in appearance space, L2) to all the others,
@@ -109,11 +119,12 @@ pub enum Vote {
     /// two (the field turns between their centres), and the average of a thin line seen at
     /// two places is a faint wide smear that the next E-step then matches — a texture no
     /// example patch has. With the mode, bricks' pf8 fell 7–13% on the double torus and
-    /// 0–8% on Spot (N = 32). Why it is not the default: where neighbouring texels' votes
-    /// nearly agree, which one is the medoid flips from texel to texel, and the sources
-    /// with it; seams rose past the bar on the scales of tests/methods.rs (double torus
-    /// N = 16: 1.06 → 1.18; open cube N = 32: 1.00 → 1.12). docs/synthesis.md, "The
-    /// M-step's vote".
+    /// 0–8% on Spot (N = 32). Why it is not the default at the output level: where
+    /// neighbouring texels' votes nearly agree, which one is the medoid flips from texel
+    /// to texel, and the sources with it; seams rose past the bar on the scales of
+    /// tests/methods.rs (double torus N = 16: 1.06 → 1.18; open cube N = 32: 1.00 →
+    /// 1.12). It is the default at the coarser levels ([`OptimiseParams::coarse_vote`]),
+    /// whose sources only start the next level. docs/synthesis.md, "The M-step's vote".
     Mode,
 }
 
@@ -185,6 +196,7 @@ impl Default for OptimiseParams {
             exhaustive: None,
             guided_assembly: true,
             vote: Vote::Mean,
+            coarse_vote: Vote::Mode,
             join_blend: Some(JOIN_BLEND),
         }
     }
@@ -342,6 +354,11 @@ pub fn run<const K: usize>(
                 size,
                 params,
                 key,
+                if li == 0 {
+                    params.vote
+                } else {
+                    params.coarse_vote
+                },
                 &scratch,
                 &mut || {
                     done_iters += 1;
@@ -406,6 +423,7 @@ fn optimise_size<const K: usize>(
     size: usize,
     params: &OptimiseParams,
     key: u64,
+    vote: Vote,
     scratch: &super::footprint::FloodScratch,
     tick: &mut dyn FnMut(),
 ) -> SizeResult<K> {
@@ -548,7 +566,7 @@ fn optimise_size<const K: usize>(
             err[p] = e;
             candidates += c;
         }
-        // M-step: per texel, the votes of the patches covering it (`OptimiseParams::vote`).
+        // M-step: per texel, the votes of the patches covering it (`vote`: the level's).
         let expo = (params.r - 2.0) / 2.0;
         let omega: Vec<f32> = err.iter().map(|&e| (e + 1e-6).powf(expo)).collect();
         let upd: Vec<([f32; K], [f32; 2], Turn)> = (0..n)
@@ -570,7 +588,7 @@ fn optimise_size<const K: usize>(
                         value: f.sample(s[0], s[1]),
                     }
                 }));
-                params.vote.count(votes)
+                vote.count(votes)
             })
             .collect();
         for (t, (v, s, o)) in upd.into_iter().enumerate() {
