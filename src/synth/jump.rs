@@ -281,6 +281,8 @@ impl Plan {
             rank[*t as usize] = k as u32;
         }
         let (pos, frames, edges) = (&level.geometry.pos, &level.frames, level.edges());
+        let (xstart, xlist) = cross_neighbours(level);
+        let near = |t: usize| &xlist[xstart[t] as usize..xstart[t + 1] as usize];
         const CHUNK: usize = 4096;
         // Computed texel by texel (positions, frames, edge lists and the neighbours' ranks
         // are then read in storage order), written by rank: walking the ranks read each
@@ -298,6 +300,7 @@ impl Plan {
                     *o = edges
                         .of(t)
                         .iter()
+                        .chain(near(t))
                         .filter(|&&s| rank[s as usize] < k)
                         .count() as u32;
                 }
@@ -327,7 +330,7 @@ impl Plan {
             let k = rank[t];
             let mut slot = first[k as usize] as usize;
             let mut r = 0.0f32;
-            for &s in edges.of(t) {
+            for &s in edges.of(t).iter().chain(near(t)) {
                 let (s, rs) = (s as usize, rank[s as usize]);
                 if rs < k {
                     let d = offset(pos, frames, s, t, 1.0);
@@ -364,6 +367,68 @@ impl Plan {
         self.order.is_empty()
     }
 }
+
+/// Texels near each border texel in other domains that the edge graph does not join to it
+/// (CSR: starts, list): within [`CROSS_REACH`] × its longest edge. Where several domains
+/// meet (n-gon centres, extraordinary vertices, a triangle mesh's every corner) texels of
+/// different domains lie a texel apart without an edge between them, so two growth fronts
+/// reach them along unrelated paths and their sources disagree — on faces' borders, which
+/// is what the seam ratio measures. Continuations from them too make such texels agree.
+fn cross_neighbours(level: &LevelTexels) -> (Vec<u32>, Vec<u32>) {
+    use kiddo::{ImmutableKdTree, SquaredEuclidean};
+    use rayon::prelude::*;
+    let layout = level.layout();
+    let (pos, edges) = (&level.geometry.pos, level.edges());
+    let n = pos.len();
+    let border = |t: usize| {
+        let (d, x, y) = layout.coords(t);
+        let (nu, nv) = layout.dims(d);
+        x == 0 || y == 0 || x + 1 == nu || y + 1 == nv
+    };
+    let list: Vec<u32> = (0..n as u32).filter(|&t| border(t as usize)).collect();
+    let pts: Vec<[f32; 3]> = list.iter().map(|&t| pos[t as usize].to_array()).collect();
+    let mut start = vec![0u32; n + 1];
+    let Ok(tree) = ImmutableKdTree::<f32, 3>::new_from_slice(&pts) else {
+        return (start, Vec::new());
+    };
+    let per: Vec<Vec<u32>> = list
+        .par_iter()
+        .map(|&t| {
+            let t = t as usize;
+            let reach = edges
+                .of(t)
+                .iter()
+                .map(|&s| pos[s as usize].distance(pos[t]))
+                .fold(0.0f32, f32::max)
+                * CROSS_REACH;
+            let d = layout.domain_of(t);
+            let mut near: Vec<u32> = tree
+                .query(&pos[t].to_array())
+                .within::<SquaredEuclidean<f32>>(reach * reach)
+                .unsorted()
+                .execute()
+                .iter()
+                .map(|r| list[r.item as usize])
+                .filter(|&s| layout.domain_of(s as usize) != d && !edges.of(t).contains(&s))
+                .collect();
+            near.sort_unstable();
+            near
+        })
+        .collect();
+    let mut out = Vec::new();
+    let mut it = per.into_iter();
+    for t in 0..n {
+        if border(t) {
+            out.extend(it.next().expect("one list per border texel"));
+        }
+        start[t + 1] = out.len() as u32;
+    }
+    (start, out)
+}
+
+/// [`cross_neighbours`]' radius in edge lengths: the seam ratio's band reaches 1.25 median
+/// spacings.
+const CROSS_REACH: f32 = 1.3;
 
 /// Runs jump-map synthesis over `level` with its [`Plan`].
 pub fn run(
@@ -536,40 +601,75 @@ mod tests {
     }
 
     /// The plan holds, rank by rank, exactly what walking the order would find: the
-    /// neighbours synthesized before (in edge order, with their offsets) and the margin.
+    /// neighbours synthesized before (in edge order, then the near texels of other
+    /// domains, with their offsets) and the margin — on a flat grid and on a mesh with a
+    /// triangle and a pentagon, whose sub-faces meet around their centres.
     #[test]
     fn plan_lists_each_texels_earlier_neighbours_in_edge_order() {
-        let surface = Surface::new(ControlMesh::grid(3));
-        let field =
-            crate::field::OrientationField::compute(&surface, &crate::field::Orientation::Auto)
-                .unwrap();
-        let level = LevelTexels::new(&surface, &field, 6, 0.01);
-        let e = level.edges();
-        let order = growth_order(e, level.layout(), &level.geometry.pos);
-        let plan = Plan::new(&level, order.clone());
-        let (pos, frames) = (&level.geometry.pos, &level.frames);
-        let mut done = vec![false; level.len()];
-        for (k, &t) in order.iter().enumerate() {
-            let t = t as usize;
-            let mut want = Vec::new();
-            let mut reach = 0.0f32;
-            for &s in e.of(t) {
-                let s = s as usize;
-                if done[s] {
-                    let d = offset(pos, frames, s, t, 1.0);
-                    reach = reach.max(d[0].abs()).max(d[1].abs());
-                    want.push((order.iter().position(|&o| o as usize == s).unwrap(), d));
-                } else {
-                    reach = reach.max(pos[s].distance(pos[t]));
+        let obj = "v 0 0 0\nv 1 0 0\nv 2 0 0\nv 0 1 0\nv 1 1 0\nv 2 1 0\nv 1.5 1.8 0\n\
+                   f 1 2 5 4\nf 2 3 6 5\nf 4 5 7\nf 5 6 7\n";
+        let ngons = ControlMesh::parse_obj(obj).unwrap();
+        for mesh in [ControlMesh::grid(3), ngons] {
+            let surface = Surface::new(mesh);
+            let field =
+                crate::field::OrientationField::compute(&surface, &crate::field::Orientation::Auto)
+                    .unwrap();
+            let level = LevelTexels::new(&surface, &field, 6, 0.01);
+            let e = level.edges();
+            let (xs, xl) = cross_neighbours(&level);
+            let order = growth_order(e, level.layout(), &level.geometry.pos);
+            let plan = Plan::new(&level, order.clone());
+            let (pos, frames) = (&level.geometry.pos, &level.frames);
+            let mut done = vec![false; level.len()];
+            for (k, &t) in order.iter().enumerate() {
+                let t = t as usize;
+                let mut want = Vec::new();
+                let mut reach = 0.0f32;
+                let near = &xl[xs[t] as usize..xs[t + 1] as usize];
+                for &s in e.of(t).iter().chain(near) {
+                    let s = s as usize;
+                    if done[s] {
+                        let d = offset(pos, frames, s, t, 1.0);
+                        reach = reach.max(d[0].abs()).max(d[1].abs());
+                        want.push((order.iter().position(|&o| o as usize == s).unwrap(), d));
+                    } else {
+                        reach = reach.max(pos[s].distance(pos[t]));
+                    }
                 }
+                let got: Vec<_> = plan.earlier[plan.first[k] as usize..plan.first[k + 1] as usize]
+                    .iter()
+                    .map(|x| (x.rank as usize, x.d))
+                    .collect();
+                assert_eq!(got, want, "rank {k}");
+                assert_eq!(plan.reach[k].to_bits(), reach.to_bits());
+                done[t] = true;
             }
-            let got: Vec<_> = plan.earlier[plan.first[k] as usize..plan.first[k + 1] as usize]
-                .iter()
-                .map(|x| (x.rank as usize, x.d))
-                .collect();
-            assert_eq!(got, want, "rank {k}");
-            assert_eq!(plan.reach[k].to_bits(), reach.to_bits());
-            done[t] = true;
+        }
+    }
+
+    /// Near texels across borders: other domains only, never an edge's other end; none on
+    /// a flat grid (its diagonals are √2 texels away), some around the triangles' centres.
+    #[test]
+    fn cross_neighbours_join_nearby_texels_of_other_domains_only() {
+        let obj = "v 0 0 0\nv 1 0 0\nv 0.5 0.9 0\nv 1.5 0.9 0\nv -0.5 0.9 0\n\
+                   f 1 2 3\nf 2 4 3\nf 1 3 5\n";
+        let field_of = |s: &Surface| {
+            crate::field::OrientationField::compute(s, &crate::field::Orientation::Auto).unwrap()
+        };
+        let grid = Surface::new(ControlMesh::grid(3));
+        let level = LevelTexels::new(&grid, &field_of(&grid), 8, 0.01);
+        let (_, list) = cross_neighbours(&level);
+        assert!(list.is_empty(), "{} on a flat grid", list.len());
+        let tris = Surface::new(ControlMesh::parse_obj(obj).unwrap());
+        let level = LevelTexels::new(&tris, &field_of(&tris), 8, 0.01);
+        let (start, list) = cross_neighbours(&level);
+        assert!(!list.is_empty(), "none around the triangles' centres");
+        let layout = level.layout();
+        for t in 0..level.len() {
+            for &s in &list[start[t] as usize..start[t + 1] as usize] {
+                assert_ne!(layout.domain_of(s as usize), layout.domain_of(t));
+                assert!(!level.edges().of(t).contains(&s));
+            }
         }
     }
 }
