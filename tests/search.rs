@@ -8,7 +8,7 @@ use common::data;
 use surfsynth::example::Example;
 use surfsynth::pyramid::{Image, Pyramid};
 use surfsynth::synth::matching::search::ann::{AnnIndex, AnnParams, AnnScratch};
-use surfsynth::synth::matching::search::kcoherence::{KParams, KnnLists};
+use surfsynth::synth::matching::search::kcoherence::{KParams, KnnLists, Pruning};
 use surfsynth::synth::matching::search::model::{Method, ModelParams};
 use surfsynth::synth::matching::search::{Features, Prepared, Query, Shape, TopN};
 use surfsynth::synth::synth2d::{self, patch_fidelity, Params2d, Schedule};
@@ -140,6 +140,46 @@ fn kcoherence_lists_match_exhaustive_ranking() {
     let recall = hit as f64 / tot as f64;
     eprintln!("two-level recall {recall:.3}");
     assert!(recall >= 0.55, "two-level recall {recall:.3}");
+    // Pruned by lower bounds, the two-level lists are still the k nearest of their
+    // candidates (the parent's list's children) by the full distance, whichever
+    // directions prune them.
+    let dist = |i: usize, j: usize| {
+        surfsynth::synth::matching::search::dist_bounded(
+            &f0.vector(i),
+            &f0.vector(j),
+            f32::INFINITY,
+        )
+    };
+    for i in (0..f0.len()).step_by(29) {
+        let (x, y) = f0.pixel(i as u32);
+        let parent = f1.nearest_index((x as f32 + 0.5) / 2.0, (y as f32 + 0.5) / 2.0);
+        let mut cands: Vec<u32> = Vec::new();
+        for &c in parents.list(parent as usize) {
+            let (cx, cy) = f1.pixel(c);
+            for (a, b) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                let (fx, fy) = (2 * cx + a, 2 * cy + b);
+                let inside = (f0.margin..f0.margin + f0.cols).contains(&fx)
+                    && (f0.margin..f0.margin + f0.rows).contains(&fy);
+                let j = (fy.wrapping_sub(f0.margin)) * f0.cols + fx.wrapping_sub(f0.margin);
+                if inside && j != i {
+                    cands.push(j as u32);
+                }
+            }
+        }
+        cands.sort_unstable();
+        cands.dedup();
+        let mut d: Vec<(f32, u32)> = cands.iter().map(|&j| (dist(i, j as usize), j)).collect();
+        d.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let want: Vec<u32> = d[..k - 1].iter().map(|x| x.1).collect();
+        assert_eq!(&two.list(i)[1..], &want[..], "two-level list of pixel {i}");
+    }
+    let other = KnnLists::two_level_pruned(&f0, &f1, &parents, k, &Pruning::fit(&f1));
+    assert_eq!(
+        other.lists, two.lists,
+        "the lists do not depend on the pruning directions"
+    );
+    let exact_other = KnnLists::exact_pruned(&f0, k, &Pruning::fit(&f1));
+    assert_eq!(exact_other.lists, exact.lists);
 }
 
 fn run(ex: &Image, size: usize, method: Method, seed: u64) -> synth2d::Output2d {

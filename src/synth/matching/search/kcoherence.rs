@@ -108,19 +108,15 @@ impl KnnLists {
     /// onto a subspace never lengthens a vector; only pairs whose bound beats the current
     /// `len`-th best are measured in full.
     pub fn exact(f: &Features, len: usize) -> Self {
+        Self::exact_pruned(f, len, &Pruning::fit(f))
+    }
+
+    /// [`KnnLists::exact`] pruned along given directions (the same lists).
+    pub fn exact_pruned(f: &Features, len: usize, pruning: &Pruning) -> Self {
         let n = f.len();
         let len = len.min(n);
         let dim = f.dim();
-        let pd = PRUNE_DIMS.min(dim);
-        let pca = Pca::fit(&f.pca_rows(), dim, pd);
-        let mut proj = vec![0.0f32; n * PRUNE_DIMS];
-        proj.par_chunks_mut(PRUNE_DIMS).enumerate().for_each_init(
-            || vec![0.0f32; dim],
-            |v, (i, o)| {
-                f.vector_into(i, v);
-                pca.project(v, &mut o[..pd]);
-            },
-        );
+        let proj = pruning.project(f);
         let mut lists = vec![0u32; n * len];
         lists.par_chunks_mut(len).enumerate().for_each_init(
             || (Vec::<(f32, u32)>::new(), vec![0.0f32; dim]),
@@ -141,24 +137,7 @@ impl KnnLists {
                 let mut top = TopK::new(len);
                 // The pixel itself first (distance 0 and lowest possible key).
                 top.push(-1.0, i as u32);
-                // Measure the most promising pairs first so that the bound is tight from
-                // the start, then the rest only where the lower bound does not rule them
-                // out (with a margin for rounding in the projection).
-                let seeds = (4 * len).min(lbs.len());
-                if seeds > 0 && seeds < lbs.len() {
-                    lbs.select_nth_unstable_by(seeds, |a, b| {
-                        a.0.total_cmp(&b.0).then(a.1.cmp(&b.1))
-                    });
-                }
-                for (t, &(lb, j)) in lbs.iter().enumerate() {
-                    if t >= seeds && lb * (1.0 - 1e-4) > top.bound() {
-                        continue;
-                    }
-                    let d = f.distance_to(qi, None, j as usize, top.bound());
-                    if d < top.bound() || top.items.len() < len {
-                        top.push(d, j);
-                    }
-                }
+                measure_pruned(f, qi, lbs, 4 * len, &mut top);
                 for (o, &(_, idx)) in out.iter_mut().zip(&top.items) {
                     *o = idx;
                 }
@@ -173,18 +152,45 @@ impl KnnLists {
 
     /// Two-level lists of length `len` for `fine` from the lists of the next coarser level
     /// (`coarse_lists` over `coarse`; its lists' length is the `m` of 003).
+    ///
+    /// Pruned as [`KnnLists::exact`] is, with the same result: every fine feature is
+    /// projected once onto [`PRUNE_DIMS`] principal directions (a lower bound of every
+    /// distance), the `len` candidates with the lowest bounds are measured first, and the
+    /// rest only where their bound beats the current `len`-th best. Why: the full distance
+    /// (the 9x9 + 5x5 neighbourhood, ~850 numbers) of each of the ≤ 4m = 400 candidates was
+    /// most of the analysis of a large example (issue 14: a 512² example's lists took
+    /// 24 s of a 44 s first run); most candidates are far, and 16 numbers say so.
     pub fn two_level(
         fine: &Features,
         coarse: &Features,
         coarse_lists: &KnnLists,
         len: usize,
     ) -> Self {
+        Self::two_level_pruned(fine, coarse, coarse_lists, len, &Pruning::fit(fine))
+    }
+
+    /// [`KnnLists::two_level`] pruned along given directions (the same lists).
+    pub fn two_level_pruned(
+        fine: &Features,
+        coarse: &Features,
+        coarse_lists: &KnnLists,
+        len: usize,
+        pruning: &Pruning,
+    ) -> Self {
         let n = fine.len();
         let len = len.min(n);
+        let dim = fine.dim();
+        let proj = pruning.project(fine);
         let mut lists = vec![0u32; n * len];
         lists.par_chunks_mut(len).enumerate().for_each_init(
-            || (Vec::<u32>::new(), vec![0.0f32; fine.dim()]),
-            |(cands, qi), (i, out)| {
+            || {
+                (
+                    Vec::<u32>::new(),
+                    Vec::<(f32, u32)>::new(),
+                    vec![0.0f32; dim],
+                )
+            },
+            |(cands, lbs, qi), (i, out)| {
                 let (x, y) = fine.pixel(i as u32);
                 // Parent pixel centre in coarse pixels: (x + 0.5) / 2.
                 let parent = coarse.nearest_index((x as f32 + 0.5) / 2.0, (y as f32 + 0.5) / 2.0);
@@ -207,15 +213,21 @@ impl KnnLists {
                 }
                 cands.sort_unstable();
                 cands.dedup();
+                let pi = &proj[i * PRUNE_DIMS..(i + 1) * PRUNE_DIMS];
+                lbs.clear();
+                lbs.extend(cands.iter().map(|&j| {
+                    let pj = &proj[j as usize * PRUNE_DIMS..(j as usize + 1) * PRUNE_DIMS];
+                    let mut lb = 0.0f32;
+                    for t in 0..PRUNE_DIMS {
+                        let d = pi[t] - pj[t];
+                        lb += d * d;
+                    }
+                    (lb, j)
+                }));
                 fine.vector_into(i, qi);
                 let mut top = TopK::new(len);
                 top.push(-1.0, i as u32);
-                for &j in cands.iter() {
-                    let d = fine.distance_to(qi, None, j as usize, top.bound());
-                    if d < top.bound() || top.items.len() < len {
-                        top.push(d, j);
-                    }
-                }
+                measure_pruned(fine, qi, lbs, len, &mut top);
                 // Too few candidates (tiny levels): pad with the pixel itself; duplicates
                 // are removed when candidate sets are assembled.
                 for (t, o) in out.iter_mut().enumerate() {
@@ -234,6 +246,69 @@ impl KnnLists {
     #[inline]
     pub fn list(&self, i: usize) -> &[u32] {
         &self.lists[i * self.len..(i + 1) * self.len]
+    }
+}
+
+/// The directions the list computations prune with: the first [`PRUNE_DIMS`] principal
+/// directions of some level's features. Squared distances between projections are lower
+/// bounds of the squared feature distances for *any* orthonormal directions (projecting
+/// onto a subspace never lengthens a vector), so the lists do not depend on which
+/// features the directions were fitted to — only how much is pruned does. One fit serves
+/// every level of a model ([`super::model`]): the fit is serial, ~0.3 s on 850-number
+/// neighbourhoods, and the levels' neighbourhoods share their shape and statistics.
+pub struct Pruning {
+    pca: Pca,
+}
+
+impl Pruning {
+    /// Fitted to `f`'s features.
+    pub fn fit(f: &Features) -> Self {
+        let dim = f.dim();
+        Self {
+            pca: Pca::fit(&f.pca_rows(), dim, PRUNE_DIMS.min(dim)),
+        }
+    }
+
+    /// Dimension of the features these directions fit.
+    pub fn dim(&self) -> usize {
+        self.pca.dim
+    }
+
+    /// Every feature of `f` projected, in rows of [`PRUNE_DIMS`] (zero-padded).
+    fn project(&self, f: &Features) -> Vec<f32> {
+        let dim = f.dim();
+        assert_eq!(dim, self.pca.dim, "pruning directions of another shape");
+        let pd = self.pca.k;
+        let mut proj = vec![0.0f32; f.len() * PRUNE_DIMS];
+        proj.par_chunks_mut(PRUNE_DIMS).enumerate().for_each_init(
+            || vec![0.0f32; dim],
+            |v, (i, o)| {
+                f.vector_into(i, v);
+                self.pca.project(v, &mut o[..pd]);
+            },
+        );
+        proj
+    }
+}
+
+/// Measures the candidates `lbs` ((lower bound, feature)) against `qi` into `top`: the
+/// `seeds` with the lowest bounds first, so that the bound is tight from the start, then
+/// the rest only where the lower bound does not rule them out (with a margin for rounding
+/// in the projection). The result is the one measuring every candidate would give.
+fn measure_pruned(f: &Features, qi: &[f32], lbs: &mut [(f32, u32)], seeds: usize, top: &mut TopK) {
+    let len = top.cap;
+    let seeds = seeds.min(lbs.len());
+    if seeds > 0 && seeds < lbs.len() {
+        lbs.select_nth_unstable_by(seeds, |a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    }
+    for (t, &(lb, j)) in lbs.iter().enumerate() {
+        if t >= seeds && lb * (1.0 - 1e-4) > top.bound() {
+            continue;
+        }
+        let d = f.distance_to(qi, None, j as usize, top.bound());
+        if d < top.bound() || top.items.len() < len {
+            top.push(d, j);
+        }
     }
 }
 

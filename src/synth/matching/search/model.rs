@@ -245,7 +245,10 @@ impl ExampleModel {
                 im.width * im.height
             };
             let two_level = |l: usize| pixels(l) > kp.exact_max && l < coarsest;
-            // Coarse to fine, so each level's parent lists exist when it needs them.
+            // Coarse to fine, so each level's parent lists exist when it needs them. One
+            // set of pruning directions for all of them (of one shape), fitted to the first
+            // level built.
+            let mut pruning: Option<kcoherence::Pruning> = None;
             for l in (0..n_levels).rev() {
                 let needed_as_parent = l > 0 && two_level(l - 1);
                 if l == coarsest && !needed_as_parent {
@@ -256,19 +259,26 @@ impl ExampleModel {
                 } else {
                     kp.k
                 };
+                let f = &levels[l].pass2.features;
+                if pruning.as_ref().is_none_or(|p| p.dim() != f.dim()) {
+                    // The coarsest level's neighbourhoods have a shape of their own.
+                    pruning = Some(kcoherence::Pruning::fit(f));
+                }
+                let pruning = pruning.as_ref().expect("set just above");
                 let lists = if two_level(l) {
                     let parent = levels[l + 1]
                         .lists
                         .as_ref()
                         .expect("parent lists built first");
-                    KnnLists::two_level(
+                    KnnLists::two_level_pruned(
                         &levels[l].pass2.features,
                         &levels[l + 1].pass2.features,
                         parent,
                         len,
+                        pruning,
                     )
                 } else {
-                    KnnLists::exact(&levels[l].pass2.features, len)
+                    KnnLists::exact_pruned(&levels[l].pass2.features, len, pruning)
                 };
                 levels[l].lists = Some(lists);
             }
