@@ -56,6 +56,9 @@ pub struct ExampleInfo {
 }
 
 /// Wall-clock seconds per stage. `total` covers everything up to writing this report.
+/// The orientation field is computed beside the texel geometry and the graphs (but for
+/// `straight`), so `field` overlaps `geometry` and `graph` and the stages can add up to
+/// more than `total`.
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct Seconds {
     /// Reading and validating the mesh and example, building the limit surface.

@@ -897,8 +897,13 @@ impl Synthesizer {
             n_depth,
             load_seconds: load,
         };
-        let session =
-            Session::from_loaded(loaded, &mesh_settings, analyses, self.progress.clone())?;
+        let session = Session::from_loaded(
+            loaded,
+            &mesh_settings,
+            Some(self.settings.method),
+            analyses,
+            self.progress.clone(),
+        )?;
         // Mesh-side orders are set-up, not synthesis: counted in the graph stage.
         let mut seconds = session.prepare_seconds();
         seconds.graph += session.prepare_method(self.settings.method);

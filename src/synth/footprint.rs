@@ -105,9 +105,25 @@ impl LevelTexels {
         step: f64,
     ) -> Self {
         let edges = EdgeGraph::build(surface, &geometry);
+        Self::from_built(geometry, frames, step, edges, None)
+    }
+
+    /// From parts already computed, the edge graph (and the texel graph, if given) too:
+    /// a session builds them beside the orientation field, which they do not need.
+    pub fn from_built(
+        geometry: TexelGeometry,
+        frames: Vec<[Vec3; 2]>,
+        step: f64,
+        edges: EdgeGraph,
+        graph: Option<TexelGraph>,
+    ) -> Self {
+        let cell = std::sync::OnceLock::new();
+        if let Some(g) = graph {
+            let _ = cell.set(g);
+        }
         Self {
             geometry: std::sync::Arc::new(geometry),
-            graph: std::sync::OnceLock::new(),
+            graph: cell,
             frames,
             step,
             factor: None,

@@ -188,6 +188,13 @@ impl Derived {
             jump::Plan::new(texels, order)
         })
     }
+
+    /// The jump method's plan of `texels` from a growth order computed beforehand
+    /// (`jump::growth_order` of the same texels: a session computes it beside the
+    /// orientation field, which the order does not need; the plan reads the field's frames).
+    pub fn jump_plan_from(&self, texels: &LevelTexels, order: Vec<u32>) -> &jump::Plan {
+        self.jump.get_or_init(|| jump::Plan::new(texels, order))
+    }
 }
 
 impl Target<'_> {

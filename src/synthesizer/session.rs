@@ -45,7 +45,7 @@ use crate::report::{ExampleInfo, Inputs, Report, Seconds};
 use crate::scale_field::{ScaleField, ScaleMap};
 use crate::synth::footprint::LevelTexels;
 use crate::synth::{Analyses, Derived, Method, Settings, Target};
-use crate::texels::TexelGeometry;
+use crate::texels::{EdgeGraph, TexelGeometry, TexelGraph};
 use rayon::prelude::*;
 use std::sync::{Arc, OnceLock};
 use std::time::Instant;
@@ -158,7 +158,9 @@ impl SynthParams {
     }
 }
 
-/// Seconds of the mesh-side stages, paid once by [`Session::prepare`].
+/// Seconds of the mesh-side stages, paid once by [`Session::prepare`]. The field is
+/// computed beside the texel geometry and the graphs (not for `straight`), so `field`
+/// overlaps `geometry` and `graph`: each is the time of its own work.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct PrepareSeconds {
     /// Reading the mesh and building the limit surface.
@@ -169,7 +171,7 @@ pub struct PrepareSeconds {
 }
 
 impl PrepareSeconds {
-    /// All stages together.
+    /// All stages together (more than the wall time where they overlapped).
     pub fn total(&self) -> f64 {
         self.load + self.geometry + self.field + self.graph
     }
@@ -376,16 +378,20 @@ impl Session {
         Self::from_loaded(
             loaded,
             settings,
+            None,
             Arc::new(Analyses::new(&crate::cache::CacheDir::Default)),
             None,
         )
     }
 
     /// The stages after loading (geometry, field, graph), as the one-shot builder runs
-    /// them.
+    /// them. `method`: the method the session will run (the one-shot builder's), whose
+    /// mesh-side orders are then prepared beside the field (see
+    /// [`Session::prepare_method`]); `None` leaves them to first use.
     pub(super) fn from_loaded(
         loaded: Loaded,
         settings: &MeshSettings,
+        method: Option<Method>,
         analyses: Arc<Analyses>,
         progress: Option<Arc<Progress>>,
     ) -> Result<Session> {
@@ -408,13 +414,59 @@ impl Session {
         let extent = crate::memory::extent(user_control.as_ref().unwrap_or(&surface.control));
         let size = MeshSize::of(user_control.as_ref().unwrap_or(&surface.control));
 
+        // The orientation field needs the surface only (but for `straight`, which scores
+        // its candidates at the texel scale, below): it runs beside the texel geometry, the
+        // edge graph and what `method` derives from them alone. Its level-1 eigenvector
+        // solve is one long serial stretch (bunny N = 16: ~1 s with one core busy), and
+        // the jump method's growth order is another; side by side they fill both cores.
+        // Each part computes exactly what it computed in sequence: the same results.
         report(Stage::Geometry, 0, faces);
-        let t0 = Instant::now();
-        let geometry = TexelGeometry::compute_layout(&surface, layout.clone());
-        let geometry_s = t0.elapsed().as_secs_f64();
+        let field_options = |scale: Option<f64>| FieldOptions {
+            texels: Some(layout.len() as u64),
+            ..match scale {
+                Some(s) => field_options(s, unit),
+                // Only `straight` reads the structure length.
+                None => FieldOptions {
+                    unit,
+                    ..Default::default()
+                },
+            }
+        };
+        let compute_field = |opts: &FieldOptions| {
+            let t0 = Instant::now();
+            let field = OrientationField::compute_with(&surface, &settings.orientation, opts)
+                .map_err(|e| Error::invalid(format!("orientation field for {mesh_label}: {e:#}")));
+            (field, t0.elapsed().as_secs_f64())
+        };
+        let early = settings.orientation != Orientation::Straight;
+        let (early_field, texel_side) = rayon::join(
+            || early.then(|| compute_field(&field_options(None))),
+            || {
+                let t0 = Instant::now();
+                let geometry = TexelGeometry::compute_layout(&surface, layout.clone());
+                let geometry_s = t0.elapsed().as_secs_f64();
+                let spacing = geometry.median_spacing(&surface);
+                let t0 = Instant::now();
+                let edges = EdgeGraph::build(&surface, &geometry);
+                let (order, graph) = match method {
+                    Some(Method::Jump) => (
+                        Some(crate::synth::jump::growth_order(
+                            &edges,
+                            &geometry.layout,
+                            &geometry.pos,
+                        )),
+                        None,
+                    ),
+                    Some(Method::Coherent) => (None, Some(TexelGraph::build(&surface, &geometry))),
+                    _ => (None, None),
+                };
+                let graph_s = t0.elapsed().as_secs_f64();
+                (geometry, geometry_s, spacing, edges, order, graph, graph_s)
+            },
+        );
+        let (geometry, geometry_s, spacing, edges, order, graph, mut graph_s) = texel_side;
         report(Stage::Geometry, faces, faces);
 
-        let spacing = geometry.median_spacing(&surface);
         let (scale, scale_source) = match settings.scale {
             Some(s) => (s / unit, "given"),
             None => (spacing, "median texel spacing"),
@@ -426,30 +478,33 @@ impl Session {
         }
 
         report(Stage::Field, 0, 1);
-        let t0 = Instant::now();
         // `straight` wants the field straight over half of pf8's window (BRIEF).
-        let field_options = FieldOptions {
-            texels: Some(layout.len() as u64),
-            ..field_options(scale, unit)
+        let (field, mut field_s) = match early_field {
+            Some(f) => f,
+            None => compute_field(&field_options(Some(scale))),
         };
-        let field = OrientationField::compute_with(&surface, &settings.orientation, &field_options)
-            .map_err(|e| Error::invalid(format!("orientation field for {mesh_label}: {e:#}")))?;
+        let field = field?;
+        let t0 = Instant::now();
         let frames = crate::synth::layout_frames(&field, &surface, &layout);
         // The scale map is interpolated with the field (both are mesh-side data).
         let scale_field = match &settings.scale_map {
             None => None,
             Some(m) => Some(Arc::new(ScaleField::compute(&surface, m, unit)?)),
         };
-        let field_s = t0.elapsed().as_secs_f64();
+        field_s += t0.elapsed().as_secs_f64();
         report(Stage::Field, 1, 1);
 
         report(Stage::Graph, 0, 1);
         let t0 = Instant::now();
-        // The edge graph (floods, seams); the texel graph is built by the methods that
-        // read it, on first use.
-        let texels = LevelTexels::from_parts(&surface, geometry, frames, scale)
+        // The edge graph (floods, seams) is built above; the texel graph by the methods that
+        // read it, on first use (coherent synthesis's above, when named).
+        let texels = LevelTexels::from_built(geometry, frames, scale, edges, graph)
             .with_scale(&surface, scale_field.as_deref());
-        let graph_s = t0.elapsed().as_secs_f64();
+        let derived = Derived::default();
+        if let Some(order) = order {
+            derived.jump_plan_from(&texels, order);
+        }
+        graph_s += t0.elapsed().as_secs_f64();
         report(Stage::Graph, 1, 1);
 
         Ok(Session {
@@ -463,7 +518,7 @@ impl Session {
             field,
             fine_field: OnceLock::new(),
             texels,
-            derived: Derived::default(),
+            derived,
             spacing,
             scale,
             scale_source,
