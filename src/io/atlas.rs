@@ -604,41 +604,24 @@ impl Atlas {
     }
 }
 
-/// The encoder both depths share: size, colour type by channel count, deflate level 3,
-/// adaptive filtering (see [`encode_png`] for why).
-fn png_encoder<W: Write>(
-    out: W,
-    layout: &AtlasLayout,
-    channels: usize,
-    depth: png::BitDepth,
-) -> png::Encoder<'static, W> {
-    let mut e = png::Encoder::new(out, layout.width() as u32, layout.height() as u32);
-    e.set_color(match channels {
-        1 => png::ColorType::Grayscale,
-        2 => png::ColorType::GrayscaleAlpha,
-        3 => png::ColorType::Rgb,
-        _ => png::ColorType::Rgba,
-    });
-    e.set_depth(depth);
-    e.set_deflate_compression(png::DeflateCompression::Level(3));
-    e.set_filter(png::Filter::Adaptive);
-    e
-}
-
 /// PNG of 8-bit pixels (1 to 4 channels) of an atlas of `layout`, deterministic: deflate
-/// level 3 (zlib-rs through flate2) with adaptive filtering. Measured at Spot N = 128
-/// (2112² RGB): level 3 is 0.5% larger than level 6 and a quarter faster; through
-/// miniz_oxide the default level took 6× as long (docs/benchmarks.md).
+/// level 3 with adaptive filtering, in parallel bands ([`crate::io::png`]). Measured at
+/// Spot N = 128 (2112² RGB): level 3 is 0.5% larger than level 6 and a quarter faster;
+/// through miniz_oxide the default level took 6× as long (docs/benchmarks.md).
 pub fn encode_png(
     pixels: &[u8],
     layout: &AtlasLayout,
     channels: usize,
     out: &mut impl Write,
 ) -> std::result::Result<(), String> {
-    let e = png_encoder(out, layout, channels, png::BitDepth::Eight);
-    let mut w = e.write_header().map_err(|e| e.to_string())?;
-    w.write_image_data(pixels).map_err(|e| e.to_string())?;
-    w.finish().map_err(|e| e.to_string())
+    crate::io::png::encode(
+        pixels,
+        layout.width() as u32,
+        layout.height() as u32,
+        channels,
+        png::BitDepth::Eight,
+        out,
+    )
 }
 
 /// [`encode_png`] of 16-bit pixels (stored big-endian, as PNG wants).
@@ -648,11 +631,15 @@ pub fn encode_png16(
     channels: usize,
     out: &mut impl Write,
 ) -> std::result::Result<(), String> {
-    let e = png_encoder(out, layout, channels, png::BitDepth::Sixteen);
     let bytes: Vec<u8> = pixels.iter().flat_map(|v| v.to_be_bytes()).collect();
-    let mut w = e.write_header().map_err(|e| e.to_string())?;
-    w.write_image_data(&bytes).map_err(|e| e.to_string())?;
-    w.finish().map_err(|e| e.to_string())
+    crate::io::png::encode(
+        &bytes,
+        layout.width() as u32,
+        layout.height() as u32,
+        channels,
+        png::BitDepth::Sixteen,
+        out,
+    )
 }
 
 /// A tessellated limit surface with per-domain texture coordinates (OBJ-ready, 0-based).

@@ -11,6 +11,7 @@ pub mod exr;
 pub mod gltf;
 pub mod interrupt;
 pub mod materials;
+pub mod png;
 pub mod ptex;
 pub mod tangent;
 pub mod txn;
