@@ -267,16 +267,30 @@ impl TexelGraph {
             total < u32::MAX as usize,
             "texel graph larger than 2^32 entries"
         );
-        let mut start = Vec::with_capacity(layout.len() + 1);
-        let mut list = Vec::with_capacity(total);
-        start.push(0u32);
-        for (counts, l) in per_domain {
-            for c in counts {
-                let last = *start.last().expect("start is never empty");
-                start.push(last + c);
-            }
-            list.extend_from_slice(&l);
+        // Joined in parallel, each domain's part written in place from its offsets: the
+        // lists are ~40 B per texel at N = 16, and joining them on one thread was a serial
+        // stretch of ~0.5 s on the bunny (5 M texels).
+        let mut start = vec![0u32; layout.len() + 1];
+        let mut list = vec![0u32; total];
+        let mut parts = Vec::with_capacity(faces);
+        let (mut start_rest, mut list_rest) = (&mut start[1..], &mut list[..]);
+        let mut base = 0u32;
+        for (counts, l) in &per_domain {
+            let (s, sr) = std::mem::take(&mut start_rest).split_at_mut(counts.len());
+            let (o, lr) = std::mem::take(&mut list_rest).split_at_mut(l.len());
+            (start_rest, list_rest) = (sr, lr);
+            parts.push((s, o, counts, l, base));
+            base += l.len() as u32;
         }
+        parts.into_par_iter().for_each(|(s, o, counts, l, base)| {
+            let mut last = base;
+            for (out, c) in s.iter_mut().zip(counts) {
+                last += c;
+                *out = last;
+            }
+            o.copy_from_slice(l);
+        });
+        drop(per_domain);
         Self {
             layout,
             start,
