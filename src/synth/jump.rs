@@ -100,8 +100,9 @@ pub const CONSENSUS_PX: f32 = 1.5;
 
 /// Keeps the continuation weight only of the entries of `table` whose continuations the
 /// most other entries' continuations agree with (within `tau` pixels); nothing changes
-/// where no two agree. `counts` is scratch.
-fn keep_consensus(table: &mut [Entry], tau: f32, counts: &mut Vec<u32>) {
+/// where every entry has as many agreements as the best (none, or all alike). Returns
+/// whether a weight changed. `counts` is scratch.
+fn keep_consensus(table: &mut [Entry], tau: f32, counts: &mut Vec<u32>) -> bool {
     let tau2 = tau * tau;
     counts.clear();
     for (i, e) in table.iter().enumerate() {
@@ -117,13 +118,14 @@ fn keep_consensus(table: &mut [Entry], tau: f32, counts: &mut Vec<u32>) {
         counts.push(n as u32);
     }
     let best = counts.iter().copied().max().unwrap_or(0);
-    if best > 0 {
-        for (e, &n) in table.iter_mut().zip(counts.iter()) {
-            if n < best {
-                e.cont = 0.0;
-            }
+    let mut changed = false;
+    for (e, &n) in table.iter_mut().zip(counts.iter()) {
+        if n < best && e.cont != 0.0 {
+            e.cont = 0.0;
+            changed = true;
         }
     }
+    changed
 }
 
 /// Counters of a run (reported).
@@ -533,9 +535,11 @@ pub fn run(
             sum += e.cont + e.jumps;
             table.push(e);
         }
-        if let (Some(tau), true) = (params.consensus, table.len() > 1) {
-            keep_consensus(&mut table, tau, &mut counts);
-            sum = table.iter().map(|e| e.cont + e.jumps).sum();
+        // With two entries both agree or neither does: nothing to choose.
+        if let (Some(tau), true) = (params.consensus, table.len() > 2) {
+            if keep_consensus(&mut table, tau, &mut counts) {
+                sum = table.iter().map(|e| e.cont + e.jumps).sum();
+            }
         }
         // Valid addresses: the box of t's offsets stays inside the pixel-centre rectangle.
         let (lo_x, hi_x) = (0.5 + margin, w - 0.5 - margin);
@@ -642,7 +646,7 @@ mod tests {
             entry([39.0, 10.0], [1.0, 0.0]),
         ];
         let mut counts = Vec::new();
-        keep_consensus(&mut table, CONSENSUS_PX, &mut counts);
+        assert!(keep_consensus(&mut table, CONSENSUS_PX, &mut counts));
         let cont: Vec<f32> = table.iter().map(|e| e.cont).collect();
         assert_eq!(
             cont,
