@@ -662,7 +662,7 @@ mod tests {
             entry([0.0, 0.0], [1.0, 0.0]),
             entry([20.0, 0.0], [1.0, 0.0]),
         ];
-        keep_consensus(&mut table, CONSENSUS_PX, &mut counts);
+        assert!(!keep_consensus(&mut table, CONSENSUS_PX, &mut counts));
         assert!(table.iter().all(|e| e.cont == 1.0));
     }
 

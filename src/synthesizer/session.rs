@@ -421,7 +421,7 @@ impl Session {
         // the jump method's growth order is another; side by side they fill both cores.
         // Each part computes exactly what it computed in sequence: the same results.
         report(Stage::Geometry, 0, faces);
-        let field_options = |scale: Option<f64>| FieldOptions {
+        let options_at = |scale: Option<f64>| FieldOptions {
             texels: Some(layout.len() as u64),
             ..match scale {
                 Some(s) => field_options(s, unit),
@@ -440,7 +440,7 @@ impl Session {
         };
         let early = settings.orientation != Orientation::Straight;
         let (early_field, texel_side) = rayon::join(
-            || early.then(|| compute_field(&field_options(None))),
+            || early.then(|| compute_field(&options_at(None))),
             || {
                 let t0 = Instant::now();
                 let geometry = TexelGeometry::compute_layout(&surface, layout.clone());
@@ -481,7 +481,7 @@ impl Session {
         // `straight` wants the field straight over half of pf8's window (BRIEF).
         let (field, mut field_s) = match early_field {
             Some(f) => f,
-            None => compute_field(&field_options(Some(scale))),
+            None => compute_field(&options_at(Some(scale))),
         };
         let field = field?;
         let t0 = Instant::now();
@@ -592,9 +592,6 @@ impl Session {
         t0.elapsed().as_secs_f64()
     }
 
-    /// Synthesizes `example` with `params` on the prepared mesh. The result's report has
-    /// zero seconds for the prepared stages (load, geometry, field, graph: see
-    /// [`Session::prepare_seconds`]) and its total counts from this call.
     /// The orientation field `method` runs on. Multiscale and textons sample neighbourhood
     /// patterns along the field at every texel and compare them between neighbours: they
     /// get the field at the finest level within the face budget, as before the field was
@@ -622,6 +619,9 @@ impl Session {
         Ok(self.fine_field.get_or_init(|| f))
     }
 
+    /// Synthesizes `example` with `params` on the prepared mesh. The result's report has
+    /// zero seconds for the prepared stages (load, geometry, field, graph: see
+    /// [`Session::prepare_seconds`]) and its total counts from this call.
     pub fn synthesize(&self, example: &Example, params: &SynthParams) -> Result<SynthResult> {
         let label = if example.path.as_os_str().is_empty() {
             "<in memory>".to_string()
