@@ -502,7 +502,7 @@ fn pattern_accuracy() {
                 spacing_error(truth, k, delta, nrm, f64::INFINITY)
             };
         for t in (0..geo.len()).step_by(stride) {
-            let nrm = geo.frames[t].n.as_vec3();
+            let nrm = geo.frame(t).n.as_vec3();
             let p = parameter_pattern(
                 &geo,
                 &surface,
@@ -522,7 +522,7 @@ fn pattern_accuracy() {
             };
             let info = sampler.sample_with_frame(
                 geo.location(t),
-                &geo.frames[t],
+                &geo.frame(t),
                 delta,
                 k,
                 SamplerKind::Chart,
@@ -553,7 +553,7 @@ fn pattern_accuracy() {
             let mut raw = vec![None; k * k];
             sampler.sample_with_frame(
                 geo.location(t),
-                &geo.frames[t],
+                &geo.frame(t),
                 delta,
                 k,
                 SamplerKind::Chart,

@@ -17,8 +17,8 @@ pub struct LevelGeometry {
     pub layout: Arc<MapLayout>,
     /// Limit position per texel.
     pub pos: Vec<Vec3>,
-    /// The orientation field's frame per texel.
-    pub frames: Vec<Frame>,
+    /// The orientation field's frame per texel, without its v2 ([`Self::frame`]).
+    frames: Vec<FrameV1N>,
     /// Per texel, the change of (u, v) per unit surface length along v1 and along v2:
     /// `[w1.u, w1.v, w2.u, w2.v]`, from the pseudo-inverse of the Jacobian (∂P/∂u, ∂P/∂v).
     pub axes: Vec<[f64; 4]>,
@@ -30,6 +30,32 @@ pub struct LevelGeometry {
     /// Per domain, whether each corner ((0,0), (1,0), (0,1), (1,1)) is a regular vertex of
     /// the base mesh (see [`pattern`]).
     pub regular_corners: Arc<Vec<[bool; 4]>>,
+}
+
+/// A field frame kept as v1 and n. Every frame of the field has v2 = n × v1
+/// ([`Frame::from_direction`]), so [`FrameV1N::frame`] gives back the same three vectors
+/// bit for bit. *Why*: the finest level holds one frame per output texel, and 24 of its
+/// 72 bytes were v2 (issue 14's multiscale memory per texel).
+#[derive(Clone, Copy, Debug, Default)]
+struct FrameV1N {
+    v1: glam::DVec3,
+    n: glam::DVec3,
+}
+
+impl FrameV1N {
+    #[inline]
+    fn of(f: Frame) -> Self {
+        Self { v1: f.v1, n: f.n }
+    }
+
+    #[inline]
+    fn frame(&self) -> Frame {
+        Frame {
+            v1: self.v1,
+            v2: self.n.cross(self.v1),
+            n: self.n,
+        }
+    }
 }
 
 /// Christoffel symbols `[Γᵘ_uu, Γᵘ_uv, Γᵘ_vv, Γᵛ_uu, Γᵛ_uv, Γᵛ_vv]` at texel `i` of one
@@ -124,13 +150,35 @@ impl LevelGeometry {
         texels: Arc<TexelLayout>,
         regular_corners: Arc<Vec<[bool; 4]>>,
     ) -> Self {
-        let frames = match texels.uniform_n() {
-            Some(r) => field.texel_frames(surface, r),
+        let frames: Vec<FrameV1N> = match texels.uniform_n() {
+            // The same points and arithmetic as `OrientationField::texel_frames`.
+            Some(r) => {
+                let mut out = vec![FrameV1N::default(); surface.num_domains() * r * r];
+                if r > 0 {
+                    let inv = 1.0 / r as f64;
+                    out.par_chunks_mut(r * r)
+                        .enumerate()
+                        .for_each(|(d, chunk)| {
+                            for y in 0..r {
+                                for x in 0..r {
+                                    let (u, v) = ((x as f64 + 0.5) * inv, (y as f64 + 0.5) * inv);
+                                    chunk[y * r + x] = FrameV1N::of(field.frame(
+                                        surface,
+                                        DomainId::from_idx(d),
+                                        u,
+                                        v,
+                                    ));
+                                }
+                            }
+                        });
+                }
+                out
+            }
             None => (0..texels.len())
                 .into_par_iter()
                 .map(|t| {
                     let l = texels.location(t);
-                    field.frame(surface, l.domain, l.u, l.v)
+                    FrameV1N::of(field.frame(surface, l.domain, l.u, l.v))
                 })
                 .collect(),
         };
@@ -152,7 +200,7 @@ impl LevelGeometry {
                     let start = lay.start(d);
                     for (i, s) in buf.iter().enumerate() {
                         p[i] = s.p.as_vec3();
-                        let f = &frames[start + i];
+                        let f = frames[start + i].frame();
                         // (JᵀJ)⁻¹ Jᵀ v: the parameter step that moves along v to first order.
                         let (a, b, c) = (s.du.dot(s.du), s.du.dot(s.dv), s.dv.dot(s.dv));
                         let det = a * c - b * b;
@@ -187,6 +235,12 @@ impl LevelGeometry {
     /// Number of texels.
     pub fn len(&self) -> usize {
         self.pos.len()
+    }
+
+    /// The orientation field's frame at texel `t`.
+    #[inline]
+    pub fn frame(&self, t: usize) -> Frame {
+        self.frames[t].frame()
     }
 
     /// True when there are no texels.
@@ -239,7 +293,7 @@ impl LevelGeometry {
     #[inline]
     pub fn offset_pixels(&self, t: usize, q: usize, delta: f64) -> [f32; 2] {
         let d = (self.pos[q] - self.pos[t]).as_dvec3();
-        let f = &self.frames[t];
+        let f = self.frame(t);
         [(d.dot(f.v1) / delta) as f32, (-d.dot(f.v2) / delta) as f32]
     }
 }
@@ -407,7 +461,7 @@ fn sample(
     let h = (k / 2) as i64;
     let centre = geo.location(t);
     buf.resize(k * k, None);
-    let info = sampler.sample_with_frame(centre, &geo.frames[t], delta, k, kind, buf);
+    let info = sampler.sample_with_frame(centre, &geo.frame(t), delta, k, kind, buf);
     match kind {
         SamplerKind::Chart => st.sampler_chart += 1,
         SamplerKind::March => st.sampler_march += 1,
@@ -445,7 +499,7 @@ pub fn shift_pattern(
         let x = ((l.u * nu as f64) as usize).min(nu - 1);
         let y = ((l.v * nv as f64) as usize).min(nv - 1);
         let q = geo.layout.texel_index(l.domain, x, y);
-        let f = &geo.frames[q];
+        let f = geo.frame(q);
         let (a1, a2) = (tau.dot(f.v1), tau.dot(f.v2));
         let [w1u, w1v, w2u, w2v] = geo.axes[q];
         let (du, dv) = (a1 * w1u + a2 * w2u, a1 * w1v + a2 * w2v);

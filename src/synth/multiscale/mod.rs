@@ -947,7 +947,7 @@ fn resample(
             let loc = out.location(t);
             let q = nearest_texel(&syn.layout.taps(loc)).unwrap_or(0);
             let d = (out.pos[t] - syn.pos[q]).as_dvec3();
-            let f = &out.frames[t];
+            let f = out.frame(t);
             let scale = out_fac.step(scale, t);
             let e = [(d.dot(f.v1) / scale) as f32, (-d.dot(f.v2) / scale) as f32];
             let s = src[q];
@@ -1195,7 +1195,7 @@ fn coarse_seeds(
                 continue;
             };
             let d = (coarse.pos[q] - fine.pos[t]).as_dvec3();
-            let f = &fine.frames[t];
+            let f = fine.frame(t);
             let e = [d.dot(f.v1) / delta, -d.dot(f.v2) / delta];
             let s = ctx.position(level + 1, coarse_src[q]);
             let (x, y) = ((s[0] as f64 - e[0]) * 2.0, (s[1] as f64 - e[1]) * 2.0);
