@@ -140,13 +140,14 @@ const EXAMPLE_PIXEL: u64 = 240;
 /// parts every method has. Measured on Spot at N = 16–64 with 128², 256² and 512²
 /// examples, a 10-face grid, the bunny and a 200k-face torus (docs/robustness.md):
 ///
-/// - per texel of the output: the finest level's geometry (positions, frames without v2,
-///   parameter axes, Christoffel symbols: 116 B), the coarser level's (a quarter of that),
-///   each level's sources (4 B), and the continuation of the sources (its links, 4 B each
-///   way, and positions); whole-run peak 216 MiB at N = 32 and 440 at N = 64 with a 128²
-///   example (2026-12-03): 304 B per texel between them, [`SYNTH_TEXEL`]'s 84 included
-///   (it was 160 on top of the old 180); with frames kept as v1 and n (2026-12-06)
-///   220 and 446 MiB, 305 B per texel against 327 with v2 the same day;
+/// - per texel of the output: the finest level's geometry (positions, f32 frames without
+///   v2, parameter axes, Christoffel symbols: 92 B), the coarser level's (a quarter of
+///   that), each level's sources (4 B), and the continuation of the sources (its links,
+///   4 B each way, and positions); whole-run peak 216 MiB at N = 32 and 440 at N = 64 with
+///   a 128² example (2026-12-03): 304 B per texel between them, [`SYNTH_TEXEL`]'s 84
+///   included (it was 160 on top of the old 180); with the compact frames (2026-12-06)
+///   214 and 418 MiB, 276 B per texel (327 before them the same day). The constant is
+///   kept: the estimate is 1.06–1.12x the peak;
 const MULTISCALE_TEXEL: u64 = 220;
 /// - per example pixel (multiscale only): the appearance-space pyramid, the gathered-from images of the search features (the level
 ///   and its coarser level upsampled: 2 x 8 floats per pixel and level) and the

@@ -32,28 +32,34 @@ pub struct LevelGeometry {
     pub regular_corners: Arc<Vec<[bool; 4]>>,
 }
 
-/// A field frame kept as v1 and n. Every frame of the field has v2 = n × v1
-/// ([`Frame::from_direction`]), so [`FrameV1N::frame`] gives back the same three vectors
-/// bit for bit. *Why*: the finest level holds one frame per output texel, and 24 of its
-/// 72 bytes were v2 (issue 14's multiscale memory per texel).
+/// A field frame kept as v1 and n in f32: every frame of the field has v2 = n × v1
+/// ([`Frame::from_direction`]), recomputed by [`FrameV1N::frame`]. *Why*: the finest level
+/// holds one frame per output texel, 72 bytes as three f64 vectors; 24 now (issue 14's
+/// multiscale memory per texel). The parameter axes are computed from the full-precision
+/// frame before it is stored; what reads the stored one (offsets between nearby texels,
+/// pattern directions) needs nothing like f64's precision.
 #[derive(Clone, Copy, Debug, Default)]
 struct FrameV1N {
-    v1: glam::DVec3,
-    n: glam::DVec3,
+    v1: Vec3,
+    n: Vec3,
 }
 
 impl FrameV1N {
     #[inline]
     fn of(f: Frame) -> Self {
-        Self { v1: f.v1, n: f.n }
+        Self {
+            v1: f.v1.as_vec3(),
+            n: f.n.as_vec3(),
+        }
     }
 
     #[inline]
     fn frame(&self) -> Frame {
+        let (v1, n) = (self.v1.as_dvec3(), self.n.as_dvec3());
         Frame {
-            v1: self.v1,
-            v2: self.n.cross(self.v1),
-            n: self.n,
+            v1,
+            v2: n.cross(v1),
+            n,
         }
     }
 }
@@ -150,57 +156,42 @@ impl LevelGeometry {
         texels: Arc<TexelLayout>,
         regular_corners: Arc<Vec<[bool; 4]>>,
     ) -> Self {
-        let frames: Vec<FrameV1N> = match texels.uniform_n() {
-            // The same points and arithmetic as `OrientationField::texel_frames`.
-            Some(r) => {
-                let mut out = vec![FrameV1N::default(); surface.num_domains() * r * r];
-                if r > 0 {
-                    let inv = 1.0 / r as f64;
-                    out.par_chunks_mut(r * r)
-                        .enumerate()
-                        .for_each(|(d, chunk)| {
-                            for y in 0..r {
-                                for x in 0..r {
-                                    let (u, v) = ((x as f64 + 0.5) * inv, (y as f64 + 0.5) * inv);
-                                    chunk[y * r + x] = FrameV1N::of(field.frame(
-                                        surface,
-                                        DomainId::from_idx(d),
-                                        u,
-                                        v,
-                                    ));
-                                }
-                            }
-                        });
-                }
-                out
-            }
-            None => (0..texels.len())
-                .into_par_iter()
-                .map(|t| {
-                    let l = texels.location(t);
-                    FrameV1N::of(field.frame(surface, l.domain, l.u, l.v))
-                })
-                .collect(),
-        };
         let total = texels.len();
         let mut pos = vec![Vec3::ZERO; total];
+        let mut frames = vec![FrameV1N::default(); total];
         let mut axes = vec![[0.0f64; 4]; total];
         let mut christoffel = vec![[0.0f32; 6]; total];
         let lay = &texels;
+        let uniform = lay.uniform_n();
         lay.split_mut(&mut pos, 1)
             .into_par_iter()
+            .zip(lay.split_mut(&mut frames, 1))
             .zip(lay.split_mut(&mut axes, 1))
             .zip(lay.split_mut(&mut christoffel, 1))
             .enumerate()
             .for_each_init(
                 Vec::new,
-                |buf: &mut Vec<LimitSample>, (d, ((p, ax), gam))| {
+                |buf: &mut Vec<LimitSample>, (d, (((p, fr), ax), gam))| {
                     let (nu, nv) = lay.dims(d);
                     crate::texels::eval_domain_texels(surface, DomainId::from_idx(d), nu, nv, buf);
                     let start = lay.start(d);
                     for (i, s) in buf.iter().enumerate() {
                         p[i] = s.p.as_vec3();
-                        let f = frames[start + i].frame();
+                        // The field's frame in full precision for the axes below; kept in
+                        // f32 (the points of `OrientationField::texel_frames` with one N).
+                        let f = match uniform {
+                            Some(r) => {
+                                let inv = 1.0 / r as f64;
+                                let (x, y) = ((i % nu) as f64, (i / nu) as f64);
+                                let (u, v) = ((x + 0.5) * inv, (y + 0.5) * inv);
+                                field.frame(surface, DomainId::from_idx(d), u, v)
+                            }
+                            None => {
+                                let l = lay.location(start + i);
+                                field.frame(surface, l.domain, l.u, l.v)
+                            }
+                        };
+                        fr[i] = FrameV1N::of(f);
                         // (JᵀJ)⁻¹ Jᵀ v: the parameter step that moves along v to first order.
                         let (a, b, c) = (s.du.dot(s.du), s.du.dot(s.dv), s.dv.dot(s.dv));
                         let det = a * c - b * b;
@@ -616,7 +607,7 @@ pub fn parameter_pattern(
             }
         };
     }
-    let error = spacing_error(pts, k, delta, geo.frames[t].n.as_vec3(), tol);
+    let error = spacing_error(pts, k, delta, geo.frames[t].n, tol);
     Some(ParameterPattern {
         inside,
         missing,
