@@ -162,7 +162,6 @@ impl LevelGeometry {
         let mut axes = vec![[0.0f64; 4]; total];
         let mut christoffel = vec![[0.0f32; 6]; total];
         let lay = &texels;
-        let uniform = lay.uniform_n();
         lay.split_mut(&mut pos, 1)
             .into_par_iter()
             .zip(lay.split_mut(&mut frames, 1))
@@ -177,20 +176,10 @@ impl LevelGeometry {
                     let start = lay.start(d);
                     for (i, s) in buf.iter().enumerate() {
                         p[i] = s.p.as_vec3();
-                        // The field's frame in full precision for the axes below; kept in
-                        // f32 (the points of `OrientationField::texel_frames` with one N).
-                        let f = match uniform {
-                            Some(r) => {
-                                let inv = 1.0 / r as f64;
-                                let (x, y) = ((i % nu) as f64, (i / nu) as f64);
-                                let (u, v) = ((x + 0.5) * inv, (y + 0.5) * inv);
-                                field.frame(surface, DomainId::from_idx(d), u, v)
-                            }
-                            None => {
-                                let l = lay.location(start + i);
-                                field.frame(surface, l.domain, l.u, l.v)
-                            }
-                        };
+                        // The field's frame from this sample's normal (no second surface
+                        // evaluation), in full precision for the axes below; kept in f32.
+                        let loc = surface.base_location(lay.location(start + i));
+                        let f = field.frame_at(loc, s.n, s.du);
                         fr[i] = FrameV1N::of(f);
                         // (JᵀJ)⁻¹ Jᵀ v: the parameter step that moves along v to first order.
                         let (a, b, c) = (s.du.dot(s.du), s.du.dot(s.dv), s.dv.dot(s.dv));
