@@ -1,6 +1,7 @@
 //! A structured example (a brick wall, drawn here) on BRIEF's flat 16x16 grid with the
-//! field along +x: how the default method's tuning and the appearance space act on
-//! structure. Writes each result for `surfsynth render DIR`.
+//! field along +x: how the default method's tuning, the appearance space and the
+//! feature-distance channel (`--feature-distance`, which keeps thin joints on curved
+//! meshes) act on structure. Writes each result for `surfsynth render DIR`.
 //!
 //! ```sh
 //! cargo run --release --example 03_structure_on_a_flat_grid -- out/example-bricks
@@ -39,11 +40,17 @@ fn main() -> surfsynth::Result<()> {
     let example = bricks(128);
     let grid = || subdiv::Surface::new(subdiv::ControlMesh::grid(16));
     let runs = [
-        ("default", OptimiseParams::default(), AppearanceMode::Pca),
+        (
+            "default",
+            OptimiseParams::default(),
+            AppearanceMode::Pca,
+            0.0,
+        ),
         (
             "rgb-matching",
             OptimiseParams::default(),
             AppearanceMode::Rgb,
+            0.0,
         ),
         (
             "one-level",
@@ -52,21 +59,29 @@ fn main() -> surfsynth::Result<()> {
                 ..Default::default()
             },
             AppearanceMode::Pca,
+            0.0,
+        ),
+        (
+            "feature-distance",
+            OptimiseParams::default(),
+            AppearanceMode::Pca,
+            0.5,
         ),
     ];
-    for (name, params, appearance) in runs {
+    for (name, params, appearance, feature_distance) in runs {
         let dir = format!("{out}/{name}");
         let (r, report) = Synthesizer::new(grid(), example.clone())
             .method(Method::Optimise)
             .optimise_params(params)
             .appearance(appearance)
+            .feature_distance(feature_distance)
             .orientation(Orientation::Axis(DVec3::X))
             .resolution(16)
             .seed(1)
             .run_to(&dir)?;
         let pf = patch_fidelities(&r.maps, &r.geometry_maps(), &r.example, Some(report.scale));
         println!(
-            "{name:<13} pf4 {:.3} pf8 {:.3} ({:.2} s) -> {dir}",
+            "{name:<16} pf4 {:.3} pf8 {:.3} ({:.2} s) -> {dir}",
             pf.pf4.unwrap_or(f64::NAN),
             pf.pf8.unwrap_or(f64::NAN),
             report.seconds.synthesis

@@ -55,6 +55,7 @@ pub fn command(out: &Path) -> SynthCommand {
         search: None,
         displace: None,
         appearance: Default::default(),
+        feature_distance: 0.0,
         decimate: None,
         patch_size: None,
         handedness: Default::default(),

@@ -522,6 +522,14 @@ impl Synthesizer {
         self.settings.appearance = a;
         self
     }
+    /// Weight of the feature-distance channel (`--feature-distance`, 0: none): the signed
+    /// distance to the example's bright/dark borders matched beside its colours, which
+    /// keeps thin features such as mortar joints (see
+    /// [`crate::synth::matching::feature_distance`]).
+    pub fn feature_distance(mut self, weight: f32) -> Self {
+        self.settings.feature_distance = weight;
+        self
+    }
     /// All synthesis settings at once.
     pub fn settings(mut self, s: Settings) -> Self {
         self.settings = s;
@@ -1268,6 +1276,8 @@ pub struct SynthCommand {
     pub displace: Option<f64>,
     /// `--appearance`.
     pub appearance: AppearanceMode,
+    /// `--feature-distance W` (0: none).
+    pub feature_distance: f32,
     /// `--decimate TOL`.
     pub decimate: Option<f64>,
     /// `--patch-size` (patches, and the start of optimise; `None`: automatic).
@@ -1296,6 +1306,7 @@ impl SynthCommand {
             .seed(self.seed)
             .displace(self.displace)
             .appearance(self.appearance)
+            .feature_distance(self.feature_distance)
             .decimate(self.decimate)
             .handedness(self.handedness)
             .cache(self.cache.clone());

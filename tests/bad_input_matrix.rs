@@ -609,6 +609,33 @@ fn f10_bad_max_memory() {
 }
 
 #[test]
+fn f13_bad_feature_distance() {
+    for w in ["-1", "nan", "100"] {
+        bad_flag(
+            &["--feature-distance", w],
+            "--feature-distance",
+            &["out of range", "0 (off) to 16"],
+        );
+    }
+    bad_flag(
+        &["--feature-distance", "heavy"],
+        "--feature-distance",
+        &["'heavy' is not a number"],
+    );
+    // Only the methods that match through appearance space take it.
+    bad_flag(
+        &["--feature-distance", "0.5", "--method", "multiscale"],
+        "--feature-distance",
+        &["optimise, patches, coherent and jump", "multiscale"],
+    );
+    bad_flag(
+        &["--feature-distance", "0.5", "--appearance", "rgb"],
+        "--feature-distance",
+        &["--appearance rgb"],
+    );
+}
+
+#[test]
 fn f11_max_memory_below_the_estimate() {
     synth_fails(
         &spot(),

@@ -227,6 +227,11 @@ pub struct Settings {
     pub optimise: OptimiseParams,
     pub jump: JumpParams,
     pub textons: TextonParams,
+    /// Weight of the feature-distance channel ([`matching::feature_distance`],
+    /// `--feature-distance`) appended to the matched channels before the appearance-space
+    /// PCA; 0 (the default): none. Methods that match in appearance space through the
+    /// weighted example (optimise, patches, coherent, jump) use it.
+    pub feature_distance: f32,
     /// The BTF sample of a `--btf` run (images under several lights; the example is its
     /// default image). Texton synthesis analyses every image; other methods use the
     /// example only.
@@ -245,6 +250,7 @@ impl Default for Settings {
             optimise: OptimiseParams::default(),
             jump: JumpParams::default(),
             textons: TextonParams::default(),
+            feature_distance: 0.0,
             btf: None,
         }
     }
@@ -340,6 +346,26 @@ pub fn synthesize(
     let example = &matched;
     let weighted = weighted_image(example, &settings.weights);
     let mode = settings.appearance;
+    let fd = settings.feature_distance;
+    if !(fd.is_finite() && fd >= 0.0) {
+        return Err(crate::Error::invalid(format!(
+            "the feature-distance weight must be a finite number >= 0, not {fd}"
+        )));
+    }
+    let weighted = if fd > 0.0 {
+        if mode == AppearanceMode::Rgb
+            || matches!(settings.method, Method::Multiscale | Method::Textons)
+        {
+            return Err(crate::Error::invalid(format!(
+                "--feature-distance is matched in appearance space by optimise, patches, coherent and jump; not with --method {} --appearance {}",
+                settings.method.name(),
+                mode.name()
+            )));
+        }
+        matching::feature_distance::with_feature_distance(&weighted, fd)
+    } else {
+        weighted
+    };
     if mode == AppearanceMode::Rgb
         && weighted.channels > 5
         && !matches!(settings.method, Method::Multiscale | Method::Jump)
@@ -350,7 +376,7 @@ pub fn synthesize(
             weighted.channels
         )));
     }
-    match settings.method {
+    let out = match settings.method {
         Method::Coherent => Ok(with_dims!(
             mode,
             weighted.channels,
@@ -438,7 +464,11 @@ pub fn synthesize(
             weighted.channels,
             run_optimise(&weighted, target, settings, progress)
         )),
-    }
+    };
+    out.map(|mut o| {
+        o.appearance.feature_distance = fd;
+        o
+    })
 }
 
 /// The appearance space of `weighted` in `mode` with `k` values per pixel, through the

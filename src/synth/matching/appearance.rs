@@ -66,6 +66,9 @@ pub struct AppearanceInfo {
     pub window: usize,
     /// Share of the neighbourhoods' variance the projection keeps (1 for `rgb`).
     pub kept_variance: f64,
+    /// Weight of the feature-distance channel among the matched channels
+    /// ([`super::feature_distance`], `--feature-distance`); 0: none.
+    pub feature_distance: f32,
 }
 
 /// An example level transformed to appearance space: `width x height` pixels of `dims`
@@ -89,6 +92,7 @@ impl Appearance {
                     dims: weighted.channels,
                     window: 1,
                     kept_variance: 1.0,
+                    feature_distance: 0.0,
                 },
             },
             AppearanceMode::Pca => Self::pca(weighted, window, dims),
@@ -140,6 +144,7 @@ impl Appearance {
                 dims,
                 window,
                 kept_variance: pca.kept_variance(),
+                feature_distance: 0.0,
             },
         }
     }
@@ -158,6 +163,7 @@ impl crate::cache::Persist for Appearance {
             dims: r.usize()?,
             window: r.usize()?,
             kept_variance: r.f64()?,
+            feature_distance: 0.0,
         };
         (info.dims == image.channels && image.data.iter().all(|v| v.is_finite()))
             .then_some(Self { image, info })

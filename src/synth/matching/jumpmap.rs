@@ -355,6 +355,7 @@ impl Persist for JumpMap {
             dims: r.usize()?,
             window: r.usize()?,
             kept_variance: r.f64()?,
+            feature_distance: 0.0,
         };
         let stats = JumpMapStats {
             mean_jumps: r.f64()?,

@@ -1,11 +1,13 @@
 //! What every synthesis method matches with, below the methods themselves: appearance
-//! space ([`appearance`]), the example tables matchers read ([`features`]), similar-place
+//! space ([`appearance`]) with its optional feature-distance channel
+//! ([`feature_distance`]), the example tables matchers read ([`features`]), similar-place
 //! lists for k-coherence ([`similar`]), and neighbourhood vectors and nearest-neighbour
 //! search ([`search`]: brute force, PCA + kd-tree, k-coherence), and the jump maps of
 //! paper 002 ([`jumpmap`]).
 
 pub mod appearance;
 pub mod exemplar;
+pub mod feature_distance;
 pub mod features;
 pub mod jumpmap;
 pub mod search;

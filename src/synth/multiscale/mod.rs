@@ -540,6 +540,7 @@ pub fn run_with(
                 dims: c,
                 window: 1,
                 kept_variance: 1.0,
+                feature_distance: 0.0,
             });
             Ok(Model {
                 model: ExampleModel::from_pyramid(pyramid, params.model)?,
@@ -1574,6 +1575,7 @@ impl crate::cache::Persist for Model {
             dims: r.usize()?,
             window: r.usize()?,
             kept_variance: r.f64()?,
+            feature_distance: 0.0,
         };
         let n = r.usize_max(64)?;
         let mut levels = Vec::with_capacity(n);

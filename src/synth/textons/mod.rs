@@ -132,6 +132,7 @@ pub fn run(
             dims: params.dims,
             window: 1,
             kept_variance: kept.first().copied().unwrap_or(1.0),
+            feature_distance: 0.0,
         };
         analyses.try_get("texton-model", key.finish(), || {
             Ok(Model {
