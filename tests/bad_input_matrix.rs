@@ -622,12 +622,7 @@ fn f13_bad_feature_distance() {
         "--feature-distance",
         &["'heavy' is not a number"],
     );
-    // Only the methods that match through appearance space take it.
-    bad_flag(
-        &["--feature-distance", "0.5", "--method", "multiscale"],
-        "--feature-distance",
-        &["optimise, patches, coherent and jump", "multiscale"],
-    );
+    // It is matched in appearance space.
     bad_flag(
         &["--feature-distance", "0.5", "--appearance", "rgb"],
         "--feature-distance",

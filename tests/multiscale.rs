@@ -53,6 +53,7 @@ fn run(
     let weights = vec![1.0f32; ex.num_channels()];
     let inputs = Inputs {
         appearance: surfsynth::synth::matching::appearance::AppearanceMode::Rgb,
+        feature_distance: 0.0,
         surface,
         field: &field,
         layout: &geom.layout,
@@ -246,6 +247,7 @@ fn output_is_identical_for_any_thread_count() {
     let weights = [1.0f32; 3];
     let inputs = Inputs {
         appearance: surfsynth::synth::matching::appearance::AppearanceMode::Rgb,
+        feature_distance: 0.0,
         surface: &surface,
         field: &field,
         layout: &geom.layout,

@@ -127,7 +127,7 @@ pub struct SynthArgs {
     pub appearance: Appearance,
     /// Also match the signed distance to the example's bright/dark borders (mortar, grout,
     /// gaps), with this weight against colour's 1: keeps more thin joints on curved
-    /// surfaces (e.g. 0.5 for bricks). Optimise, patches, coherent and jump; 0: off.
+    /// surfaces (e.g. 0.5 for bricks). Not with textons or --appearance rgb; 0: off.
     #[arg(long, value_name = "W", default_value_t = 0.0, value_parser = parse_feature_distance, allow_negative_numbers = true)]
     pub feature_distance: f32,
     /// Patch side in example pixels for --method patches and the start of optimise (default:

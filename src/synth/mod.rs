@@ -229,8 +229,8 @@ pub struct Settings {
     pub textons: TextonParams,
     /// Weight of the feature-distance channel ([`matching::feature_distance`],
     /// `--feature-distance`) appended to the matched channels before the appearance-space
-    /// PCA; 0 (the default): none. Methods that match in appearance space through the
-    /// weighted example (optimise, patches, coherent, jump) use it.
+    /// PCA; 0 (the default): none. Every method that matches in appearance space uses it
+    /// (not textons, whose BTF sample has its own analysis).
     pub feature_distance: f32,
     /// The BTF sample of a `--btf` run (images under several lights; the example is its
     /// default image). Texton synthesis analyses every image; other methods use the
@@ -352,16 +352,16 @@ pub fn synthesize(
             "the feature-distance weight must be a finite number >= 0, not {fd}"
         )));
     }
-    let weighted = if fd > 0.0 {
-        if mode == AppearanceMode::Rgb
-            || matches!(settings.method, Method::Multiscale | Method::Textons)
-        {
-            return Err(crate::Error::invalid(format!(
-                "--feature-distance is matched in appearance space by optimise, patches, coherent and jump; not with --method {} --appearance {}",
-                settings.method.name(),
-                mode.name()
-            )));
-        }
+    if fd > 0.0 && (mode == AppearanceMode::Rgb || settings.method == Method::Textons) {
+        return Err(crate::Error::invalid(format!(
+            "--feature-distance is matched in appearance space by optimise, patches, coherent, jump and multiscale; not with --method {} --appearance {}",
+            settings.method.name(),
+            mode.name()
+        )));
+    }
+    // Multiscale weighs its own pyramid and adds the channel there
+    // (`multiscale::Inputs::feature_distance`).
+    let weighted = if fd > 0.0 && settings.method != Method::Multiscale {
         matching::feature_distance::with_feature_distance(&weighted, fd)
     } else {
         weighted
@@ -419,6 +419,7 @@ pub fn synthesize(
                 seed: target.seed,
                 weights: &weights,
                 appearance: mode,
+                feature_distance: fd,
             };
             let models = |key: crate::cache::Key, build: &dyn Fn() -> Result<multiscale::Model>| {
                 analyses.try_get("multiscale-model", key, build)

@@ -104,6 +104,7 @@ pub fn bench_surface(
         scale_field: None,
         seed,
         weights: &weights,
+        feature_distance: 0.0,
     };
     let t1 = Instant::now();
     let out = run(example, &inputs, params, &|_, _| {})?;

@@ -147,6 +147,9 @@ pub struct Inputs<'a> {
     /// What neighbourhoods compare: the weighted channels, or every level's appearance
     /// vectors ([`crate::synth::matching::appearance`]).
     pub appearance: AppearanceMode,
+    /// Weight of the feature-distance channel matched beside the weighted channels (in
+    /// appearance space only; 0: none; [`crate::synth::matching::feature_distance`]).
+    pub feature_distance: f32,
 }
 
 /// One synthesis level (reported).
@@ -520,6 +523,12 @@ pub fn run_with(
             for (v, s) in px.iter_mut().zip(&sw) {
                 *v *= s;
             }
+        }
+        if inputs.feature_distance > 0.0 && inputs.appearance == AppearanceMode::Pca {
+            img = crate::synth::matching::feature_distance::with_feature_distance(
+                &img,
+                inputs.feature_distance,
+            );
         }
         for _ in 0..j0 {
             img = img.downsample();

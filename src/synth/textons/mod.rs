@@ -85,6 +85,7 @@ pub fn run(
         seed: target.seed,
         weights: &weights,
         appearance: AppearanceMode::Pca,
+        feature_distance: 0.0,
     };
     let found: Mutex<(TextonInfo, f64)> = Mutex::new(Default::default());
     let build = |j0: usize, levels: usize| -> Result<Arc<Model>> {
