@@ -152,3 +152,38 @@ fn alpha_and_height_channels_are_deterministic_too() {
         assert!(maps.channel(c).is_some(), "facemaps.exr has {c}");
     }
 }
+
+/// The feature-distance channel (`--feature-distance`) for the two kinds of matcher that
+/// take it differently: through the weighted example (optimise) and through multiscale's
+/// own pyramid.
+#[test]
+fn feature_distance_is_deterministic_too() {
+    let dir = tempfile::tempdir().unwrap();
+    let mesh = dir.path().join("cube_fan.obj");
+    std::fs::write(&mesh, CUBE_FAN).unwrap();
+    let ex = fixture("gravel.png");
+    for method in ["optimise", "multiscale"] {
+        let extra = [
+            "--method",
+            method,
+            "--feature-distance",
+            "0.5",
+            "--no-cache",
+        ];
+        let run = |t: u32| {
+            synth(
+                &mesh,
+                &ex,
+                &extra,
+                t,
+                3,
+                &dir.path().join(format!("{method}{t}")),
+            )
+        };
+        assert_same(
+            &run(1),
+            &run(2),
+            &format!("{method}: --threads 1 vs --threads 2"),
+        );
+    }
+}
