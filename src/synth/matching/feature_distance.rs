@@ -250,6 +250,15 @@ mod tests {
         assert_eq!(at(0), -8.0);
     }
 
+    /// An example of one colour has no border: every value finite, clamped, the same.
+    #[test]
+    fn a_uniform_example_gives_a_constant_channel() {
+        let mut img = Image::new(9, 7, 3);
+        img.data.iter_mut().for_each(|v| *v = 0.4);
+        let d = signed_distance(&img, 8.0);
+        assert!(d.iter().all(|&x| x == d[0] && x.abs() == 1.0), "{d:?}");
+    }
+
     #[test]
     fn otsu_splits_two_clusters() {
         let v: Vec<f32> = (0..100)
