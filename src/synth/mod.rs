@@ -297,19 +297,7 @@ pub struct Output {
 /// The example's channels premultiplied by the square roots of their weights, so that a
 /// plain squared l2 distance is the weighted one.
 pub fn weighted_image(example: &Example, weights: &Weights) -> Image {
-    let mut img = Image::from_example(example);
-    let sw: Vec<f32> = weights
-        .per_channel(example)
-        .iter()
-        .map(|w| w.max(0.0).sqrt())
-        .collect();
-    let c = img.channels;
-    for px in img.data.chunks_exact_mut(c) {
-        for (v, s) in px.iter_mut().zip(&sw) {
-            *v *= s;
-        }
-    }
-    img
+    matching::features::weighted(example, &weights.per_channel(example))
 }
 
 /// Calls `$f::<K>(args)` with `K` the matching dimension of `$mode` for an example of

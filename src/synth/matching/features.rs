@@ -22,6 +22,21 @@ pub fn dist2<const K: usize>(a: &[f32; K], b: &[f32; K]) -> f32 {
     s
 }
 
+/// `example`'s channels premultiplied by the square roots of `weights` (one per channel of
+/// [`Example::channel_names`]), so that a plain squared l2 distance is the weighted one:
+/// the image every appearance space and pyramid of the matchers is built from.
+pub fn weighted(example: &Example, weights: &[f32]) -> crate::pyramid::Image {
+    let mut img = crate::pyramid::Image::from_example(example);
+    let sw: Vec<f32> = weights.iter().map(|w| w.max(0.0).sqrt()).collect();
+    let c = img.channels;
+    for px in img.data.chunks_exact_mut(c) {
+        for (v, s) in px.iter_mut().zip(&sw) {
+            *v *= s;
+        }
+    }
+    img
+}
+
 /// Weighted, interleaved example features (see the module docs).
 #[derive(Clone, Debug)]
 pub struct Features<const K: usize> {

@@ -517,13 +517,7 @@ pub fn run_with(
     let build = |j0: usize, n_levels: usize| -> Result<std::sync::Arc<Model>> {
         // Example analysis: weighted channels (so that plain l2 is the weighted distance),
         // pyramid from level j0.
-        let mut img = Image::from_example(example);
-        let sw: Vec<f32> = inputs.weights.iter().map(|w| w.max(0.0).sqrt()).collect();
-        for px in img.data.chunks_exact_mut(c) {
-            for (v, s) in px.iter_mut().zip(&sw) {
-                *v *= s;
-            }
-        }
+        let mut img = crate::synth::matching::features::weighted(example, inputs.weights);
         if inputs.feature_distance > 0.0 && inputs.appearance == AppearanceMode::Pca {
             img = crate::synth::matching::feature_distance::with_feature_distance(
                 &img,
