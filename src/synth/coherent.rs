@@ -48,6 +48,7 @@
 //! line starts at the end whose perpendicular side has more synthesized texture.
 
 use super::matching::features::{dist2, Features};
+use super::matching::pixel_grid;
 use super::schedule::{inward_order, Schedule};
 use crate::texels::{TexelGeometry, TexelGraph};
 use glam::Vec3;
@@ -446,7 +447,9 @@ fn synth_domain<const K: usize>(
     let (w1, h1) = (c.hi_x - c.lo, c.hi_y - c.lo);
     let random_pos = |t: usize, k: u64| -> [f32; 2] {
         let (a, b) = random2(c.inp.seed, t as u64, k);
-        [c.lo + a * w1, c.lo + b * h1]
+        // On a pixel centre: copies continued from it on a flat grid are then exact
+        // example pixels (`pixel_grid`). The centres span [lo, hi] too.
+        pixel_grid::centre([c.lo + a * w1, c.lo + b * h1])
     };
     for &li in &order {
         let li = li as usize;

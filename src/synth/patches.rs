@@ -42,6 +42,7 @@
 use super::footprint::{centres, spread, turned, Footprints, LevelTexels, Turn};
 use super::matching::exemplar::Exemplar;
 use super::matching::features::dist2;
+use super::matching::pixel_grid;
 use super::matching::search::hash;
 use super::mincut::CutGraph;
 use rayon::prelude::*;
@@ -551,6 +552,8 @@ fn paste<const K: usize>(
         Placement::Search => choose(c, p, src, set, app, s),
     };
     let (texels, coords) = c.fp.get(p);
+    // On the pixel lattice (flat grids), the copy's texels become exact example pixels.
+    let z = pixel_grid::align(z, coords);
     if seeded {
         return Paste {
             z,
