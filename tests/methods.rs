@@ -156,8 +156,27 @@ fn structure_methods_beat_the_peer_on_the_flat_grid() {
             assert!(m.pf4 <= s.peer_pf4, "{what}");
             assert!(m.pf8 <= 0.9 * s.peer_pf8, "{what}");
             assert_unstretched(&what, &m.q);
+            // Copies sit on the example's pixel centres: exact pixels, not blends of
+            // neighbours (`synth::matching::pixel_grid`; 0.41–0.55 before it).
+            let on = on_pixel_centres(&r);
+            assert!(on >= 0.98, "{what}: {on:.3} of the texels on pixel centres");
         }
     }
+}
+
+/// Share of texels whose source position is an example pixel's centre (within 0.01 px).
+fn on_pixel_centres(r: &SynthResult) -> f64 {
+    let (u, v) = (
+        r.maps.channel("source.u").unwrap(),
+        r.maps.channel("source.v").unwrap(),
+    );
+    let centred = |x: f32| (x - 0.5 - (x - 0.5).round()).abs() <= 0.01;
+    let n = u
+        .iter()
+        .zip(v)
+        .filter(|(a, b)| centred(**a) && centred(**b))
+        .count();
+    n as f64 / u.len() as f64
 }
 
 /// Every method on curved meshes of every kind the reader takes: coverage 1, seam ratio
