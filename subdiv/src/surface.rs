@@ -23,7 +23,7 @@ use crate::limit::corner_limit;
 use crate::mesh::ControlMesh;
 use crate::patch::{BSplinePatch, PatchPoint};
 use crate::refine::refine;
-use crate::topology::{Check, PolyMesh};
+use crate::topology::{Check, PolyMesh, NONE};
 use glam::DVec3;
 
 /// Limit-surface geometry at a parameter point.
@@ -729,8 +729,30 @@ pub(crate) fn extract_submesh(m: &PolyMesh, q: FaceId) -> PolyMesh {
         }
         face_start.push(face_verts.len() as u32);
     }
-    let mut sub = PolyMesh::new(positions, face_start, face_verts, Check::Trusted)
-        .expect("submesh of a valid mesh");
+    let mut sub = if m.is_clean() {
+        // A kept half-edge's twin is its parent twin's image where that face is kept too.
+        let mut twins = vec![NONE; face_verts.len()];
+        for (k, &f) in faces.iter().enumerate() {
+            let (h0, g0) = (face_start[k], m.face_he(f));
+            for i in 0..m.face_size(f) as u32 {
+                let h = h0 + i;
+                if twins[h as usize] != NONE {
+                    continue;
+                }
+                let Some(t) = m.twin(g0 + i) else { continue };
+                let tf = m.face_of(t);
+                if let Some(j) = faces.iter().position(|&x| x == tf) {
+                    let th = face_start[j] + (t - m.face_he(tf));
+                    twins[h as usize] = th;
+                    twins[th as usize] = h;
+                }
+            }
+        }
+        PolyMesh::from_twins(positions, face_start, face_verts, twins)
+    } else {
+        PolyMesh::new(positions, face_start, face_verts, Check::Trusted)
+            .expect("submesh of a valid mesh")
+    };
     sub.inherit_tags(m, &faces, &map);
     sub
 }
@@ -862,6 +884,60 @@ mod tests {
                     assert_eq!(got.sample(), want, "{shape} base {b} ({u},{v})");
                     assert_eq!((got.p, got.du, got.dv), (want.p, want.du, want.dv));
                 }
+            }
+        }
+    }
+
+    /// Submeshes and refinements take their twins from the parent's (`PolyMesh::from_twins`):
+    /// every field must be what building the same faces from scratch gives, down a few
+    /// levels of the patch trees of tagged and untagged shapes, with boundaries and n-gons.
+    #[test]
+    fn derived_topology_matches_rebuilt() {
+        let rebuilt = |m: &PolyMesh| {
+            let mut r = PolyMesh::new(
+                m.positions.clone(),
+                m.face_starts().to_vec(),
+                m.half_edge_vertices().to_vec(),
+                Check::Trusted,
+            )
+            .unwrap();
+            let faces: Vec<FaceId> = (0..m.num_faces()).map(FaceId::from_idx).collect();
+            let verts: Vec<(u32, u32)> = (0..m.num_vertices() as u32).map(|v| (v, v)).collect();
+            r.inherit_tags(m, &faces, &verts);
+            r
+        };
+        fn walk(m: &PolyMesh, q: FaceId, depth: u32, check: &dyn Fn(&PolyMesh)) {
+            let sub = extract_submesh(m, q);
+            check(&sub);
+            let r = refine(&sub);
+            check(&r);
+            if depth > 0 {
+                for c in 0..4 {
+                    walk(&r, FaceId::from_idx(c), depth - 1, check);
+                }
+            }
+        }
+        for shape in [
+            "catmark_nonquads",
+            "catmark_edgecorner",
+            "catmark_pole8",
+            "catmark_cube_creases1",
+            "catmark_cubes_infsharp",
+            "catmark_chaikin0",
+            "catmark_dart_edgecorner",
+            "catmark_cube_corner4",
+            "catmark_torus_creases0",
+        ] {
+            let cm = crate::ControlMesh::load_obj(crate::test_data::shape(shape)).unwrap();
+            assert!(cm.mesh.is_clean(), "{shape}");
+            let base = refine(&cm.mesh);
+            base.assert_same(&rebuilt(&base));
+            let check = |m: &PolyMesh| {
+                assert!(m.is_clean());
+                m.assert_same(&rebuilt(m));
+            };
+            for q in 0..base.num_faces().min(48) {
+                walk(&base, FaceId::from_idx(q), 2, &check);
             }
         }
     }

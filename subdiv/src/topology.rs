@@ -40,6 +40,10 @@ pub struct PolyMesh {
     edge_sharp: Vec<Sharpness>,
     /// Tagged sharpness per vertex (`t corner`), or empty when no vertex has any.
     vert_sharp: Vec<Sharpness>,
+    /// Every face has three or more distinct vertices, and the half-edges joining any two
+    /// vertices are one, or two opposite ones that are twins: then the twins of a submesh
+    /// or a refinement follow from these ([`Self::from_twins`]) instead of a search.
+    clean: bool,
 }
 
 /// How strictly to check a mesh when building its topology.
@@ -119,13 +123,78 @@ impl PolyMesh {
             vert_boundary: vec![false; nv],
             edge_sharp: Vec::new(),
             vert_sharp: Vec::new(),
+            clean: false,
         };
-        m.link_twins(check)?;
+        let faces_simple = (0..nf).all(|f| {
+            let vs = &m.he_vert[m.face_start[f] as usize..m.face_start[f + 1] as usize];
+            vs.len() >= 3 && (1..vs.len()).all(|i| !vs[..i].contains(&vs[i]))
+        });
+        m.clean = m.link_twins(check)? && faces_simple;
         m.build_vertex_fans(check)?;
         Ok(m)
     }
 
-    fn link_twins(&mut self, check: Check) -> Result<(), MeshError> {
+    /// [`Self::new`] for faces whose half-edges' twins the caller knows (`he_twin`, [`NONE`]
+    /// where absent), derived from a [clean](Self::is_clean) mesh's: the faces of a submesh
+    /// (twins kept where both faces are kept) or of a refinement. Gives exactly what `new`
+    /// with [`Check::Trusted`] gives for the same faces, without pairing half-edges by their
+    /// vertices: edges are numbered by their first half-edge, as there.
+    pub(crate) fn from_twins(
+        positions: Vec<DVec3>,
+        face_start: Vec<u32>,
+        face_verts: Vec<u32>,
+        he_twin: Vec<u32>,
+    ) -> Self {
+        let nf = face_start.len() - 1;
+        let nv = positions.len();
+        let nh = face_verts.len();
+        debug_assert_eq!(he_twin.len(), nh);
+        let mut he_face = Vec::with_capacity(nh);
+        for f in 0..nf {
+            let n = (face_start[f + 1] - face_start[f]) as usize;
+            he_face.extend(std::iter::repeat_n(f as u32, n));
+        }
+        let mut he_edge = Vec::with_capacity(nh);
+        let mut edge_he = Vec::with_capacity(nh / 2 + 8);
+        for (h, &t) in he_twin.iter().enumerate() {
+            if t == NONE || t as usize > h {
+                he_edge.push(edge_he.len() as u32);
+                edge_he.push(h as u32);
+            } else {
+                let e = he_edge[t as usize];
+                he_edge.push(e);
+            }
+        }
+        let mut m = PolyMesh {
+            positions,
+            face_start,
+            he_vert: face_verts,
+            he_face,
+            he_twin,
+            he_edge,
+            edge_he,
+            vert_out: vec![NONE; nv],
+            vert_faces: vec![0; nv],
+            vert_boundary: vec![false; nv],
+            edge_sharp: Vec::new(),
+            vert_sharp: Vec::new(),
+            clean: true,
+        };
+        m.build_vertex_fans(Check::Trusted)
+            .expect("trusted meshes are not checked");
+        m
+    }
+
+    /// Whether the mesh is clean (see the field): always for meshes that pass
+    /// [`Check::Strict`], and their refinements and submeshes.
+    #[inline]
+    pub fn is_clean(&self) -> bool {
+        self.clean
+    }
+
+    /// Pairs twins and numbers edges; whether every group of half-edges joining two
+    /// vertices is one half-edge or a pair of twins.
+    fn link_twins(&mut self, check: Check) -> Result<bool, MeshError> {
         // Pair half-edges by sorting (min vertex, max vertex, half-edge): cheaper than a hash
         // map for the many tiny submeshes of the patch trees, and within one edge the
         // half-edges stay in input order, so errors name the same faces either way.
@@ -165,6 +234,7 @@ impl PolyMesh {
         // Edges are numbered in order of their first half-edge, as a scan would meet them.
         let mut first_of_edge: Vec<u32> = Vec::with_capacity(nh / 2 + 8);
         let strict = check == Check::Strict;
+        let mut clean = true;
         let mut i = 0;
         while i < keys.len() {
             let mut j = i + 1;
@@ -176,6 +246,7 @@ impl PolyMesh {
             first_of_edge.push(g);
             if group.len() >= 2 {
                 let h = group[1].2;
+                clean &= group.len() == 2;
                 if group.len() > 2 && strict {
                     return Err(MeshProblem::NonManifoldEdge {
                         a: group[0].0 as usize,
@@ -185,6 +256,7 @@ impl PolyMesh {
                     .into());
                 }
                 if self.he_vert[g as usize] == self.he_vert[h as usize] {
+                    clean = false;
                     if strict {
                         return Err(MeshProblem::InconsistentOrientation {
                             a: self.he_vert[g as usize] as usize,
@@ -234,7 +306,7 @@ impl PolyMesh {
                 }
             }
         }
-        Ok(())
+        Ok(clean)
     }
 
     fn build_vertex_fans(&mut self, check: Check) -> Result<(), MeshError> {
@@ -683,6 +755,25 @@ impl PolyMesh {
         self.set_sharpness(edges, verts);
     }
 
+    /// Panics unless `other` has the same faces, positions, topology and tags (to test
+    /// [`Self::from_twins`] against [`Self::new`]).
+    #[cfg(test)]
+    pub(crate) fn assert_same(&self, other: &PolyMesh) {
+        assert_eq!(self.positions, other.positions);
+        assert_eq!(self.face_start, other.face_start);
+        assert_eq!(self.he_vert, other.he_vert);
+        assert_eq!(self.he_face, other.he_face);
+        assert_eq!(self.he_twin, other.he_twin);
+        assert_eq!(self.he_edge, other.he_edge);
+        assert_eq!(self.edge_he, other.edge_he);
+        assert_eq!(self.vert_out, other.vert_out);
+        assert_eq!(self.vert_faces, other.vert_faces);
+        assert_eq!(self.vert_boundary, other.vert_boundary);
+        assert_eq!(self.edge_sharp, other.edge_sharp);
+        assert_eq!(self.vert_sharp, other.vert_sharp);
+        assert_eq!(self.clean, other.clean);
+    }
+
     /// The edge joining vertices `a` and `b`, as one of its half-edges.
     pub fn find_edge(&self, a: VertexId, b: VertexId) -> Option<u32> {
         if a.idx() >= self.num_vertices() || b.idx() >= self.num_vertices() {
@@ -749,6 +840,23 @@ mod tests {
             }
         }
         PolyMesh::new(pos, fs, fv, Check::Strict).unwrap()
+    }
+
+    #[test]
+    fn clean_only_without_odd_edges_or_faces() {
+        let m = quad_grid(2);
+        assert!(m.is_clean());
+        let pos = vec![DVec3::ZERO; 6];
+        let mesh = |fv: Vec<u32>| {
+            let mut fs = vec![0u32];
+            fs.extend((1..=fv.len() / 3).map(|k| 3 * k as u32));
+            PolyMesh::new(pos.clone(), fs, fv, Check::Trusted).unwrap()
+        };
+        assert!(mesh(vec![0, 1, 2, 2, 1, 3]).is_clean());
+        // Inconsistent orientation, three faces on an edge, a repeated vertex.
+        assert!(!mesh(vec![0, 1, 2, 1, 2, 3]).is_clean());
+        assert!(!mesh(vec![0, 1, 2, 1, 0, 3, 0, 1, 4]).is_clean());
+        assert!(!mesh(vec![0, 1, 1, 2, 1, 3]).is_clean());
     }
 
     #[test]
