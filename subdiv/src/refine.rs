@@ -27,7 +27,7 @@
 
 use crate::crease::{fractional_weight, Rule, Sharpness};
 use crate::ids::{FaceId, VertexId};
-use crate::topology::{Check, PolyMesh, NONE};
+use crate::topology::{Check, PolyMesh};
 use glam::DVec3;
 
 /// Refines `m` once. Vertices whose neighbourhood is incomplete (the cut boundary of a local
@@ -98,7 +98,7 @@ pub fn refine(m: &PolyMesh) -> PolyMesh {
         }
     }
     let mut child = if m.is_clean() {
-        PolyMesh::from_twins(pos, face_start, face_verts, child_twins(m))
+        m.refined_topology(pos, face_start, face_verts)
     } else {
         PolyMesh::new(pos, face_start, face_verts, Check::Trusted)
             .expect("refinement of a valid mesh is valid")
@@ -107,27 +107,6 @@ pub fn refine(m: &PolyMesh) -> PolyMesh {
         subdivide_sharpness(m, &mut child);
     }
     child
-}
-
-/// The twins of the child half-edges of a clean mesh `m`, from `m`'s. Child face h (of
-/// parent half-edge h, corner c of face f) has half-edges 4h + k: k = 0 from the vertex
-/// point of origin(h) to the edge point of h, 1 on to the face point, 2 on to the edge
-/// point of prev(h), 3 back. Those inside f pair with the neighbouring corners' (1 with 2
-/// of next(h)); those along a parent edge with the children of its twin t: 0 with 3 of
-/// next(t), 3 with 0 of twin(prev(h)).
-fn child_twins(m: &PolyMesh) -> Vec<u32> {
-    let nh = m.num_half_edges();
-    let mut twins = Vec::with_capacity(4 * nh);
-    for h in 0..nh as u32 {
-        let (hn, hp) = (m.next(h), m.prev(h));
-        twins.extend([
-            m.twin(h).map_or(NONE, |t| 4 * m.next(t) + 3),
-            4 * hn + 2,
-            4 * hp + 1,
-            m.twin(hp).map_or(NONE, |t| 4 * t),
-        ]);
-    }
-    twins
 }
 
 /// Sharpness of the child mesh: child half-edges 0 and 3 of child face (f, c) are the

@@ -154,17 +154,7 @@ impl PolyMesh {
             let n = (face_start[f + 1] - face_start[f]) as usize;
             he_face.extend(std::iter::repeat_n(f as u32, n));
         }
-        let mut he_edge = Vec::with_capacity(nh);
-        let mut edge_he = Vec::with_capacity(nh / 2 + 8);
-        for (h, &t) in he_twin.iter().enumerate() {
-            if t == NONE || t as usize > h {
-                he_edge.push(edge_he.len() as u32);
-                edge_he.push(h as u32);
-            } else {
-                let e = he_edge[t as usize];
-                he_edge.push(e);
-            }
-        }
+        let (he_edge, edge_he) = Self::number_edges(&he_twin);
         let mut m = PolyMesh {
             positions,
             face_start,
@@ -183,6 +173,113 @@ impl PolyMesh {
         m.build_vertex_fans(Check::Trusted)
             .expect("trusted meshes are not checked");
         m
+    }
+
+    /// The topology of this clean mesh's Catmull-Clark refinement (faces as
+    /// [`crate::refine::refine`] numbers them: child face h of parent half-edge h, vertex
+    /// points, then face points, then edge points), derived from this mesh's instead of
+    /// searched: exactly what [`Self::new`] with [`Check::Trusted`] gives for those faces.
+    ///
+    /// Child face h (half-edge h at corner c of face f) has half-edges 4h + k: k = 0 from
+    /// the vertex point of origin(h) to the edge point of h, 1 on to the face point, 2 on
+    /// to the edge point of prev(h), 3 back. Those inside f pair with the neighbouring
+    /// corners' (1 with 2 of next(h)); those along a parent edge with the children of its
+    /// twin t: 0 with 3 of next(t), 3 with 0 of twin(prev(h)).
+    pub(crate) fn refined_topology(
+        &self,
+        positions: Vec<DVec3>,
+        face_start: Vec<u32>,
+        face_verts: Vec<u32>,
+    ) -> Self {
+        debug_assert!(self.clean);
+        let (nv, nf, nh) = (self.num_vertices(), self.num_faces(), self.num_half_edges());
+        let twin = |h: u32| self.he_twin[h as usize];
+        let mut he_twin = Vec::with_capacity(4 * nh);
+        for h in 0..nh as u32 {
+            let (hn, hp) = (self.next(h), self.prev(h));
+            let (t, tp) = (twin(h), twin(hp));
+            he_twin.extend([
+                if t == NONE {
+                    NONE
+                } else {
+                    4 * self.next(t) + 3
+                },
+                4 * hn + 2,
+                4 * hp + 1,
+                if tp == NONE { NONE } else { 4 * tp },
+            ]);
+        }
+        let he_face: Vec<u32> = (0..4 * nh as u32).map(|h| h / 4).collect();
+        let (he_edge, edge_he) = Self::number_edges(&he_twin);
+        // Fans: a vertex point's mirrors its vertex's (outgoing half-edge 4h for h, same
+        // order, same twins); a face point's is its face's corners; an edge point's is the
+        // four (two at a boundary) child faces at the edge's half-edges.
+        let cv = positions.len();
+        debug_assert_eq!(cv, nv + nf + self.num_edges());
+        let mut vert_out = Vec::with_capacity(cv);
+        let mut vert_faces = Vec::with_capacity(cv);
+        let mut vert_boundary = Vec::with_capacity(cv);
+        vert_out.extend(
+            self.vert_out
+                .iter()
+                .map(|&h| if h == NONE { NONE } else { 4 * h }),
+        );
+        vert_faces.extend_from_slice(&self.vert_faces);
+        vert_boundary.extend_from_slice(&self.vert_boundary);
+        for f in 0..nf {
+            vert_out.push(4 * self.face_start[f] + 2);
+            vert_faces.push(self.face_start[f + 1] - self.face_start[f]);
+            vert_boundary.push(false);
+        }
+        for &g in &self.edge_he {
+            let t = twin(g);
+            if t == NONE {
+                vert_out.push(4 * self.next(g) + 3);
+                vert_faces.push(2);
+                vert_boundary.push(true);
+            } else {
+                let first = (4 * g + 1)
+                    .min(4 * self.next(g) + 3)
+                    .min(4 * t + 1)
+                    .min(4 * self.next(t) + 3);
+                vert_out.push(first);
+                vert_faces.push(4);
+                vert_boundary.push(false);
+            }
+        }
+        PolyMesh {
+            positions,
+            face_start,
+            he_vert: face_verts,
+            he_face,
+            he_twin,
+            he_edge,
+            edge_he,
+            vert_out,
+            vert_faces,
+            vert_boundary,
+            edge_sharp: Vec::new(),
+            vert_sharp: Vec::new(),
+            clean: true,
+        }
+    }
+
+    /// Edge numbers from twins, as [`Self::link_twins`] numbers them: in order of each
+    /// edge's first half-edge (`he_edge`, `edge_he`).
+    fn number_edges(he_twin: &[u32]) -> (Vec<u32>, Vec<u32>) {
+        let nh = he_twin.len();
+        let mut he_edge = Vec::with_capacity(nh);
+        let mut edge_he = Vec::with_capacity(nh / 2 + 8);
+        for (h, &t) in he_twin.iter().enumerate() {
+            if t == NONE || t as usize > h {
+                he_edge.push(edge_he.len() as u32);
+                edge_he.push(h as u32);
+            } else {
+                let e = he_edge[t as usize];
+                he_edge.push(e);
+            }
+        }
+        (he_edge, edge_he)
     }
 
     /// Whether the mesh is clean (see the field): always for meshes that pass
