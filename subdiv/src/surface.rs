@@ -82,7 +82,7 @@ enum Leaf {
     /// In regular patch `patch`, at its local (s, t); `jac` maps base-parameter
     /// differentials to local ones.
     Patch {
-        patch: u32,
+        patch: PatchRef,
         s: f64,
         t: f64,
         jac: [[f64; 2]; 2],
@@ -108,7 +108,7 @@ pub struct LeafHint {
     /// Surface (its cache key) and base quad of the leaf; `u64::MAX` when empty.
     surface: u64,
     quad: BaseQuadId,
-    patch: u32,
+    patch: PatchRef,
     jac: [[f64; 2]; 2],
     off: [f64; 2],
 }
@@ -118,7 +118,7 @@ impl Default for LeafHint {
         LeafHint {
             surface: u64::MAX,
             quad: BaseQuadId(u32::MAX),
-            patch: 0,
+            patch: PatchRef { chunk: 0, index: 0 },
             jac: [[0.0; 2]; 2],
             off: [0.0; 2],
         }
@@ -133,7 +133,7 @@ impl LeafHint {
         quad: BaseQuadId,
         s: f64,
         t: f64,
-        patch: u32,
+        patch: PatchRef,
         ls: f64,
         lt: f64,
         jac: [[f64; 2]; 2],
@@ -163,7 +163,7 @@ impl LeafHint {
         quad: BaseQuadId,
         s: f64,
         t: f64,
-    ) -> Option<(u32, f64, f64, [[f64; 2]; 2])> {
+    ) -> Option<(PatchRef, f64, f64, [[f64; 2]; 2])> {
         if self.surface != surface || self.quad != quad {
             return None;
         }
@@ -190,9 +190,16 @@ impl Default for SurfaceOptions {
     }
 }
 
+/// A stored regular patch: `Surface::patches[chunk][index]`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct PatchRef {
+    chunk: u32,
+    index: u32,
+}
+
 #[derive(Clone, Debug)]
 enum Node {
-    Regular(u32),
+    Regular(PatchRef),
     /// Four children (in child-corner order) and, for each corner of this quad that is an
     /// extraordinary vertex, an index into `limits`.
     Split {
@@ -215,7 +222,10 @@ pub struct Surface {
     pub base: PolyMesh,
     roots: Vec<u32>,
     nodes: Vec<Node>,
-    patches: Vec<BSplinePatch>,
+    /// Regular patches by chunk of base quads, as the chunks were built in parallel:
+    /// copying them into one vector (most of the surface's memory) was a tenth of the
+    /// build on one thread, most of it first touches of the new memory.
+    patches: Vec<Vec<BSplinePatch>>,
     limits: Vec<(DVec3, DVec3)>,
     max_depth: u32,
     pub(crate) domain_start: Vec<u32>,
@@ -238,7 +248,7 @@ impl Surface {
         let mut s = Surface {
             roots: Vec::with_capacity(base.num_faces()),
             nodes: Vec::new(),
-            patches: Vec::with_capacity(base.num_faces()),
+            patches: Vec::new(),
             limits: Vec::new(),
             max_depth: opts.max_depth,
             domain_start: Vec::new(),
@@ -255,7 +265,10 @@ impl Surface {
         let arenas: Vec<Arena> = (0..nq.div_ceil(CHUNK))
             .into_par_iter()
             .map(|c| {
-                let mut a = Arena::default();
+                let mut a = Arena {
+                    chunk: c as u32,
+                    ..Arena::default()
+                };
                 for q in c * CHUNK..((c + 1) * CHUNK).min(nq) {
                     let root = a.build(&base, FaceId::from_idx(q), 0, opts.max_depth);
                     a.roots.push(root);
@@ -263,6 +276,9 @@ impl Surface {
                 a
             })
             .collect();
+        s.patches.reserve_exact(arenas.len());
+        s.nodes
+            .reserve_exact(arenas.iter().map(|a| a.nodes.len()).sum());
         for a in arenas {
             s.append(a);
         }
@@ -276,16 +292,14 @@ impl Surface {
         Ok(Self::new(ControlMesh::load_obj(path)?))
     }
 
-    /// Appends a chunk's trees, shifting its indices past what is already stored.
+    /// Appends a chunk's trees, shifting its node and limit indices past what is already
+    /// stored (its patches are kept as they are, as the next chunk).
     fn append(&mut self, a: Arena) {
-        let (n0, p0, l0) = (
-            self.nodes.len() as u32,
-            self.patches.len() as u32,
-            self.limits.len() as u32,
-        );
+        debug_assert_eq!(a.chunk as usize, self.patches.len());
+        let (n0, l0) = (self.nodes.len() as u32, self.limits.len() as u32);
         self.roots.extend(a.roots.iter().map(|r| r + n0));
         self.nodes.extend(a.nodes.into_iter().map(|n| match n {
-            Node::Regular(i) => Node::Regular(i + p0),
+            Node::Regular(r) => Node::Regular(r),
             Node::Split {
                 children,
                 corner_limit,
@@ -295,7 +309,7 @@ impl Surface {
             },
             Node::Deep => Node::Deep,
         }));
-        self.patches.extend(a.patches);
+        self.patches.push(a.patches);
         self.limits.extend(a.limits);
     }
 
@@ -343,14 +357,17 @@ impl Surface {
                 Leaf::Sample(e) => return LimitDerivs::from(e),
             },
         };
-        derivs(self.patches[patch as usize].eval(ls, lt), &jac)
+        derivs(self.patch(patch).eval(ls, lt), &jac)
+    }
+
+    #[inline]
+    fn patch(&self, r: PatchRef) -> &BSplinePatch {
+        &self.patches[r.chunk as usize][r.index as usize]
     }
 
     fn eval_base_impl(&self, b: BaseQuadId, s: f64, t: f64, cached: bool) -> LimitSample {
         match self.leaf(b, s, t, cached) {
-            Leaf::Patch { patch, s, t, jac } => {
-                derivs(self.patches[patch as usize].eval(s, t), &jac).sample()
-            }
+            Leaf::Patch { patch, s, t, jac } => derivs(self.patch(patch).eval(s, t), &jac).sample(),
             Leaf::Sample(e) => e,
         }
     }
@@ -531,9 +548,11 @@ impl Surface {
     }
 }
 
-/// Patch trees of some base quads, with indices local to this arena.
+/// Patch trees of some base quads, with node and limit indices local to this arena; its
+/// patches are chunk `chunk` of the surface's.
 #[derive(Default)]
 struct Arena {
+    chunk: u32,
     roots: Vec<u32>,
     nodes: Vec<Node>,
     patches: Vec<BSplinePatch>,
@@ -545,7 +564,10 @@ impl Arena {
         if is_regular_quad(m, q) {
             if let Some(p) = BSplinePatch::gather(m, q) {
                 self.patches.push(p);
-                return self.push(Node::Regular(self.patches.len() as u32 - 1));
+                return self.push(Node::Regular(PatchRef {
+                    chunk: self.chunk,
+                    index: self.patches.len() as u32 - 1,
+                }));
             }
         }
         if depth >= max_depth {
