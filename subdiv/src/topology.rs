@@ -267,18 +267,21 @@ impl PolyMesh {
     /// Edge numbers from twins, as [`Self::link_twins`] numbers them: in order of each
     /// edge's first half-edge (`he_edge`, `edge_he`).
     fn number_edges(he_twin: &[u32]) -> (Vec<u32>, Vec<u32>) {
+        // Without branches (whether a twin comes later is a coin flip): half-edge h starts
+        // an edge when its twin is later or absent (NONE is larger than any h); otherwise
+        // it takes its twin's edge. Every slot of `edge_he` up to the count is written.
         let nh = he_twin.len();
-        let mut he_edge = Vec::with_capacity(nh);
-        let mut edge_he = Vec::with_capacity(nh / 2 + 8);
+        let mut he_edge = vec![0u32; nh];
+        let mut edge_he = vec![0u32; nh];
+        let mut count = 0u32;
         for (h, &t) in he_twin.iter().enumerate() {
-            if t == NONE || t as usize > h {
-                he_edge.push(edge_he.len() as u32);
-                edge_he.push(h as u32);
-            } else {
-                let e = he_edge[t as usize];
-                he_edge.push(e);
-            }
+            let first = t as usize > h;
+            let earlier = he_edge[(t as usize).min(h)];
+            he_edge[h] = if first { count } else { earlier };
+            edge_he[count as usize] = h as u32;
+            count += first as u32;
         }
+        edge_he.truncate(count as usize);
         (he_edge, edge_he)
     }
 
