@@ -583,6 +583,7 @@ impl Arena {
             }
         }
         let r = refine(&sub);
+        sub.recycle();
         let id = self.push(Node::Split {
             children: [0; 4],
             corner_limit,
@@ -591,6 +592,7 @@ impl Arena {
         for (c, slot) in children.iter_mut().enumerate() {
             *slot = self.build(&r, FaceId::from_idx(c), depth + 1, max_depth);
         }
+        r.recycle();
         if let Node::Split { children: ch, .. } = &mut self.nodes[id as usize] {
             *ch = children;
         }
@@ -783,9 +785,9 @@ fn extract_submesh_with(m: &PolyMesh, q: FaceId, index: &mut LocalIndex) -> Poly
         }
     }
     let mut map: Vec<(u32, u32)> = Vec::with_capacity(faces.len() * 4);
-    let mut positions = Vec::with_capacity(faces.len() * 3);
-    let mut face_start = Vec::with_capacity(faces.len() + 1);
-    let mut face_verts = Vec::with_capacity(faces.len() * 4);
+    let mut positions = crate::pool::points(faces.len() * 3);
+    let mut face_start = crate::pool::ints(faces.len() + 1);
+    let mut face_verts = crate::pool::ints(faces.len() * 4);
     face_start.push(0);
     for &f in &faces {
         for &v in m.face_vertices(f) {
@@ -805,7 +807,7 @@ fn extract_submesh_with(m: &PolyMesh, q: FaceId, index: &mut LocalIndex) -> Poly
     }
     let mut sub = if m.is_clean() {
         // A kept half-edge's twin is its parent twin's image where that face is kept too.
-        let mut twins = vec![NONE; face_verts.len()];
+        let mut twins = crate::pool::ints_filled(face_verts.len(), NONE);
         for (k, &f) in faces.iter().enumerate() {
             let (h0, g0) = (face_start[k], m.face_he(f));
             for i in 0..m.face_size(f) as u32 {

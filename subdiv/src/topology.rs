@@ -9,6 +9,7 @@
 use crate::crease::{Rule, Sharpness};
 use crate::error::{MeshError, MeshProblem};
 use crate::ids::{FaceId, VertexId};
+use crate::pool;
 use glam::DVec3;
 
 /// Marks an absent half-edge (boundary twin, unused vertex).
@@ -149,7 +150,7 @@ impl PolyMesh {
         let nv = positions.len();
         let nh = face_verts.len();
         debug_assert_eq!(he_twin.len(), nh);
-        let mut he_face = Vec::with_capacity(nh);
+        let mut he_face = pool::ints(nh);
         for f in 0..nf {
             let n = (face_start[f + 1] - face_start[f]) as usize;
             he_face.extend(std::iter::repeat_n(f as u32, n));
@@ -163,9 +164,13 @@ impl PolyMesh {
             he_twin,
             he_edge,
             edge_he,
-            vert_out: vec![NONE; nv],
-            vert_faces: vec![0; nv],
-            vert_boundary: vec![false; nv],
+            vert_out: pool::ints_filled(nv, NONE),
+            vert_faces: pool::ints_filled(nv, 0),
+            vert_boundary: {
+                let mut b = pool::flags(nv);
+                b.resize(nv, false);
+                b
+            },
             edge_sharp: Vec::new(),
             vert_sharp: Vec::new(),
             clean: true,
@@ -194,7 +199,7 @@ impl PolyMesh {
         debug_assert!(self.clean);
         let (nv, nf, nh) = (self.num_vertices(), self.num_faces(), self.num_half_edges());
         let twin = |h: u32| self.he_twin[h as usize];
-        let mut he_twin = Vec::with_capacity(4 * nh);
+        let mut he_twin = pool::ints(4 * nh);
         for h in 0..nh as u32 {
             let (hn, hp) = (self.next(h), self.prev(h));
             let (t, tp) = (twin(h), twin(hp));
@@ -209,16 +214,17 @@ impl PolyMesh {
                 if tp == NONE { NONE } else { 4 * tp },
             ]);
         }
-        let he_face: Vec<u32> = (0..4 * nh as u32).map(|h| h / 4).collect();
+        let mut he_face = pool::ints(4 * nh);
+        he_face.extend((0..4 * nh as u32).map(|h| h / 4));
         let (he_edge, edge_he) = Self::number_edges(&he_twin);
         // Fans: a vertex point's mirrors its vertex's (outgoing half-edge 4h for h, same
         // order, same twins); a face point's is its face's corners; an edge point's is the
         // four (two at a boundary) child faces at the edge's half-edges.
         let cv = positions.len();
         debug_assert_eq!(cv, nv + nf + self.num_edges());
-        let mut vert_out = Vec::with_capacity(cv);
-        let mut vert_faces = Vec::with_capacity(cv);
-        let mut vert_boundary = Vec::with_capacity(cv);
+        let mut vert_out = pool::ints(cv);
+        let mut vert_faces = pool::ints(cv);
+        let mut vert_boundary = pool::flags(cv);
         vert_out.extend(
             self.vert_out
                 .iter()
@@ -271,8 +277,8 @@ impl PolyMesh {
         // an edge when its twin is later or absent (NONE is larger than any h); otherwise
         // it takes its twin's edge. Every slot of `edge_he` up to the count is written.
         let nh = he_twin.len();
-        let mut he_edge = vec![0u32; nh];
-        let mut edge_he = vec![0u32; nh];
+        let mut he_edge = pool::ints_filled(nh, 0);
+        let mut edge_he = pool::ints_filled(nh, 0);
         let mut count = 0u32;
         for (h, &t) in he_twin.iter().enumerate() {
             let first = t as usize > h;
@@ -283,6 +289,25 @@ impl PolyMesh {
         }
         edge_he.truncate(count as usize);
         (he_edge, edge_he)
+    }
+
+    /// Gives this mesh's buffers to the per-thread pool the next small meshes are built
+    /// from ([`crate::pool`]); for the many short-lived meshes of the patch trees.
+    pub(crate) fn recycle(self) {
+        pool::give_points(self.positions);
+        for v in [
+            self.face_start,
+            self.he_vert,
+            self.he_face,
+            self.he_twin,
+            self.he_edge,
+            self.edge_he,
+            self.vert_out,
+            self.vert_faces,
+        ] {
+            pool::give_ints(v);
+        }
+        pool::give_flags(self.vert_boundary);
     }
 
     /// Whether the mesh is clean (see the field): always for meshes that pass
@@ -412,7 +437,7 @@ impl PolyMesh {
     fn build_vertex_fans(&mut self, check: Check) -> Result<(), MeshError> {
         let nh = self.he_vert.len();
         let nv = self.positions.len();
-        let mut corners = vec![0u32; nv];
+        let mut corners = pool::ints_filled(nv, 0);
         for h in 0..nh {
             let v = self.he_vert[h] as usize;
             corners[v] += 1;
@@ -457,6 +482,7 @@ impl PolyMesh {
                 }
             }
         }
+        pool::give_ints(corners);
         Ok(())
     }
 
