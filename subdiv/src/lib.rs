@@ -20,6 +20,7 @@ pub mod levels;
 pub mod limit;
 pub mod mesh;
 pub mod patch;
+mod pool;
 pub mod refine;
 pub mod surface;
 #[cfg(test)]

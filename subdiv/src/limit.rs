@@ -138,20 +138,57 @@ pub fn vertex_limit(m: &PolyMesh, v: VertexId) -> VertexLimit {
         let t1 = e[0] - e[1];
         return finish(position, t1, normal.cross(t1));
     }
-    let a = 1.0
-        + (2.0 * PI / nf).cos()
-        + (PI / nf).cos() * (2.0 * (9.0 + (2.0 * PI / nf).cos())).sqrt();
+    let computed;
+    let mask = match TANGENT_MASKS.get_or_init(tangent_masks).get(n) {
+        Some(mask) => mask,
+        None => {
+            computed = TangentMask::new(n);
+            &computed
+        }
+    };
+    let (a, cos, sin) = (mask.a, &mask.cos, &mask.sin);
     let mut t1 = DVec3::ZERO;
     let mut t2 = DVec3::ZERO;
     for i in 0..n {
-        let c0 = (2.0 * PI * i as f64 / nf).cos();
-        let c1 = (2.0 * PI * (i + 1) as f64 / nf).cos();
-        let s0 = (2.0 * PI * i as f64 / nf).sin();
-        let s1 = (2.0 * PI * (i + 1) as f64 / nf).sin();
+        let (c0, c1, s0, s1) = (cos[i], cos[i + 1], sin[i], sin[i + 1]);
         t1 += a * c0 * e[i] + (c0 + c1) * f[i];
         t2 += a * s0 * e[i] + (s0 + s1) * f[i];
     }
     finish(position, t1, t2)
+}
+
+/// The coefficients of the interior tangent masks of valence n: a(n) and the cosines and
+/// sines of 2πi/n for i in 0..=n. The same expressions as computing them at every vertex
+/// (the same bits), once per valence: the trigonometry was a tenth of building the patch
+/// trees of an all-triangle mesh.
+struct TangentMask {
+    a: f64,
+    cos: Vec<f64>,
+    sin: Vec<f64>,
+}
+
+impl TangentMask {
+    fn new(n: usize) -> Self {
+        let nf = n as f64;
+        let a = 1.0
+            + (2.0 * PI / nf).cos()
+            + (PI / nf).cos() * (2.0 * (9.0 + (2.0 * PI / nf).cos())).sqrt();
+        let angle = |i: usize| 2.0 * PI * i as f64 / nf;
+        TangentMask {
+            a,
+            cos: (0..=n).map(|i| angle(i).cos()).collect(),
+            sin: (0..=n).map(|i| angle(i).sin()).collect(),
+        }
+    }
+}
+
+/// [`TangentMask`]s of every valence up to [`crate::topology::MAX_VALENCE`].
+static TANGENT_MASKS: std::sync::OnceLock<Vec<TangentMask>> = std::sync::OnceLock::new();
+
+fn tangent_masks() -> Vec<TangentMask> {
+    (0..=crate::topology::MAX_VALENCE)
+        .map(TangentMask::new)
+        .collect()
 }
 
 /// The limit with a known unit normal, `dir` projected on its tangent plane as the first

@@ -37,7 +37,8 @@ pub fn refine(m: &PolyMesh) -> PolyMesh {
     let nf = m.num_faces();
     let ne = m.num_edges();
     let tagged = m.has_tags();
-    let mut pos = vec![DVec3::ZERO; nv + nf + ne];
+    let mut pos = crate::pool::points(nv + nf + ne);
+    pos.resize(nv + nf + ne, DVec3::ZERO);
     let (vpts, rest) = pos.split_at_mut(nv);
     let (fpts, epts) = rest.split_at_mut(nf);
 
@@ -78,8 +79,8 @@ pub fn refine(m: &PolyMesh) -> PolyMesh {
     }
 
     let nh = m.num_half_edges();
-    let mut face_start = Vec::with_capacity(nh + 1);
-    let mut face_verts = Vec::with_capacity(nh * 4);
+    let mut face_start = crate::pool::ints(nh + 1);
+    let mut face_verts = crate::pool::ints(nh * 4);
     face_start.push(0u32);
     for f in 0..nf {
         let fid = FaceId::from_idx(f);
@@ -97,8 +98,12 @@ pub fn refine(m: &PolyMesh) -> PolyMesh {
             face_start.push(face_verts.len() as u32);
         }
     }
-    let mut child = PolyMesh::new(pos, face_start, face_verts, Check::Trusted)
-        .expect("refinement of a valid mesh is valid");
+    let mut child = if m.is_clean() {
+        m.refined_topology(pos, face_start, face_verts)
+    } else {
+        PolyMesh::new(pos, face_start, face_verts, Check::Trusted)
+            .expect("refinement of a valid mesh is valid")
+    };
     if tagged {
         subdivide_sharpness(m, &mut child);
     }

@@ -23,7 +23,7 @@ use crate::limit::corner_limit;
 use crate::mesh::ControlMesh;
 use crate::patch::{BSplinePatch, PatchPoint};
 use crate::refine::refine;
-use crate::topology::{Check, PolyMesh};
+use crate::topology::{Check, PolyMesh, NONE};
 use glam::DVec3;
 
 /// Limit-surface geometry at a parameter point.
@@ -82,7 +82,7 @@ enum Leaf {
     /// In regular patch `patch`, at its local (s, t); `jac` maps base-parameter
     /// differentials to local ones.
     Patch {
-        patch: u32,
+        patch: PatchRef,
         s: f64,
         t: f64,
         jac: [[f64; 2]; 2],
@@ -108,7 +108,7 @@ pub struct LeafHint {
     /// Surface (its cache key) and base quad of the leaf; `u64::MAX` when empty.
     surface: u64,
     quad: BaseQuadId,
-    patch: u32,
+    patch: PatchRef,
     jac: [[f64; 2]; 2],
     off: [f64; 2],
 }
@@ -118,7 +118,7 @@ impl Default for LeafHint {
         LeafHint {
             surface: u64::MAX,
             quad: BaseQuadId(u32::MAX),
-            patch: 0,
+            patch: PatchRef { chunk: 0, index: 0 },
             jac: [[0.0; 2]; 2],
             off: [0.0; 2],
         }
@@ -133,7 +133,7 @@ impl LeafHint {
         quad: BaseQuadId,
         s: f64,
         t: f64,
-        patch: u32,
+        patch: PatchRef,
         ls: f64,
         lt: f64,
         jac: [[f64; 2]; 2],
@@ -163,7 +163,7 @@ impl LeafHint {
         quad: BaseQuadId,
         s: f64,
         t: f64,
-    ) -> Option<(u32, f64, f64, [[f64; 2]; 2])> {
+    ) -> Option<(PatchRef, f64, f64, [[f64; 2]; 2])> {
         if self.surface != surface || self.quad != quad {
             return None;
         }
@@ -190,9 +190,16 @@ impl Default for SurfaceOptions {
     }
 }
 
+/// A stored regular patch: `Surface::patches[chunk][index]`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct PatchRef {
+    chunk: u32,
+    index: u32,
+}
+
 #[derive(Clone, Debug)]
 enum Node {
-    Regular(u32),
+    Regular(PatchRef),
     /// Four children (in child-corner order) and, for each corner of this quad that is an
     /// extraordinary vertex, an index into `limits`.
     Split {
@@ -215,7 +222,10 @@ pub struct Surface {
     pub base: PolyMesh,
     roots: Vec<u32>,
     nodes: Vec<Node>,
-    patches: Vec<BSplinePatch>,
+    /// Regular patches by chunk of base quads, as the chunks were built in parallel:
+    /// copying them into one vector (most of the surface's memory) was a tenth of the
+    /// build on one thread, most of it first touches of the new memory.
+    patches: Vec<Vec<BSplinePatch>>,
     limits: Vec<(DVec3, DVec3)>,
     max_depth: u32,
     pub(crate) domain_start: Vec<u32>,
@@ -238,7 +248,7 @@ impl Surface {
         let mut s = Surface {
             roots: Vec::with_capacity(base.num_faces()),
             nodes: Vec::new(),
-            patches: Vec::with_capacity(base.num_faces()),
+            patches: Vec::new(),
             limits: Vec::new(),
             max_depth: opts.max_depth,
             domain_start: Vec::new(),
@@ -255,7 +265,10 @@ impl Surface {
         let arenas: Vec<Arena> = (0..nq.div_ceil(CHUNK))
             .into_par_iter()
             .map(|c| {
-                let mut a = Arena::default();
+                let mut a = Arena {
+                    chunk: c as u32,
+                    ..Arena::default()
+                };
                 for q in c * CHUNK..((c + 1) * CHUNK).min(nq) {
                     let root = a.build(&base, FaceId::from_idx(q), 0, opts.max_depth);
                     a.roots.push(root);
@@ -263,6 +276,9 @@ impl Surface {
                 a
             })
             .collect();
+        s.patches.reserve_exact(arenas.len());
+        s.nodes
+            .reserve_exact(arenas.iter().map(|a| a.nodes.len()).sum());
         for a in arenas {
             s.append(a);
         }
@@ -276,16 +292,14 @@ impl Surface {
         Ok(Self::new(ControlMesh::load_obj(path)?))
     }
 
-    /// Appends a chunk's trees, shifting its indices past what is already stored.
+    /// Appends a chunk's trees, shifting its node and limit indices past what is already
+    /// stored (its patches are kept as they are, as the next chunk).
     fn append(&mut self, a: Arena) {
-        let (n0, p0, l0) = (
-            self.nodes.len() as u32,
-            self.patches.len() as u32,
-            self.limits.len() as u32,
-        );
+        debug_assert_eq!(a.chunk as usize, self.patches.len());
+        let (n0, l0) = (self.nodes.len() as u32, self.limits.len() as u32);
         self.roots.extend(a.roots.iter().map(|r| r + n0));
         self.nodes.extend(a.nodes.into_iter().map(|n| match n {
-            Node::Regular(i) => Node::Regular(i + p0),
+            Node::Regular(r) => Node::Regular(r),
             Node::Split {
                 children,
                 corner_limit,
@@ -295,7 +309,7 @@ impl Surface {
             },
             Node::Deep => Node::Deep,
         }));
-        self.patches.extend(a.patches);
+        self.patches.push(a.patches);
         self.limits.extend(a.limits);
     }
 
@@ -343,14 +357,17 @@ impl Surface {
                 Leaf::Sample(e) => return LimitDerivs::from(e),
             },
         };
-        derivs(self.patches[patch as usize].eval(ls, lt), &jac)
+        derivs(self.patch(patch).eval(ls, lt), &jac)
+    }
+
+    #[inline]
+    fn patch(&self, r: PatchRef) -> &BSplinePatch {
+        &self.patches[r.chunk as usize][r.index as usize]
     }
 
     fn eval_base_impl(&self, b: BaseQuadId, s: f64, t: f64, cached: bool) -> LimitSample {
         match self.leaf(b, s, t, cached) {
-            Leaf::Patch { patch, s, t, jac } => {
-                derivs(self.patches[patch as usize].eval(s, t), &jac).sample()
-            }
+            Leaf::Patch { patch, s, t, jac } => derivs(self.patch(patch).eval(s, t), &jac).sample(),
             Leaf::Sample(e) => e,
         }
     }
@@ -531,9 +548,11 @@ impl Surface {
     }
 }
 
-/// Patch trees of some base quads, with indices local to this arena.
+/// Patch trees of some base quads, with node and limit indices local to this arena; its
+/// patches are chunk `chunk` of the surface's.
 #[derive(Default)]
 struct Arena {
+    chunk: u32,
     roots: Vec<u32>,
     nodes: Vec<Node>,
     patches: Vec<BSplinePatch>,
@@ -545,7 +564,10 @@ impl Arena {
         if is_regular_quad(m, q) {
             if let Some(p) = BSplinePatch::gather(m, q) {
                 self.patches.push(p);
-                return self.push(Node::Regular(self.patches.len() as u32 - 1));
+                return self.push(Node::Regular(PatchRef {
+                    chunk: self.chunk,
+                    index: self.patches.len() as u32 - 1,
+                }));
             }
         }
         if depth >= max_depth {
@@ -561,6 +583,7 @@ impl Arena {
             }
         }
         let r = refine(&sub);
+        sub.recycle();
         let id = self.push(Node::Split {
             children: [0; 4],
             corner_limit,
@@ -569,6 +592,7 @@ impl Arena {
         for (c, slot) in children.iter_mut().enumerate() {
             *slot = self.build(&r, FaceId::from_idx(c), depth + 1, max_depth);
         }
+        r.recycle();
         if let Node::Split { children: ch, .. } = &mut self.nodes[id as usize] {
             *ch = children;
         }
@@ -696,32 +720,84 @@ fn derivs(pp: PatchPoint, jac: &[[f64; 2]; 2]) -> LimitDerivs {
     }
 }
 
+/// Where the elements of a mesh went in the submesh being cut out of it, per thread: entry
+/// i is (stamp, index here), valid only when the stamp is the current call's, so nothing is
+/// cleared between calls (all of it when the stamp wraps).
+#[derive(Default)]
+struct LocalIndex {
+    stamp: u32,
+    vertices: Vec<(u32, u32)>,
+    faces: Vec<(u32, u32)>,
+}
+
+impl LocalIndex {
+    /// Starts a new submesh of a mesh with `nv` vertices and `nf` faces.
+    fn start(&mut self, nv: usize, nf: usize) {
+        self.stamp = self.stamp.wrapping_add(1);
+        if self.stamp == 0 {
+            self.vertices.clear();
+            self.faces.clear();
+            self.stamp = 1;
+        }
+        if self.vertices.len() < nv {
+            self.vertices.resize(nv, (0, 0));
+        }
+        if self.faces.len() < nf {
+            self.faces.resize(nf, (0, 0));
+        }
+    }
+
+    #[inline]
+    fn get(table: &[(u32, u32)], stamp: u32, i: u32) -> Option<u32> {
+        let (s, l) = table[i as usize];
+        (s == stamp).then_some(l)
+    }
+}
+
+thread_local! {
+    static LOCAL_INDEX: std::cell::RefCell<LocalIndex> = Default::default();
+}
+
 /// The faces around the corners of quad `q`, as a new mesh whose face 0 is `q` with its
 /// vertex order kept. Refining it gives exact values for everything the children of `q`
 /// need (their own 1-ring submeshes).
 pub(crate) fn extract_submesh(m: &PolyMesh, q: FaceId) -> PolyMesh {
-    let mut faces: Vec<FaceId> = vec![q];
+    LOCAL_INDEX.with(|index| match index.try_borrow_mut() {
+        Ok(mut index) => extract_submesh_with(m, q, &mut index),
+        Err(_) => extract_submesh_with(m, q, &mut LocalIndex::default()),
+    })
+}
+
+fn extract_submesh_with(m: &PolyMesh, q: FaceId, index: &mut LocalIndex) -> PolyMesh {
+    index.start(m.num_vertices(), m.num_faces());
+    let stamp = index.stamp;
+    let mut faces: Vec<FaceId> = Vec::with_capacity(32);
+    let mut add_face = |f: FaceId, faces: &mut Vec<FaceId>| {
+        if LocalIndex::get(&index.faces, stamp, f.0).is_none() {
+            index.faces[f.idx()] = (stamp, faces.len() as u32);
+            faces.push(f);
+        }
+    };
+    add_face(q, &mut faces);
     for &v in m.face_vertices(q) {
         for h in m.outgoing(VertexId(v)) {
-            let f = m.face_of(h);
-            if !faces.contains(&f) {
-                faces.push(f);
-            }
+            add_face(m.face_of(h), &mut faces);
         }
     }
     let mut map: Vec<(u32, u32)> = Vec::with_capacity(faces.len() * 4);
-    let mut positions = Vec::with_capacity(faces.len() * 3);
-    let mut face_start = Vec::with_capacity(faces.len() + 1);
-    let mut face_verts = Vec::with_capacity(faces.len() * 4);
+    let mut positions = crate::pool::points(faces.len() * 3);
+    let mut face_start = crate::pool::ints(faces.len() + 1);
+    let mut face_verts = crate::pool::ints(faces.len() * 4);
     face_start.push(0);
     for &f in &faces {
         for &v in m.face_vertices(f) {
-            let local = match map.iter().find(|(g, _)| *g == v) {
-                Some(&(_, l)) => l,
+            let local = match LocalIndex::get(&index.vertices, stamp, v) {
+                Some(l) => l,
                 None => {
                     positions.push(m.positions[v as usize]);
                     let l = positions.len() as u32 - 1;
                     map.push((v, l));
+                    index.vertices[v as usize] = (stamp, l);
                     l
                 }
             };
@@ -729,8 +805,24 @@ pub(crate) fn extract_submesh(m: &PolyMesh, q: FaceId) -> PolyMesh {
         }
         face_start.push(face_verts.len() as u32);
     }
-    let mut sub = PolyMesh::new(positions, face_start, face_verts, Check::Trusted)
-        .expect("submesh of a valid mesh");
+    let mut sub = if m.is_clean() {
+        // A kept half-edge's twin is its parent twin's image where that face is kept too.
+        let mut twins = crate::pool::ints_filled(face_verts.len(), NONE);
+        for (k, &f) in faces.iter().enumerate() {
+            let (h0, g0) = (face_start[k], m.face_he(f));
+            for i in 0..m.face_size(f) as u32 {
+                let Some(t) = m.twin(g0 + i) else { continue };
+                let tf = m.face_of(t);
+                if let Some(j) = LocalIndex::get(&index.faces, stamp, tf.0) {
+                    twins[(h0 + i) as usize] = face_start[j as usize] + (t - m.face_he(tf));
+                }
+            }
+        }
+        PolyMesh::from_twins(positions, face_start, face_verts, twins)
+    } else {
+        PolyMesh::new(positions, face_start, face_verts, Check::Trusted)
+            .expect("submesh of a valid mesh")
+    };
     sub.inherit_tags(m, &faces, &map);
     sub
 }
@@ -862,6 +954,60 @@ mod tests {
                     assert_eq!(got.sample(), want, "{shape} base {b} ({u},{v})");
                     assert_eq!((got.p, got.du, got.dv), (want.p, want.du, want.dv));
                 }
+            }
+        }
+    }
+
+    /// Submeshes and refinements take their twins from the parent's (`PolyMesh::from_twins`):
+    /// every field must be what building the same faces from scratch gives, down a few
+    /// levels of the patch trees of tagged and untagged shapes, with boundaries and n-gons.
+    #[test]
+    fn derived_topology_matches_rebuilt() {
+        let rebuilt = |m: &PolyMesh| {
+            let mut r = PolyMesh::new(
+                m.positions.clone(),
+                m.face_starts().to_vec(),
+                m.half_edge_vertices().to_vec(),
+                Check::Trusted,
+            )
+            .unwrap();
+            let faces: Vec<FaceId> = (0..m.num_faces()).map(FaceId::from_idx).collect();
+            let verts: Vec<(u32, u32)> = (0..m.num_vertices() as u32).map(|v| (v, v)).collect();
+            r.inherit_tags(m, &faces, &verts);
+            r
+        };
+        fn walk(m: &PolyMesh, q: FaceId, depth: u32, check: &dyn Fn(&PolyMesh)) {
+            let sub = extract_submesh(m, q);
+            check(&sub);
+            let r = refine(&sub);
+            check(&r);
+            if depth > 0 {
+                for c in 0..4 {
+                    walk(&r, FaceId::from_idx(c), depth - 1, check);
+                }
+            }
+        }
+        for shape in [
+            "catmark_nonquads",
+            "catmark_edgecorner",
+            "catmark_pole8",
+            "catmark_cube_creases1",
+            "catmark_cubes_infsharp",
+            "catmark_chaikin0",
+            "catmark_dart_edgecorner",
+            "catmark_cube_corner4",
+            "catmark_torus_creases0",
+        ] {
+            let cm = crate::ControlMesh::load_obj(crate::test_data::shape(shape)).unwrap();
+            assert!(cm.mesh.is_clean(), "{shape}");
+            let base = refine(&cm.mesh);
+            base.assert_same(&rebuilt(&base));
+            let check = |m: &PolyMesh| {
+                assert!(m.is_clean());
+                m.assert_same(&rebuilt(m));
+            };
+            for q in 0..base.num_faces().min(48) {
+                walk(&base, FaceId::from_idx(q), 2, &check);
             }
         }
     }

@@ -9,6 +9,7 @@
 use crate::crease::{Rule, Sharpness};
 use crate::error::{MeshError, MeshProblem};
 use crate::ids::{FaceId, VertexId};
+use crate::pool;
 use glam::DVec3;
 
 /// Marks an absent half-edge (boundary twin, unused vertex).
@@ -40,6 +41,10 @@ pub struct PolyMesh {
     edge_sharp: Vec<Sharpness>,
     /// Tagged sharpness per vertex (`t corner`), or empty when no vertex has any.
     vert_sharp: Vec<Sharpness>,
+    /// Every face has three or more distinct vertices, and the half-edges joining any two
+    /// vertices are one, or two opposite ones that are twins: then the twins of a submesh
+    /// or a refinement follow from these ([`Self::from_twins`]) instead of a search.
+    clean: bool,
 }
 
 /// How strictly to check a mesh when building its topology.
@@ -119,13 +124,202 @@ impl PolyMesh {
             vert_boundary: vec![false; nv],
             edge_sharp: Vec::new(),
             vert_sharp: Vec::new(),
+            clean: false,
         };
-        m.link_twins(check)?;
+        let faces_simple = (0..nf).all(|f| {
+            let vs = &m.he_vert[m.face_start[f] as usize..m.face_start[f + 1] as usize];
+            vs.len() >= 3 && (1..vs.len()).all(|i| !vs[..i].contains(&vs[i]))
+        });
+        m.clean = m.link_twins(check)? && faces_simple;
         m.build_vertex_fans(check)?;
         Ok(m)
     }
 
-    fn link_twins(&mut self, check: Check) -> Result<(), MeshError> {
+    /// [`Self::new`] for faces whose half-edges' twins the caller knows (`he_twin`, [`NONE`]
+    /// where absent), derived from a [clean](Self::is_clean) mesh's: the faces of a submesh
+    /// (twins kept where both faces are kept) or of a refinement. Gives exactly what `new`
+    /// with [`Check::Trusted`] gives for the same faces, without pairing half-edges by their
+    /// vertices: edges are numbered by their first half-edge, as there.
+    pub(crate) fn from_twins(
+        positions: Vec<DVec3>,
+        face_start: Vec<u32>,
+        face_verts: Vec<u32>,
+        he_twin: Vec<u32>,
+    ) -> Self {
+        let nf = face_start.len() - 1;
+        let nv = positions.len();
+        let nh = face_verts.len();
+        debug_assert_eq!(he_twin.len(), nh);
+        let mut he_face = pool::ints(nh);
+        for f in 0..nf {
+            let n = (face_start[f + 1] - face_start[f]) as usize;
+            he_face.extend(std::iter::repeat_n(f as u32, n));
+        }
+        let (he_edge, edge_he) = Self::number_edges(&he_twin);
+        let mut m = PolyMesh {
+            positions,
+            face_start,
+            he_vert: face_verts,
+            he_face,
+            he_twin,
+            he_edge,
+            edge_he,
+            vert_out: pool::ints_filled(nv, NONE),
+            vert_faces: pool::ints_filled(nv, 0),
+            vert_boundary: {
+                let mut b = pool::flags(nv);
+                b.resize(nv, false);
+                b
+            },
+            edge_sharp: Vec::new(),
+            vert_sharp: Vec::new(),
+            clean: true,
+        };
+        m.build_vertex_fans(Check::Trusted)
+            .expect("trusted meshes are not checked");
+        m
+    }
+
+    /// The topology of this clean mesh's Catmull-Clark refinement (faces as
+    /// [`crate::refine::refine`] numbers them: child face h of parent half-edge h, vertex
+    /// points, then face points, then edge points), derived from this mesh's instead of
+    /// searched: exactly what [`Self::new`] with [`Check::Trusted`] gives for those faces.
+    ///
+    /// Child face h (half-edge h at corner c of face f) has half-edges 4h + k: k = 0 from
+    /// the vertex point of origin(h) to the edge point of h, 1 on to the face point, 2 on
+    /// to the edge point of prev(h), 3 back. Those inside f pair with the neighbouring
+    /// corners' (1 with 2 of next(h)); those along a parent edge with the children of its
+    /// twin t: 0 with 3 of next(t), 3 with 0 of twin(prev(h)).
+    pub(crate) fn refined_topology(
+        &self,
+        positions: Vec<DVec3>,
+        face_start: Vec<u32>,
+        face_verts: Vec<u32>,
+    ) -> Self {
+        debug_assert!(self.clean);
+        let (nv, nf, nh) = (self.num_vertices(), self.num_faces(), self.num_half_edges());
+        let twin = |h: u32| self.he_twin[h as usize];
+        let mut he_twin = pool::ints(4 * nh);
+        for h in 0..nh as u32 {
+            let (hn, hp) = (self.next(h), self.prev(h));
+            let (t, tp) = (twin(h), twin(hp));
+            he_twin.extend([
+                if t == NONE {
+                    NONE
+                } else {
+                    4 * self.next(t) + 3
+                },
+                4 * hn + 2,
+                4 * hp + 1,
+                if tp == NONE { NONE } else { 4 * tp },
+            ]);
+        }
+        let mut he_face = pool::ints(4 * nh);
+        he_face.extend((0..4 * nh as u32).map(|h| h / 4));
+        let (he_edge, edge_he) = Self::number_edges(&he_twin);
+        // Fans: a vertex point's mirrors its vertex's (outgoing half-edge 4h for h, same
+        // order, same twins); a face point's is its face's corners; an edge point's is the
+        // four (two at a boundary) child faces at the edge's half-edges.
+        let cv = positions.len();
+        debug_assert_eq!(cv, nv + nf + self.num_edges());
+        let mut vert_out = pool::ints(cv);
+        let mut vert_faces = pool::ints(cv);
+        let mut vert_boundary = pool::flags(cv);
+        vert_out.extend(
+            self.vert_out
+                .iter()
+                .map(|&h| if h == NONE { NONE } else { 4 * h }),
+        );
+        vert_faces.extend_from_slice(&self.vert_faces);
+        vert_boundary.extend_from_slice(&self.vert_boundary);
+        for f in 0..nf {
+            vert_out.push(4 * self.face_start[f] + 2);
+            vert_faces.push(self.face_start[f + 1] - self.face_start[f]);
+            vert_boundary.push(false);
+        }
+        for &g in &self.edge_he {
+            let t = twin(g);
+            if t == NONE {
+                vert_out.push(4 * self.next(g) + 3);
+                vert_faces.push(2);
+                vert_boundary.push(true);
+            } else {
+                let first = (4 * g + 1)
+                    .min(4 * self.next(g) + 3)
+                    .min(4 * t + 1)
+                    .min(4 * self.next(t) + 3);
+                vert_out.push(first);
+                vert_faces.push(4);
+                vert_boundary.push(false);
+            }
+        }
+        PolyMesh {
+            positions,
+            face_start,
+            he_vert: face_verts,
+            he_face,
+            he_twin,
+            he_edge,
+            edge_he,
+            vert_out,
+            vert_faces,
+            vert_boundary,
+            edge_sharp: Vec::new(),
+            vert_sharp: Vec::new(),
+            clean: true,
+        }
+    }
+
+    /// Edge numbers from twins, as [`Self::link_twins`] numbers them: in order of each
+    /// edge's first half-edge (`he_edge`, `edge_he`).
+    fn number_edges(he_twin: &[u32]) -> (Vec<u32>, Vec<u32>) {
+        // Without branches (whether a twin comes later is a coin flip): half-edge h starts
+        // an edge when its twin is later or absent (NONE is larger than any h); otherwise
+        // it takes its twin's edge. Every slot of `edge_he` up to the count is written.
+        let nh = he_twin.len();
+        let mut he_edge = pool::ints_filled(nh, 0);
+        let mut edge_he = pool::ints_filled(nh, 0);
+        let mut count = 0u32;
+        for (h, &t) in he_twin.iter().enumerate() {
+            let first = t as usize > h;
+            let earlier = he_edge[(t as usize).min(h)];
+            he_edge[h] = if first { count } else { earlier };
+            edge_he[count as usize] = h as u32;
+            count += first as u32;
+        }
+        edge_he.truncate(count as usize);
+        (he_edge, edge_he)
+    }
+
+    /// Gives this mesh's buffers to the per-thread pool the next small meshes are built
+    /// from ([`crate::pool`]); for the many short-lived meshes of the patch trees.
+    pub(crate) fn recycle(self) {
+        pool::give_points(self.positions);
+        for v in [
+            self.face_start,
+            self.he_vert,
+            self.he_face,
+            self.he_twin,
+            self.he_edge,
+            self.edge_he,
+            self.vert_out,
+            self.vert_faces,
+        ] {
+            pool::give_ints(v);
+        }
+        pool::give_flags(self.vert_boundary);
+    }
+
+    /// Whether the mesh is clean (see the field): always for meshes that pass
+    /// [`Check::Strict`], and their refinements and submeshes.
+    #[inline]
+    pub fn is_clean(&self) -> bool {
+        self.clean
+    }
+
+    /// Pairs twins and numbers edges; whether every group of half-edges joining two
+    /// vertices is one half-edge or a pair of twins.
+    fn link_twins(&mut self, check: Check) -> Result<bool, MeshError> {
         // Pair half-edges by sorting (min vertex, max vertex, half-edge): cheaper than a hash
         // map for the many tiny submeshes of the patch trees, and within one edge the
         // half-edges stay in input order, so errors name the same faces either way.
@@ -165,6 +359,7 @@ impl PolyMesh {
         // Edges are numbered in order of their first half-edge, as a scan would meet them.
         let mut first_of_edge: Vec<u32> = Vec::with_capacity(nh / 2 + 8);
         let strict = check == Check::Strict;
+        let mut clean = true;
         let mut i = 0;
         while i < keys.len() {
             let mut j = i + 1;
@@ -176,6 +371,7 @@ impl PolyMesh {
             first_of_edge.push(g);
             if group.len() >= 2 {
                 let h = group[1].2;
+                clean &= group.len() == 2;
                 if group.len() > 2 && strict {
                     return Err(MeshProblem::NonManifoldEdge {
                         a: group[0].0 as usize,
@@ -185,6 +381,7 @@ impl PolyMesh {
                     .into());
                 }
                 if self.he_vert[g as usize] == self.he_vert[h as usize] {
+                    clean = false;
                     if strict {
                         return Err(MeshProblem::InconsistentOrientation {
                             a: self.he_vert[g as usize] as usize,
@@ -234,13 +431,13 @@ impl PolyMesh {
                 }
             }
         }
-        Ok(())
+        Ok(clean)
     }
 
     fn build_vertex_fans(&mut self, check: Check) -> Result<(), MeshError> {
         let nh = self.he_vert.len();
         let nv = self.positions.len();
-        let mut corners = vec![0u32; nv];
+        let mut corners = pool::ints_filled(nv, 0);
         for h in 0..nh {
             let v = self.he_vert[h] as usize;
             corners[v] += 1;
@@ -285,6 +482,7 @@ impl PolyMesh {
                 }
             }
         }
+        pool::give_ints(corners);
         Ok(())
     }
 
@@ -683,6 +881,25 @@ impl PolyMesh {
         self.set_sharpness(edges, verts);
     }
 
+    /// Panics unless `other` has the same faces, positions, topology and tags (to test
+    /// [`Self::from_twins`] against [`Self::new`]).
+    #[cfg(test)]
+    pub(crate) fn assert_same(&self, other: &PolyMesh) {
+        assert_eq!(self.positions, other.positions);
+        assert_eq!(self.face_start, other.face_start);
+        assert_eq!(self.he_vert, other.he_vert);
+        assert_eq!(self.he_face, other.he_face);
+        assert_eq!(self.he_twin, other.he_twin);
+        assert_eq!(self.he_edge, other.he_edge);
+        assert_eq!(self.edge_he, other.edge_he);
+        assert_eq!(self.vert_out, other.vert_out);
+        assert_eq!(self.vert_faces, other.vert_faces);
+        assert_eq!(self.vert_boundary, other.vert_boundary);
+        assert_eq!(self.edge_sharp, other.edge_sharp);
+        assert_eq!(self.vert_sharp, other.vert_sharp);
+        assert_eq!(self.clean, other.clean);
+    }
+
     /// The edge joining vertices `a` and `b`, as one of its half-edges.
     pub fn find_edge(&self, a: VertexId, b: VertexId) -> Option<u32> {
         if a.idx() >= self.num_vertices() || b.idx() >= self.num_vertices() {
@@ -749,6 +966,23 @@ mod tests {
             }
         }
         PolyMesh::new(pos, fs, fv, Check::Strict).unwrap()
+    }
+
+    #[test]
+    fn clean_only_without_odd_edges_or_faces() {
+        let m = quad_grid(2);
+        assert!(m.is_clean());
+        let pos = vec![DVec3::ZERO; 6];
+        let mesh = |fv: Vec<u32>| {
+            let mut fs = vec![0u32];
+            fs.extend((1..=fv.len() / 3).map(|k| 3 * k as u32));
+            PolyMesh::new(pos.clone(), fs, fv, Check::Trusted).unwrap()
+        };
+        assert!(mesh(vec![0, 1, 2, 2, 1, 3]).is_clean());
+        // Inconsistent orientation, three faces on an edge, a repeated vertex.
+        assert!(!mesh(vec![0, 1, 2, 1, 2, 3]).is_clean());
+        assert!(!mesh(vec![0, 1, 2, 1, 0, 3, 0, 1, 4]).is_clean());
+        assert!(!mesh(vec![0, 1, 1, 2, 1, 3]).is_clean());
     }
 
     #[test]
