@@ -188,6 +188,24 @@ impl TopN {
         }
     }
 
+    /// The distance a candidate must beat to be one [`pick`] can still choose: at most
+    /// [`Self::bound`], and at most [`pick_limit`] of the best so far. *Why*: the
+    /// randomised choice only ever takes matches within [`TOLERANCE`] of the best, and the
+    /// best only improves, so a candidate beyond the limit of the best *so far* can never
+    /// be chosen; the distances' early exit then gives up on it after a few samples
+    /// instead of summing all of them (issue 14: most of a multiscale run's distances ran
+    /// to the end against an 8th best far above the best). What `pick` returns is
+    /// unchanged: every match within the final limit is still kept, in the same order
+    /// (only matches it could not choose are left out of the list).
+    #[inline]
+    pub fn pick_bound(&self) -> f32 {
+        if self.len == 0 {
+            f32::INFINITY
+        } else {
+            self.bound().min(pick_limit(self.items[0].dist2))
+        }
+    }
+
     /// Offers a candidate (the caller guarantees no duplicates).
     #[inline]
     pub fn push(&mut self, m: Match) {
@@ -215,9 +233,16 @@ impl TopN {
 /// depends only on (seed, level, pass, sample), never on threads or visiting order.
 pub fn pick(best: &[Match], key: u64) -> Match {
     assert!(!best.is_empty(), "pick needs at least one match");
-    let limit = best[0].dist2 * (1.0 + TOLERANCE) * (1.0 + TOLERANCE);
+    let limit = pick_limit(best[0].dist2);
     let n = best.iter().take_while(|m| m.dist2 <= limit).count().max(1);
     best[(key % n as u64) as usize]
+}
+
+/// The largest squared distance [`pick`] accepts beside a best match at `best` (monotone
+/// in `best`, as [`TopN::pick_bound`] relies on).
+#[inline]
+pub fn pick_limit(best: f32) -> f32 {
+    best * (1.0 + TOLERANCE) * (1.0 + TOLERANCE)
 }
 
 /// A counter-based hash (SplitMix64 finaliser chained over the parts): the random stream of
@@ -281,13 +306,20 @@ impl Query {
 }
 
 /// A query ready for distances: weighted values (0 where missing), a per-dimension 0/1 mask
-/// and whether all samples are present (the fast, unmasked path).
+/// and whether all samples are present (what projections read, [`ann`]); and for the
+/// searches' distances ([`Features::distance`]) the raw values in storage order (0 where
+/// missing) with one squared weight per sample (0 where missing).
 #[derive(Clone, Debug, Default)]
 pub struct Prepared {
     pub v: Vec<f32>,
     pub mask: Vec<f32>,
     pub complete: bool,
     pub present: usize,
+    /// Raw (unweighted) values in storage order, 0 where missing.
+    pub raw: Vec<f32>,
+    /// Per stored sample: its Gaussian weight (the square of its [`Features::scales`]
+    /// entry), 0 where missing.
+    pub w2: Vec<f32>,
 }
 
 /// The weighted neighbourhood vectors of the valid pixels of one example level, gathered
@@ -552,19 +584,25 @@ impl Features {
         let dim = self.dim();
         out.v.resize(dim, 0.0);
         out.mask.resize(dim, 0.0);
+        out.raw.resize(dim, 0.0);
+        out.w2.resize(self.order.len(), 0.0);
         let mut present = 0;
         for (t, &s) in self.order.iter().enumerate() {
             let p = q.present[s];
             let sc = self.scales[s];
             for k in 0..c {
                 if p {
-                    out.v[t * c + k] = q.values[s * c + k] * sc;
+                    let x = q.values[s * c + k];
+                    out.v[t * c + k] = x * sc;
                     out.mask[t * c + k] = 1.0;
+                    out.raw[t * c + k] = x;
                 } else {
                     out.v[t * c + k] = 0.0;
                     out.mask[t * c + k] = 0.0;
+                    out.raw[t * c + k] = 0.0;
                 }
             }
+            out.w2[t] = if p { sc * sc } else { 0.0 };
             present += p as usize;
         }
         out.present = present;
@@ -582,21 +620,29 @@ impl Features {
 
     /// Weighted squared distance from `q` to feature `i`, over present samples, giving up
     /// (returning a value `> bound`) once the partial sum exceeds `bound`.
+    ///
+    /// Summed as Σ w·(q − x)² over the raw values, the weight w applied on the query's
+    /// side once per sample ([`Prepared::w2`]; missing samples weigh 0), rather than as
+    /// (√w·q − √w·x)² over weighted vectors as [`Self::distance_to`] does. *Why*: a
+    /// candidate's samples are then read straight from the example level (`channels`
+    /// consecutive floats each, one vector load with 8 appearance dimensions) with no
+    /// weighted copy and no mask, and complete and partial queries take one path. This is
+    /// the searches' inner loop (a third of a multiscale run's time, issue 14); the same
+    /// value up to rounding. The k-coherence lists keep [`Self::distance_to`], so saved
+    /// lists stay valid.
     #[inline]
     pub fn distance(&self, q: &Prepared, i: usize, bound: f32) -> f32 {
-        if q.complete {
-            self.distance_to(&q.v, None, i, bound)
-        } else {
-            self.distance_to(&q.v, Some(&q.mask), i, bound)
-        }
+        weighted_dispatch(&q.raw, &q.w2, self, self.base(i), bound)
     }
 
-    /// Exact search over every valid pixel (the paper's coarsest-level search).
+    /// Exact search over every valid pixel (the paper's coarsest-level search) into `top`:
+    /// the best match and those [`pick`] may choose beside it ([`TopN::pick_bound`]).
     pub fn brute_force(&self, q: &Prepared, top: &mut TopN) {
         top.clear();
         for i in 0..self.len() {
-            let d = self.distance(q, i, top.bound());
-            if d <= top.bound() {
+            let b = top.pick_bound();
+            let d = self.distance(q, i, b);
+            if d <= b {
                 top.push(Match {
                     index: i as u32,
                     dist2: d,
@@ -605,11 +651,14 @@ impl Features {
         }
     }
 
-    /// Exact re-ranking of a candidate list (no duplicates) into `top`, which is not cleared.
+    /// Exact re-ranking of a candidate list (no duplicates) into `top`, which is not
+    /// cleared: the best match and those [`pick`] may choose beside it
+    /// ([`TopN::pick_bound`]).
     pub fn rerank(&self, q: &Prepared, candidates: &[u32], top: &mut TopN) {
         for &i in candidates {
-            let d = self.distance(q, i as usize, top.bound());
-            if d <= top.bound() {
+            let b = top.pick_bound();
+            let d = self.distance(q, i as usize, b);
+            if d <= b {
                 top.push(Match { index: i, dist2: d });
             }
         }
@@ -789,6 +838,94 @@ fn gather_dispatch(a: &[f32], m: Option<&[f32]>, f: &Features, base: usize, boun
     gather_any(a, m, f, base, bound)
 }
 
+/// [`Features::distance`]'s kernel: Σ over stored samples of `w2[s]`·Σ_channels (q − x)²,
+/// `C` channels per sample (0: any count, read from `f`), with the early exit of
+/// [`gather_kernel`] after every [`BLOCK`] dimensions' worth of samples. Deterministic:
+/// one fixed summation order, no fused multiply-add, so the result does not depend on the
+/// CPU features detected.
+#[inline(always)]
+fn weighted_kernel<const C: usize>(
+    q: &[f32],
+    w2: &[f32],
+    f: &Features,
+    base: usize,
+    bound: f32,
+) -> f32 {
+    let c = if C == 0 { f.shape.channels } else { C };
+    let ns = w2.len().min(f.offsets.len()).min(q.len() / c);
+    let per = (BLOCK / c).max(1);
+    let src = &f.source[..];
+    let base = base as isize;
+    let mut total = 0.0f32;
+    let mut s = 0;
+    while s < ns {
+        let e = (s + per).min(ns);
+        let mut sum = 0.0f32;
+        if C > 0 {
+            let mut acc = [0.0f32; LANES];
+            for t in s..e {
+                let at = (base + f.offsets[t]) as usize;
+                let x = &src[at..at + C];
+                let qq = &q[t * C..t * C + C];
+                let w = w2[t];
+                for k in 0..C {
+                    let d = qq[k] - x[k];
+                    acc[k] += w * (d * d);
+                }
+            }
+            for v in &acc[..C.min(LANES)] {
+                sum += v;
+            }
+        } else {
+            for t in s..e {
+                let at = (base + f.offsets[t]) as usize;
+                let x = &src[at..at + c];
+                let qq = &q[t * c..t * c + c];
+                let mut a = 0.0f32;
+                for k in 0..c {
+                    let d = qq[k] - x[k];
+                    a += d * d;
+                }
+                sum += w2[t] * a;
+            }
+        }
+        total += sum;
+        if total > bound {
+            return total;
+        }
+        s = e;
+    }
+    total
+}
+
+/// [`weighted_kernel`] for the channel count of `f`.
+#[inline]
+fn weighted_any(q: &[f32], w2: &[f32], f: &Features, base: usize, bound: f32) -> f32 {
+    match f.shape.channels {
+        8 => weighted_kernel::<8>(q, w2, f, base, bound),
+        4 => weighted_kernel::<4>(q, w2, f, base, bound),
+        _ => weighted_kernel::<0>(q, w2, f, base, bound),
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn weighted_avx2(q: &[f32], w2: &[f32], f: &Features, base: usize, bound: f32) -> f32 {
+    weighted_any(q, w2, f, base, bound)
+}
+
+#[inline]
+fn weighted_dispatch(q: &[f32], w2: &[f32], f: &Features, base: usize, bound: f32) -> f32 {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2 (checked just above).
+            return unsafe { weighted_avx2(q, w2, f, base, bound) };
+        }
+    }
+    weighted_any(q, w2, f, base, bound)
+}
+
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 unsafe fn dist_avx2(a: &[f32], b: &[f32], m: Option<&[f32]>, bound: f32) -> f32 {
@@ -864,6 +1001,61 @@ mod tests {
     }
 
     #[test]
+    fn pruning_to_what_pick_can_choose_changes_no_choice() {
+        // Random example and queries: the matches `pick` can choose (those within its
+        // limit of the best) are the same with rerank's pick bound as with every candidate
+        // measured in full into the eight best.
+        let (w, h) = (24, 22);
+        let mut img = Image::new(w, h, 2);
+        for y in 0..h {
+            for x in 0..w {
+                let p = img.pixel_mut(x, y);
+                p[0] = (hash(5, &[x as u64, y as u64]) % 1000) as f32 / 1e3;
+                p[1] = (hash(6, &[x as u64, y as u64]) % 1000) as f32 / 1e3;
+            }
+        }
+        let pyr = Pyramid::build(img, 2);
+        let shape = Shape::new(5, 3, 2);
+        let f = Features::build(&pyr, 0, shape, 0).unwrap();
+        let all: Vec<u32> = (0..f.len() as u32).collect();
+        let mut p = Prepared::default();
+        for qi in 0..40u64 {
+            let mut q = Query::new(shape);
+            for s in 0..shape.samples() {
+                if hash(qi, &[s as u64, 9]) % 7 != 0 {
+                    let v = [
+                        (hash(qi, &[s as u64, 1]) % 1000) as f32 / 1e3,
+                        (hash(qi, &[s as u64, 2]) % 1000) as f32 / 1e3,
+                    ];
+                    q.set(s, &v);
+                }
+            }
+            f.prepare(&q, &mut p);
+            let mut full = TopN::new();
+            for &i in &all {
+                let d = f.distance(&p, i as usize, f32::INFINITY);
+                if d <= full.bound() {
+                    full.push(Match { index: i, dist2: d });
+                }
+            }
+            let mut pruned = TopN::new();
+            f.rerank(&p, &all, &mut pruned);
+            let limit = pick_limit(full.as_slice()[0].dist2);
+            let within = |t: &TopN| -> Vec<u32> {
+                t.as_slice()
+                    .iter()
+                    .take_while(|m| m.dist2 <= limit)
+                    .map(|m| m.index)
+                    .collect()
+            };
+            assert_eq!(within(&full), within(&pruned), "query {qi}");
+            for key in 0..16 {
+                assert_eq!(pick(full.as_slice(), key), pick(pruned.as_slice(), key));
+            }
+        }
+    }
+
+    #[test]
     fn topn_keeps_the_eight_best_with_index_tie_break() {
         let mut t = TopN::new();
         for i in (0..20u32).rev() {
@@ -911,7 +1103,8 @@ mod tests {
         f.brute_force(&p, &mut top);
         assert_eq!(f.pixel(top.as_slice()[0].index), (9, 7));
         assert_eq!(top.as_slice()[0].dist2, 0.0);
-        assert!(top.as_slice()[1].dist2 > 0.0);
+        // Nothing else is within pick's tolerance of an exact match.
+        assert_eq!(top.as_slice().len(), 1);
         // Dropping half the samples still finds it, with the masked path.
         for s in 0..shape.samples() / 2 {
             q.clear(s);
