@@ -397,7 +397,15 @@ pub fn pattern(
         }
         if scratch.anchor_of[slot] != a {
             let dst = &mut scratch.anchors[slot * kk..(slot + 1) * kk];
-            sample(geo, sampler, a, delta, k, kind, &mut scratch.buf, dst, st);
+            match scratch.known.as_ref().and_then(|known| known.get(a, kk)) {
+                Some(p) => dst.copy_from_slice(p),
+                None => {
+                    sample(geo, sampler, a, delta, k, kind, &mut scratch.buf, dst, st);
+                    if let Some(r) = scratch.record.as_mut() {
+                        r.push(a, dst);
+                    }
+                }
+            }
             scratch.anchor_of[slot] = a;
         }
         let src = &scratch.anchors[slot * kk..(slot + 1) * kk];
@@ -423,6 +431,81 @@ pub struct PatternScratch {
     anchors: Vec<Option<DomainLocation>>,
     anchor_of: Vec<usize>,
     anchor_k: usize,
+    /// When set, every anchor pattern the sampler lays out is also kept here, for a later
+    /// pass that asks for the same patterns ([`Anchors`]).
+    pub record: Option<Anchors>,
+    /// Anchor patterns an earlier pass laid out with the same texels, step, side and
+    /// kind: taken instead of sampling again.
+    pub known: Option<Arc<Anchors>>,
+}
+
+/// Sampler patterns of block anchors ([`pattern`]) kept from one pass for another that
+/// lays out the same patterns: multiscale's pass 1 and pass 2 both lay out the coarser
+/// level's block around every texel (when pass 2 cannot take it from its own pattern,
+/// `coarse_from_fine` in the parent module). *Why*: the sampler (vertex charts,
+/// marching) is most of a pattern's cost where the parameter-space pattern fails, and
+/// pass 2 asked it for exactly the anchors pass 1 had. The sampler is deterministic, so a
+/// kept pattern is the one sampling again would give: outputs do not change. Only the
+/// anchors are kept (at most one texel in nine), not every texel's pattern.
+#[derive(Clone, Debug, Default)]
+pub struct Anchors {
+    /// Samples per pattern (K²).
+    side2: usize,
+    /// Anchor texels, ascending.
+    texels: Vec<u32>,
+    /// Their patterns, `side2` each, in the order of `texels`.
+    locs: Vec<Option<DomainLocation>>,
+}
+
+impl Anchors {
+    /// Keeps the pattern `p` of anchor texel `a`.
+    pub fn push(&mut self, a: usize, p: &[Option<DomainLocation>]) {
+        if self.side2 == 0 {
+            self.side2 = p.len();
+        }
+        debug_assert_eq!(p.len(), self.side2);
+        self.texels.push(a as u32);
+        self.locs.extend_from_slice(p);
+    }
+
+    /// The pattern of anchor `a` with `kk` samples, if kept.
+    #[inline]
+    pub fn get(&self, a: usize, kk: usize) -> Option<&[Option<DomainLocation>]> {
+        if kk != self.side2 {
+            return None;
+        }
+        let i = self.texels.binary_search(&(a as u32)).ok()?;
+        Some(&self.locs[i * kk..(i + 1) * kk])
+    }
+
+    /// All patterns of `parts` in one set, sorted by texel (the first of duplicates kept).
+    pub fn merge(parts: impl IntoIterator<Item = Anchors>) -> Anchors {
+        let parts: Vec<Anchors> = parts.into_iter().filter(|p| p.side2 > 0).collect();
+        let side2 = parts.first().map_or(0, |p| p.side2);
+        let mut order: Vec<(u32, usize, usize)> = parts
+            .iter()
+            .enumerate()
+            .flat_map(|(j, p)| p.texels.iter().enumerate().map(move |(i, &t)| (t, j, i)))
+            .collect();
+        order.sort_unstable();
+        order.dedup_by_key(|e| e.0);
+        let mut out = Anchors {
+            side2,
+            texels: Vec::with_capacity(order.len()),
+            locs: Vec::with_capacity(order.len() * side2),
+        };
+        for (t, j, i) in order {
+            out.texels.push(t);
+            out.locs
+                .extend_from_slice(&parts[j].locs[i * side2..(i + 1) * side2]);
+        }
+        out
+    }
+
+    /// Heap bytes held.
+    pub fn heap_bytes(&self) -> usize {
+        4 * self.texels.len() + std::mem::size_of::<Option<DomainLocation>>() * self.locs.len()
+    }
 }
 
 /// The sampler's pattern at texel `t` in our row order.

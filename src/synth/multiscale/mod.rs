@@ -61,7 +61,7 @@ use crate::synth::matching::search::model::{ExampleModel, Method, ModelParams, P
 use crate::synth::matching::search::{hash, pick, Prepared, Query};
 use crate::synth::schedule::{inward_order, Schedule};
 use level::{
-    nearest_texel, pattern, LevelGeometry, Lookup, Own, PatternScratch, PatternStats, View,
+    nearest_texel, pattern, Anchors, LevelGeometry, Lookup, Own, PatternScratch, PatternStats, View,
 };
 use rayon::prelude::*;
 use serde::Serialize;
@@ -674,11 +674,11 @@ pub fn run_on_model(
         let fine_fac = Factors::of(inputs, &fine);
         geometry_seconds += t0.elapsed().as_secs_f64();
         let t0 = Instant::now();
-        let s1 = pass_one(&ctx, i, &fine, &fine_fac, &geo, &state, &mut stats);
+        let (s1, anchors) = pass_one(&ctx, i, &fine, &fine_fac, &geo, &state, &mut stats);
         done += fine.len() as u64;
         progress(done, total);
         let s2 = pass_two(
-            &ctx, surface, i, &fine, &fine_fac, &geo, &state, &order, s1, &mut stats,
+            &ctx, surface, i, &fine, &fine_fac, &geo, &state, &order, s1, anchors, &mut stats,
         );
         search_seconds += t0.elapsed().as_secs_f64();
         done += fine.len() as u64;
@@ -1211,10 +1211,10 @@ fn coarse_seeds(
 /// The coarser level's K×K block around texel `t` of `fine` into `w.q` (missing where
 /// nothing is there): what pass 1 matches alone and pass 2 appends to
 /// the level's own block. `w.locs` holds the block's pattern afterwards. Pass 2 gathers it
-/// again rather than keeping pass 1's: the same pattern (the same calls, in the same
-/// order per domain, with a scratch of their own) and the same fetches give the same
-/// values, and keeping them all cost 25 samples x (channels + 1) x 4 bytes per texel of
-/// the finest level (825 B with 8 appearance dimensions), the run's peak.
+/// again rather than keeping pass 1's (keeping them all cost 25 samples x (channels + 1) x
+/// 4 bytes per texel of the finest level, 825 B with 8 appearance dimensions, the run's
+/// peak), from the every other sample of its own pattern where the blocks reach equally
+/// far ([`coarse_from_fine`]), else with this function.
 #[allow(clippy::too_many_arguments)]
 fn coarse_block(
     ctx: &Ctx<'_>,
@@ -1239,6 +1239,19 @@ fn coarse_block(
     }
 }
 
+/// Whether pass 2 takes its coarser block's pattern from the level's own `k`×`k` pattern:
+/// when the coarser `kc`×`kc` block (step 2δ) reaches exactly as far as the fine one (step
+/// δ), `k = 2·kc − 1` (the default 9 and 5), its samples are the fine pattern's every
+/// other sample — the same tangent offsets, so parameter-space patterns put them at the
+/// same parameters bit for bit ((2i)·δ = i·(2δ) exactly). *Why*: the coarser block's
+/// pattern was otherwise laid out a second time per texel (pass 1 lays it out too), an
+/// eighth of a Spot run's time in pattern sampling alone (issue 14). Where the patterns
+/// come from the vertex-chart sampler or were moved from a block's anchor, the two differ
+/// by those patterns' own errors (the sampler walks δ rather than 2δ per step).
+fn coarse_from_fine(k: usize, kc: usize) -> bool {
+    kc > 0 && k == 2 * kc - 1
+}
+
 /// The view of a finished coarser level (every texel generated, no domain in progress).
 fn finished_view<'a>(
     ctx: &'a Ctx<'_>,
@@ -1257,7 +1270,10 @@ fn finished_view<'a>(
     }
 }
 
-/// Pass 1: every texel from the coarser level's 5x5 block alone (all independent).
+/// Pass 1: every texel from the coarser level's 5x5 block alone (all independent). Also
+/// returns the block's anchor patterns laid out by the sampler when pass 2 lays out the
+/// same block again ([`Anchors`]; not when it takes it from its own pattern,
+/// [`coarse_from_fine`]).
 fn pass_one(
     ctx: &Ctx<'_>,
     level: usize,
@@ -1266,15 +1282,19 @@ fn pass_one(
     coarse: &LevelGeometry,
     cstate: &State,
     stats: &mut Stats,
-) -> State {
+) -> (State, Option<Arc<Anchors>>) {
     let k = ctx.model.shape(level, Pass::One).coarse;
+    let keep = !coarse_from_fine(ctx.model.shape(level, Pass::Two).fine, k);
     let texels = fine.texels();
     let view = finished_view(ctx, level, coarse, cstate);
-    // Per domain: chosen features, counters.
-    let results: Vec<(Vec<u32>, Counts)> = (0..texels.faces())
+    // Per domain: chosen features, counters, anchor patterns.
+    let results: Vec<(Vec<u32>, Counts, Option<Anchors>)> = (0..texels.faces())
         .into_par_iter()
         .map(|d| {
             let mut w = Work::new(ctx.model, level, Pass::One);
+            if keep {
+                w.pat.record = Some(Anchors::default());
+            }
             let start = texels.start(d);
             let mut src = vec![0u32; texels.count(d)];
             for (li, out) in src.iter_mut().enumerate() {
@@ -1299,15 +1319,18 @@ fn pass_one(
                 }
                 *out = ctx.choose(level, Pass::One, t, &mut w);
             }
-            (src, w.counts())
+            (src, w.counts(), w.pat.record.take())
         })
         .collect();
     let mut src = Vec::with_capacity(fine.len());
-    for (s, w) in results {
+    let mut parts = Vec::new();
+    for (s, w, a) in results {
         src.extend_from_slice(&s);
         absorb(stats, &w);
+        parts.extend(a);
     }
-    State { src }
+    let anchors = keep.then(|| Arc::new(Anchors::merge(parts)));
+    (State { src }, anchors)
 }
 
 /// Pass 2: refine with the level's 9x9 block plus the coarser block (gathered again,
@@ -1324,6 +1347,7 @@ fn pass_two(
     cstate: &State,
     order: &DomainOrder,
     mut state: State,
+    anchors: Option<Arc<Anchors>>,
     stats: &mut Stats,
 ) -> State {
     let c = ctx.channels;
@@ -1344,8 +1368,16 @@ fn pass_two(
         let (start, nn) = (texels.start(d), texels.count(d));
         let finished = order.visible(d, done);
         let mut w = Work::new(ctx.model, level, Pass::Two);
-        // Pass 1's pattern calls again, with a scratch (and counters) of their own.
-        let mut wc = Work::new(ctx.model, level, Pass::One);
+        // The coarser block's samples are every other sample of the level's own pattern
+        // when the blocks reach equally far ([`coarse_from_fine`]); otherwise pass 1's
+        // pattern calls again, with a scratch (and counters) of their own.
+        let kc = shape.coarse;
+        let from_fine = coarse_from_fine(k, kc);
+        let mut wc = (!from_fine).then(|| {
+            let mut wc = Work::new(ctx.model, level, Pass::One);
+            wc.pat.known = anchors.clone();
+            wc
+        });
         let mut own_src = before.src[start..start + nn].to_vec();
         let coherent_choice = level == 0 && ctx.coherence.is_some();
         let visit = if coherent_choice {
@@ -1383,14 +1415,28 @@ fn pass_two(
                     None => w.q.clear(s),
                 }
             }
-            coarse_block(ctx, level, geo, fac, coarse, &coarse_view, t, &mut wc);
-            let ns = shape.coarse * shape.coarse;
-            for s in 0..ns {
-                if wc.q.present[s] {
-                    let v = &wc.q.values[s * c..(s + 1) * c];
-                    w.q.set(nf + s, v);
-                } else {
-                    w.q.clear(nf + s);
+            if let Some(wc) = wc.as_mut() {
+                coarse_block(ctx, level, geo, fac, coarse, &coarse_view, t, wc);
+                for s in 0..kc * kc {
+                    if wc.q.present[s] {
+                        let v = &wc.q.values[s * c..(s + 1) * c];
+                        w.q.set(nf + s, v);
+                    } else {
+                        w.q.clear(nf + s);
+                    }
+                }
+            } else {
+                // Coarse sample (cx, cy) of the block is fine sample (2cx, 2cy).
+                for cy in 0..kc {
+                    for cx in 0..kc {
+                        let s = nf + cy * kc + cx;
+                        match w.locs[2 * cy * k + 2 * cx] {
+                            Some(loc) if coarse_view.fetch_at(&coarse.layout, loc, &mut w.val) => {
+                                w.q.set(s, &w.val);
+                            }
+                            _ => w.q.clear(s),
+                        }
+                    }
                 }
             }
             w.seeds.clear();
