@@ -53,6 +53,8 @@ pub fn command(out: &Path) -> SynthCommand {
         orientation: None,
         seed: SEED,
         search: None,
+        neighbourhood: None,
+        kcoherence_k: None,
         displace: None,
         appearance: Default::default(),
         feature_distance: 0.0,

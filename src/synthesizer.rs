@@ -540,6 +540,23 @@ impl Synthesizer {
         self.settings.multiscale.model.method = s.method();
         self
     }
+    /// The side of multiscale's (and textons') own-level neighbourhood block
+    /// (`--neighbourhood K`, odd), with the coarser level's block reaching as far
+    /// ([`crate::synth::matching::search::model::ModelParams::with_side`]).
+    pub fn neighbourhood(mut self, k: usize) -> Self {
+        let m = &mut self.settings.multiscale.model;
+        *m = m.with_side(k);
+        self
+    }
+    /// k-coherence's k for multiscale and textons (`--kcoherence-k K`): how many entries of
+    /// each proposing neighbour's list become candidates. No effect with another search.
+    pub fn kcoherence_k(mut self, k: usize) -> Self {
+        use crate::synth::matching::search::model::Method as M;
+        if let M::KCoherence(p) = &mut self.settings.multiscale.model.method {
+            p.k = k;
+        }
+        self
+    }
     /// Shape synthesis (`--displace AMOUNT`, 000 §6): [`SynthResult::write`] also writes
     /// `displaced.glb`, the limit surface tessellated at texel resolution and moved along
     /// the limit normal by `amount · (height − 0.5)`. Needs a height channel.
@@ -1272,6 +1289,11 @@ pub struct SynthCommand {
     pub seed: u64,
     /// `--search` (multiscale only; `None` = the default, k-coherence).
     pub search: Option<Search>,
+    /// `--neighbourhood K` (multiscale and textons; `None`: the default,
+    /// [`crate::synth::matching::search::model::ModelParams`]).
+    pub neighbourhood: Option<usize>,
+    /// `--kcoherence-k K` (k-coherence's k; `None`: the default).
+    pub kcoherence_k: Option<usize>,
     /// `--displace AMOUNT`.
     pub displace: Option<f64>,
     /// `--appearance`.
@@ -1330,6 +1352,12 @@ impl SynthCommand {
         }
         if let Some(search) = self.search {
             s = s.search(search);
+        }
+        if let Some(k) = self.neighbourhood {
+            s = s.neighbourhood(k);
+        }
+        if let Some(k) = self.kcoherence_k {
+            s = s.kcoherence_k(k);
         }
         if self.patch_size.is_some() {
             let mut settings = s.current_settings().clone();

@@ -138,6 +138,14 @@ pub struct SynthArgs {
     /// equal quality).
     #[arg(long, value_enum)]
     pub search: Option<Search>,
+    /// Side K of the level's own neighbourhood block of multiscale and textons (odd, 3 to
+    /// 15; the coarser level's block stays 5x5).
+    #[arg(long, value_name = "K", value_parser = parse_neighbourhood, allow_negative_numbers = true)]
+    pub neighbourhood: Option<usize>,
+    /// k-coherence: entries of each proposing neighbour's list that become candidates
+    /// (paper 003's k; default 11).
+    #[arg(long, value_name = "K", value_parser = parse_kcoherence_k, allow_negative_numbers = true)]
+    pub kcoherence_k: Option<usize>,
     /// Texels per side of every face map.
     #[arg(long, value_name = "N", default_value_t = 32, value_parser = parse_resolution, allow_negative_numbers = true)]
     pub resolution: usize,
@@ -211,6 +219,28 @@ fn parse_patch_size(s: &str) -> Result<usize, String> {
     Ok(v)
 }
 
+fn parse_neighbourhood(s: &str) -> Result<usize, String> {
+    let v: usize = s
+        .parse()
+        .map_err(|_| format!("'{s}' is not a whole number of samples"))?;
+    if !(3..=15).contains(&v) || v % 2 == 0 {
+        return Err(format!(
+            "neighbourhood side {v} is not valid: use an odd side from 3 to 15"
+        ));
+    }
+    Ok(v)
+}
+
+fn parse_kcoherence_k(s: &str) -> Result<usize, String> {
+    let v: usize = s
+        .parse()
+        .map_err(|_| format!("'{s}' is not a whole number"))?;
+    if !(1..=64).contains(&v) {
+        return Err(format!("k-coherence k {v} is out of range: use 1 to 64"));
+    }
+    Ok(v)
+}
+
 fn parse_feature_distance(s: &str) -> Result<f32, String> {
     let v: f32 = s.parse().map_err(|_| format!("'{s}' is not a number"))?;
     if !(0.0..=16.0).contains(&v) {
@@ -238,6 +268,16 @@ pub fn run(mut a: SynthArgs) -> anyhow::Result<()> {
                 .to_possible_value()
                 .map_or("?".into(), |v| v.get_name().to_string())
         ));
+    }
+    if (a.neighbourhood.is_some() || a.kcoherence_k.is_some())
+        && !matches!(chosen, Method::Multiscale | Method::Textons)
+    {
+        return super::usage(
+            "--neighbourhood and --kcoherence-k apply to --method multiscale and textons only",
+        );
+    }
+    if a.kcoherence_k.is_some() && matches!(a.search, Some(Search::Ann)) {
+        return super::usage("--kcoherence-k applies to --search kcoherence only");
     }
     if a.decimate.is_some() && a.displace.is_none() {
         return super::usage("--decimate applies to the displaced mesh: pass --displace AMOUNT");
@@ -337,6 +377,8 @@ pub fn run(mut a: SynthArgs) -> anyhow::Result<()> {
             Search::Ann => S::Ann,
             Search::Kcoherence => S::KCoherence,
         }),
+        neighbourhood: a.neighbourhood,
+        kcoherence_k: a.kcoherence_k,
         displace: a.displace,
         appearance: match a.appearance {
             Appearance::Pca => surfsynth::synthesizer::AppearanceMode::Pca,

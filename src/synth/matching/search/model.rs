@@ -62,6 +62,14 @@ impl Default for ModelParams {
     }
 }
 
+impl ModelParams {
+    /// These parameters with a `k`×`k` block of the current level (odd); the coarser
+    /// level's block is kept (it carries the layout).
+    pub fn with_side(self, k: usize) -> Self {
+        Self { fine: k, ..self }
+    }
+}
+
 /// Which neighbourhood a search uses.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Pass {
