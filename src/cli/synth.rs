@@ -223,7 +223,7 @@ fn parse_neighbourhood(s: &str) -> Result<usize, String> {
     let v: usize = s
         .parse()
         .map_err(|_| format!("'{s}' is not a whole number of samples"))?;
-    if !(3..=15).contains(&v) || v % 2 == 0 {
+    if !(3..=15).contains(&v) || v.is_multiple_of(2) {
         return Err(format!(
             "neighbourhood side {v} is not valid: use an odd side from 3 to 15"
         ));

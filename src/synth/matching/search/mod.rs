@@ -1022,7 +1022,7 @@ mod tests {
         for qi in 0..40u64 {
             let mut q = Query::new(shape);
             for s in 0..shape.samples() {
-                if hash(qi, &[s as u64, 9]) % 7 != 0 {
+                if !hash(qi, &[s as u64, 9]).is_multiple_of(7) {
                     let v = [
                         (hash(qi, &[s as u64, 1]) % 1000) as f32 / 1e3,
                         (hash(qi, &[s as u64, 2]) % 1000) as f32 / 1e3,
