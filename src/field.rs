@@ -58,7 +58,7 @@ use std::path::{Path, PathBuf};
 use subdiv::{BaseLocation, DomainId, FaceId, LimitMesh, Surface, VertexId};
 
 mod choice;
-pub use choice::{bent_fraction, Choice};
+pub use choice::{bent_fraction, level_fraction, Choice, Why};
 
 /// Example pixels over which `straight` wants the field straight: half the extent of BRIEF's
 /// pf8 window (7 samples 8 px apart plus the discs), so a window centred anywhere sees rows
@@ -81,6 +81,12 @@ pub enum Orientation {
     /// +y, the convention of OBJ exporters; `up+z` for Z-up meshes). A brick wall's courses
     /// stay level, scales point down, whatever the mesh's shape.
     Up(DVec3),
+    /// [`Orientation::Up`] where the surface has an up, else [`Orientation::Auto`]: `up`
+    /// unless more than half of the surface's area is level against the axis (terrain, a
+    /// floor, a shallow dome), where `up` would draw the example in contour rings around
+    /// every summit (`choice::upright` says why and what was measured). The default of
+    /// texture optimisation.
+    Upright(DVec3),
     /// Constraints from a file (see docs/field.md).
     Constraints(std::path::PathBuf),
 }
@@ -98,6 +104,12 @@ impl Orientation {
             "up-x" => Orientation::Up(DVec3::NEG_X),
             "up+z" => Orientation::Up(DVec3::Z),
             "up-z" => Orientation::Up(DVec3::NEG_Z),
+            "upright" | "upright+y" => Orientation::Upright(DVec3::Y),
+            "upright-y" => Orientation::Upright(DVec3::NEG_Y),
+            "upright+x" => Orientation::Upright(DVec3::X),
+            "upright-x" => Orientation::Upright(DVec3::NEG_X),
+            "upright+z" => Orientation::Upright(DVec3::Z),
+            "upright-z" => Orientation::Upright(DVec3::NEG_Z),
             "+x" | "x" => axis(DVec3::X),
             "-x" => axis(DVec3::NEG_X),
             "+y" | "y" => axis(DVec3::Y),
@@ -131,6 +143,11 @@ impl Orientation {
             Orientation::Up(a) if *a == DVec3::Y => "up".into(),
             Orientation::Up(a) => format!(
                 "up{}",
+                Orientation::Axis(*a).label().trim_start_matches("axis")
+            ),
+            Orientation::Upright(a) if *a == DVec3::Y => "upright".into(),
+            Orientation::Upright(a) => format!(
+                "upright{}",
                 Orientation::Axis(*a).label().trim_start_matches("axis")
             ),
             Orientation::Constraints(p) => p.display().to_string(),
@@ -249,7 +266,7 @@ pub struct OrientationField {
     corner_v1: HashMap<u32, DVec3>,
     history: Vec<LevelHistory>,
     label: String,
-    /// What `straight` chose (None for every other orientation).
+    /// What `straight` or `upright` chose (None for every other orientation).
     choice: Option<Choice>,
 }
 
@@ -1456,6 +1473,15 @@ impl OrientationField {
         orientation: &Orientation,
         opts: &FieldOptions,
     ) -> anyhow::Result<Self> {
+        if let Orientation::Upright(a) = orientation {
+            check_axis(*a)?;
+            let level = choice::SCORE_LEVEL.min(final_level(surface, opts));
+            let (chosen, choice) = choice::upright(surface, *a, level);
+            let mut field = Self::compute_fixed(surface, &chosen, opts)?;
+            field.label = orientation.label();
+            field.choice = Some(choice);
+            return Ok(field);
+        }
         if *orientation != Orientation::Straight {
             return Self::compute_fixed(surface, orientation, opts);
         }
@@ -1487,18 +1513,12 @@ impl OrientationField {
     ) -> anyhow::Result<Self> {
         let constraints = match orientation {
             Orientation::Auto | Orientation::Straight => Constraints::default(),
-            Orientation::Axis(a) | Orientation::Up(a) => {
-                if a.length() < 1e-12 || !a.is_finite() {
-                    bail!(
-                        "orientation axis ({}, {}, {}) has no direction",
-                        a.x,
-                        a.y,
-                        a.z
-                    );
-                }
+            Orientation::Axis(a) | Orientation::Up(a) | Orientation::Upright(a) => {
+                check_axis(*a)?;
                 let hint = vec![(a.normalize(), 1.0)];
                 match orientation {
-                    Orientation::Up(_) => Constraints {
+                    // `Upright` is resolved to `Up` or `Auto` before this (compute_with).
+                    Orientation::Up(_) | Orientation::Upright(_) => Constraints {
                         ups: hint,
                         ..Default::default()
                     },
@@ -1728,6 +1748,19 @@ impl OrientationField {
         }
         out
     }
+}
+
+/// Refuses an axis without a direction (zero or not finite).
+fn check_axis(a: DVec3) -> anyhow::Result<()> {
+    if a.length() < 1e-12 || !a.is_finite() {
+        bail!(
+            "orientation axis ({}, {}, {}) has no direction",
+            a.x,
+            a.y,
+            a.z
+        );
+    }
+    Ok(())
 }
 
 /// Orthonormal tangent frame at a vertex with unit normal `n` whose first axis is `d`

@@ -359,7 +359,7 @@ pub struct SynthResult {
 impl Synthesizer {
     /// A run on `mesh` (an OBJ path or a [`Surface`]) with `example` (a PNG/JPEG path or an
     /// [`Example`]). Defaults: [`Method::DEFAULT`], resolution 32, scale = median texel spacing,
-    /// the method's orientation ([`Method::default_orientation`]: `up` for optimise),
+    /// the method's orientation ([`Method::default_orientation`]: `upright` for optimise),
     /// seed 1, all threads of the current rayon pool.
     pub fn new(mesh: impl Into<MeshSource>, example: impl Into<ExampleSource>) -> Self {
         Self {
@@ -962,6 +962,7 @@ fn orientation_label(o: &Orientation) -> String {
         Orientation::Straight => "straight".into(),
         Orientation::Axis(a) => format!("axis ({}, {}, {})", a.x, a.y, a.z),
         Orientation::Up(a) => format!("up ({}, {}, {})", a.x, a.y, a.z),
+        Orientation::Upright(a) => format!("upright ({}, {}, {})", a.x, a.y, a.z),
         Orientation::Constraints(p) => p.display().to_string(),
     }
 }

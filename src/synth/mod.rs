@@ -107,12 +107,14 @@ impl Method {
     /// Texture optimisation copies whole patches, so it shows the example as it is — upright
     /// bricks stay level only if the field keeps the example's up along the world's
     /// (`up`, +y); with guided final assembly its seams stay within the bar there
-    /// (docs/synthesis.md, "The `up` field"). The per-texel methods keep the smoothest field
-    /// (`auto`): `up` raised patch sampling's seams on the double torus (1.31) and gains
-    /// them nothing measured.
+    /// (docs/synthesis.md, "The `up` field"). On a mostly level surface (terrain, a floor)
+    /// `up` has no up to follow and draws contour rings, so the default is `upright`: `up`
+    /// there only where the surface stands (`field::choice::upright`). The per-texel methods
+    /// keep the smoothest field (`auto`): `up` raised patch sampling's seams on the double
+    /// torus (1.31) and gains them nothing measured.
     pub fn default_orientation(self) -> crate::field::Orientation {
         match self {
-            Method::Optimise => crate::field::Orientation::Up(glam::DVec3::Y),
+            Method::Optimise => crate::field::Orientation::Upright(glam::DVec3::Y),
             _ => crate::field::Orientation::Auto,
         }
     }

@@ -922,14 +922,22 @@ impl Session {
                 .unwrap_or(layout.max_dims().0.max(layout.max_dims().1)),
             texel_size: self.texel_size,
             orientation: orientation_label(&self.orientation),
-            orientation_choice: self
-                .field
-                .choice()
-                .map(|c| crate::report::OrientationChoice {
+            orientation_choice: self.field.choice().map(|c| match &c.why {
+                crate::field::Why::Straightest { scores, length } => {
+                    crate::report::OrientationChoice {
+                        chosen: c.chosen.clone(),
+                        structure_length: Some(length * self.unit),
+                        bent_fraction: scores.clone(),
+                        level_fraction: None,
+                    }
+                }
+                crate::field::Why::Level { fraction } => crate::report::OrientationChoice {
                     chosen: c.chosen.clone(),
-                    structure_length: c.length * self.unit,
-                    bent_fraction: c.scores.clone(),
-                }),
+                    structure_length: None,
+                    bent_fraction: Vec::new(),
+                    level_fraction: Some(*fraction),
+                },
+            }),
             faces,
             control_faces: surface.control.mesh.num_faces(),
             texels: layout.len() as u64,
