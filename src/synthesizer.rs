@@ -1377,8 +1377,19 @@ pub fn summary_line(r: &Report, out: &Path) -> String {
         None => format!("{n}x{n} each", n = r.resolution),
         Some(l) => format!("texel size {l}, up to {n}x{n}", n = r.resolution),
     };
+    // `upright` lying flat is worth a word: the user asked for (or defaulted to) an upright
+    // example and gets the smooth field.
+    let field = match &r.orientation_choice {
+        Some(c) if c.chosen == "auto" => c.level_fraction.map_or(String::new(), |f| {
+            format!(
+                "; field auto: {:.0}% of the surface is level, no up to follow",
+                100.0 * f
+            )
+        }),
+        _ => String::new(),
+    };
     format!(
-        "synth: {} domains, {} texels ({each}) in {:.2} s ({} texels/s; synthesis {:.2} s, {} texels/s){pf} -> {}",
+        "synth: {} domains, {} texels ({each}) in {:.2} s ({} texels/s; synthesis {:.2} s, {} texels/s){pf}{field} -> {}",
         r.faces,
         r.texels,
         r.seconds.total,
