@@ -55,6 +55,7 @@ use glam::{DVec2, DVec3};
 use rayon::prelude::*;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
+use subdiv::surface::LeafHint;
 use subdiv::{BaseLocation, DomainId, FaceId, LimitMesh, Surface, VertexId};
 
 mod choice;
@@ -1660,6 +1661,23 @@ impl OrientationField {
         let e = surface.eval(d, u, v);
         let loc = surface.base_location(subdiv::DomainLocation { domain: d, u, v });
         self.frame_at(loc, e.n, e.du)
+    }
+
+    /// [`Self::frame`] evaluating the surface through `hint`
+    /// ([`Surface::eval_base_derivs`]): the same bits, and the same base location is not
+    /// computed twice. For runs of neighbouring points (a domain's texel centres).
+    pub fn frame_hinted(
+        &self,
+        surface: &Surface,
+        d: DomainId,
+        u: f64,
+        v: f64,
+        hint: &mut LeafHint,
+    ) -> Frame {
+        let (quad, s, t, jac) = surface.domain_to_base(d, u, v);
+        let e = surface.eval_base_derivs(quad, s, t, hint).sample();
+        let du = e.du * jac[0][0] + e.dv * jac[1][0];
+        self.frame_at(BaseLocation { quad, s, t }, e.n, du)
     }
 
     /// The frame at a base point whose unit normal `n` is already known (saves an
