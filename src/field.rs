@@ -546,8 +546,13 @@ impl LevelProblem {
 const COARSEST: usize = 256;
 /// Level 1 of the limit meshes up to this many vertices gets the linear relaxation solved
 /// on itself (conjugate gradients, superlinear but fast at this size); above, on its
-/// multigrid levels ([`fmg`]).
-const EXACT_MAX: usize = 32_768;
+/// multigrid levels ([`fmg`]). Was 32,768: the bunny's level 1 (19,796 vertices) then
+/// took its eigenvector by inverse iteration, ~3,900 CG iterations and ~1 s of one core
+/// (its two smallest eigenvalues are close, so 30 solves were needed), three quarters
+/// of its whole field. Full multigrid finds the same four singularities there, E at the
+/// finest level 62.03 instead of 60.62, and the same texture quality (docs/field.md);
+/// the field stage takes about a quarter as long.
+const EXACT_MAX: usize = 16_384;
 /// Gauss–Seidel sweeps before and after each coarse correction of a V-cycle.
 const SMOOTHING: usize = 2;
 /// Cycles on each coarse level per visit (2: a W-cycle).
@@ -716,8 +721,8 @@ impl Problem<'_> {
 
     /// y = (D + W − C) x, with `dw` = the diagonal D + W: the relaxation's Hermitian form
     /// plus a diagonal. Returns Re⟨x, y⟩, summed in index order as `Iterator::sum` would
-    /// (from −0.0): conjugate gradients needs it right after the product, and one pass over
-    /// x and y instead of two was a fifth of the level-1 eigenvector solve's time.
+    /// (from −0.0): conjugate gradients needs it right after the product, so it is taken
+    /// in the same pass (the same bits as a separate dot product).
     fn apply(&self, dw: &[f64], x: &[DVec2], y: &mut [DVec2]) -> f64 {
         let g = self.g;
         let mut xy = -0.0;
