@@ -55,10 +55,11 @@ use glam::{DVec2, DVec3};
 use rayon::prelude::*;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
+use subdiv::surface::LeafHint;
 use subdiv::{BaseLocation, DomainId, FaceId, LimitMesh, Surface, VertexId};
 
 mod choice;
-pub use choice::{bent_fraction, Choice};
+pub use choice::{bent_fraction, level_fraction, Choice, Why};
 
 /// Example pixels over which `straight` wants the field straight: half the extent of BRIEF's
 /// pf8 window (7 samples 8 px apart plus the discs), so a window centred anywhere sees rows
@@ -81,6 +82,12 @@ pub enum Orientation {
     /// +y, the convention of OBJ exporters; `up+z` for Z-up meshes). A brick wall's courses
     /// stay level, scales point down, whatever the mesh's shape.
     Up(DVec3),
+    /// [`Orientation::Up`] where the surface has an up, else [`Orientation::Auto`]: `up`
+    /// unless more than half of the surface's area is level against the axis (terrain, a
+    /// floor, a shallow dome), where `up` would draw the example in contour rings around
+    /// every summit (`choice::upright` says why and what was measured). The default of
+    /// texture optimisation.
+    Upright(DVec3),
     /// Constraints from a file (see docs/field.md).
     Constraints(std::path::PathBuf),
 }
@@ -98,6 +105,12 @@ impl Orientation {
             "up-x" => Orientation::Up(DVec3::NEG_X),
             "up+z" => Orientation::Up(DVec3::Z),
             "up-z" => Orientation::Up(DVec3::NEG_Z),
+            "upright" | "upright+y" => Orientation::Upright(DVec3::Y),
+            "upright-y" => Orientation::Upright(DVec3::NEG_Y),
+            "upright+x" => Orientation::Upright(DVec3::X),
+            "upright-x" => Orientation::Upright(DVec3::NEG_X),
+            "upright+z" => Orientation::Upright(DVec3::Z),
+            "upright-z" => Orientation::Upright(DVec3::NEG_Z),
             "+x" | "x" => axis(DVec3::X),
             "-x" => axis(DVec3::NEG_X),
             "+y" | "y" => axis(DVec3::Y),
@@ -131,6 +144,11 @@ impl Orientation {
             Orientation::Up(a) if *a == DVec3::Y => "up".into(),
             Orientation::Up(a) => format!(
                 "up{}",
+                Orientation::Axis(*a).label().trim_start_matches("axis")
+            ),
+            Orientation::Upright(a) if *a == DVec3::Y => "upright".into(),
+            Orientation::Upright(a) => format!(
+                "upright{}",
                 Orientation::Axis(*a).label().trim_start_matches("axis")
             ),
             Orientation::Constraints(p) => p.display().to_string(),
@@ -249,7 +267,7 @@ pub struct OrientationField {
     corner_v1: HashMap<u32, DVec3>,
     history: Vec<LevelHistory>,
     label: String,
-    /// What `straight` chose (None for every other orientation).
+    /// What `straight` or `upright` chose (None for every other orientation).
     choice: Option<Choice>,
 }
 
@@ -545,8 +563,13 @@ impl LevelProblem {
 const COARSEST: usize = 256;
 /// Level 1 of the limit meshes up to this many vertices gets the linear relaxation solved
 /// on itself (conjugate gradients, superlinear but fast at this size); above, on its
-/// multigrid levels ([`fmg`]).
-const EXACT_MAX: usize = 32_768;
+/// multigrid levels ([`fmg`]). Was 32,768: the bunny's level 1 (19,796 vertices) then
+/// took its eigenvector by inverse iteration, ~3,900 CG iterations and ~1 s of one core
+/// (its two smallest eigenvalues are close, so 30 solves were needed), three quarters
+/// of its whole field. Full multigrid finds the same four singularities there, E at the
+/// finest level 62.03 instead of 60.62, and the same texture quality (docs/field.md);
+/// the field stage takes about a quarter as long.
+const EXACT_MAX: usize = 16_384;
 /// Gauss–Seidel sweeps before and after each coarse correction of a V-cycle.
 const SMOOTHING: usize = 2;
 /// Cycles on each coarse level per visit (2: a W-cycle).
@@ -713,28 +736,42 @@ impl Problem<'_> {
         hist
     }
 
-    /// y = (D + W − C) x, W = diag(w): the relaxation's Hermitian form plus a diagonal.
-    fn apply(&self, w: &[f64], x: &[DVec2], y: &mut [DVec2]) {
-        for i in 0..self.nv() {
-            let mut s = x[i] * (self.diag[i] + w[i]);
-            for k in self.g.row(i) {
-                s -= cmul(self.coef[k], x[self.g.nbr[k] as usize]);
+    /// y = (D + W − C) x, with `dw` = the diagonal D + W: the relaxation's Hermitian form
+    /// plus a diagonal. Returns Re⟨x, y⟩, summed in index order as `Iterator::sum` would
+    /// (from −0.0): conjugate gradients needs it right after the product, so it is taken
+    /// in the same pass (the same bits as a separate dot product).
+    fn apply(&self, dw: &[f64], x: &[DVec2], y: &mut [DVec2]) -> f64 {
+        let g = self.g;
+        let mut xy = -0.0;
+        for (i, (yi, &di)) in y.iter_mut().zip(dw).enumerate() {
+            let xi = x[i];
+            let mut s = xi * di;
+            let row = g.row(i);
+            for (c, &j) in self.coef[row.clone()].iter().zip(&g.nbr[row]) {
+                s -= cmul(*c, x[j as usize]);
             }
-            y[i] = s;
+            *yi = s;
+            xy += xi.dot(s);
         }
+        xy
     }
 
     /// Conjugate gradients for the Hermitian positive definite (D + W − C) x = b.
+    ///
+    /// The vector updates are fused into as few passes as the recurrence allows (the same
+    /// operations in the same order as one loop per update: the same bits); the solves of
+    /// the level-1 eigenvector are the longest serial stretch of the field.
     fn solve(&self, w: &[f64], b: &[DVec2], x: &mut [DVec2], iters: usize, tol: f64) {
         let n = self.nv();
         let dot = |a: &[DVec2], b: &[DVec2]| -> f64 {
             // Re <a, b>; for Hermitian systems the imaginary parts cancel in CG.
             a.iter().zip(b).map(|(p, q)| p.dot(*q)).sum()
         };
+        let dw: Vec<f64> = self.diag.iter().zip(w).map(|(d, w)| d + w).collect();
         let mut r = vec![DVec2::ZERO; n];
-        self.apply(w, x, &mut r);
-        for i in 0..n {
-            r[i] = b[i] - r[i];
+        self.apply(&dw, x, &mut r);
+        for (ri, bi) in r.iter_mut().zip(b) {
+            *ri = *bi - *ri;
         }
         let mut p = r.clone();
         let mut ap = vec![DVec2::ZERO; n];
@@ -744,21 +781,21 @@ impl Problem<'_> {
             if rr <= tol * tol * bb {
                 break;
             }
-            self.apply(w, &p, &mut ap);
-            let pap = dot(&p, &ap);
+            let pap = self.apply(&dw, &p, &mut ap);
             if pap <= 0.0 {
                 break;
             }
             let alpha = rr / pap;
-            for i in 0..n {
-                x[i] += p[i] * alpha;
-                r[i] -= ap[i] * alpha;
+            let mut rr2 = -0.0;
+            for (((xi, ri), pi), api) in x.iter_mut().zip(r.iter_mut()).zip(&p).zip(&ap) {
+                *xi += *pi * alpha;
+                *ri -= *api * alpha;
+                rr2 += ri.dot(*ri);
             }
-            let rr2 = dot(&r, &r);
             let beta = rr2 / rr;
             rr = rr2;
-            for i in 0..n {
-                p[i] = r[i] + p[i] * beta;
+            for (pi, ri) in p.iter_mut().zip(&r) {
+                *pi = *ri + *pi * beta;
             }
         }
     }
@@ -1456,6 +1493,15 @@ impl OrientationField {
         orientation: &Orientation,
         opts: &FieldOptions,
     ) -> anyhow::Result<Self> {
+        if let Orientation::Upright(a) = orientation {
+            check_axis(*a)?;
+            let level = choice::SCORE_LEVEL.min(final_level(surface, opts));
+            let (chosen, choice) = choice::upright(surface, *a, level);
+            let mut field = Self::compute_fixed(surface, &chosen, opts)?;
+            field.label = orientation.label();
+            field.choice = Some(choice);
+            return Ok(field);
+        }
         if *orientation != Orientation::Straight {
             return Self::compute_fixed(surface, orientation, opts);
         }
@@ -1487,18 +1533,12 @@ impl OrientationField {
     ) -> anyhow::Result<Self> {
         let constraints = match orientation {
             Orientation::Auto | Orientation::Straight => Constraints::default(),
-            Orientation::Axis(a) | Orientation::Up(a) => {
-                if a.length() < 1e-12 || !a.is_finite() {
-                    bail!(
-                        "orientation axis ({}, {}, {}) has no direction",
-                        a.x,
-                        a.y,
-                        a.z
-                    );
-                }
+            Orientation::Axis(a) | Orientation::Up(a) | Orientation::Upright(a) => {
+                check_axis(*a)?;
                 let hint = vec![(a.normalize(), 1.0)];
                 match orientation {
-                    Orientation::Up(_) => Constraints {
+                    // `Upright` is resolved to `Up` or `Auto` before this (compute_with).
+                    Orientation::Up(_) | Orientation::Upright(_) => Constraints {
                         ups: hint,
                         ..Default::default()
                     },
@@ -1648,6 +1688,23 @@ impl OrientationField {
         self.frame_at(loc, e.n, e.du)
     }
 
+    /// [`Self::frame`] evaluating the surface through `hint`
+    /// ([`Surface::eval_base_derivs`]): the same bits, and the same base location is not
+    /// computed twice. For runs of neighbouring points (a domain's texel centres).
+    pub fn frame_hinted(
+        &self,
+        surface: &Surface,
+        d: DomainId,
+        u: f64,
+        v: f64,
+        hint: &mut LeafHint,
+    ) -> Frame {
+        let (quad, s, t, jac) = surface.domain_to_base(d, u, v);
+        let e = surface.eval_base_derivs(quad, s, t, hint).sample();
+        let du = e.du * jac[0][0] + e.dv * jac[1][0];
+        self.frame_at(BaseLocation { quad, s, t }, e.n, du)
+    }
+
     /// The frame at a base point whose unit normal `n` is already known (saves an
     /// evaluation); `fallback` is used only where the field vanishes (at a singularity).
     pub fn frame_at(&self, loc: BaseLocation, n: DVec3, fallback: DVec3) -> Frame {
@@ -1728,6 +1785,19 @@ impl OrientationField {
         }
         out
     }
+}
+
+/// Refuses an axis without a direction (zero or not finite).
+fn check_axis(a: DVec3) -> anyhow::Result<()> {
+    if a.length() < 1e-12 || !a.is_finite() {
+        bail!(
+            "orientation axis ({}, {}, {}) has no direction",
+            a.x,
+            a.y,
+            a.z
+        );
+    }
+    Ok(())
 }
 
 /// Orthonormal tangent frame at a vertex with unit normal `n` whose first axis is `d`

@@ -71,6 +71,7 @@ fn parse_orientation(s: &str) -> Orientation {
     for (prefix, make) in [
         ("axis (", Orientation::Axis as fn(DVec3) -> Orientation),
         ("up (", Orientation::Up),
+        ("upright (", Orientation::Upright),
     ] {
         if let Some(inner) = s.strip_prefix(prefix).and_then(|r| r.strip_suffix(')')) {
             let v: Vec<f64> = inner

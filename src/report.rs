@@ -101,7 +101,7 @@ pub struct Report {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub texel_size: Option<f64>,
     pub orientation: String,
-    /// What `--orient straight` chose and every candidate's score (absent otherwise).
+    /// What `--orient straight` or `upright` chose, and why (absent otherwise).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub orientation_choice: Option<OrientationChoice>,
     /// Face domains F.
@@ -146,16 +146,24 @@ pub struct Report {
     pub cache: crate::synth::analysis::CacheReport,
 }
 
-/// `straight`'s choice among candidate fields ([`crate::field::Choice`]).
+/// What a chosen orientation decided ([`crate::field::Choice`]): `straight`'s pick among
+/// candidate fields, or `upright`'s between `up` and the smooth field.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct OrientationChoice {
-    /// `auto` (the smooth field), `+x`, `+y` or `+z`.
+    /// `auto` (the smooth field), `+x`, `+y`, `+z` or `up`.
     pub chosen: String,
-    /// Surface length (user units) over which straightness was scored.
-    pub structure_length: f64,
-    /// Per candidate: the fraction of the surface where the frame turns by more than
-    /// 0.1 rad over the structure length (lower is straighter), in candidate order.
+    /// `straight`: surface length (user units) over which straightness was scored.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub structure_length: Option<f64>,
+    /// `straight`: per candidate, the fraction of the surface where the frame turns by
+    /// more than 0.1 rad over the structure length (lower is straighter), in candidate
+    /// order.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
     pub bent_fraction: Vec<(String, f64)>,
+    /// `upright`: the share of the surface's area whose normal is within 30° of the axis
+    /// (`up` above half of it would draw contour rings; the smooth field is chosen).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub level_fraction: Option<f64>,
 }
 
 impl Report {

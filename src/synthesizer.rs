@@ -359,7 +359,7 @@ pub struct SynthResult {
 impl Synthesizer {
     /// A run on `mesh` (an OBJ path or a [`Surface`]) with `example` (a PNG/JPEG path or an
     /// [`Example`]). Defaults: [`Method::DEFAULT`], resolution 32, scale = median texel spacing,
-    /// the method's orientation ([`Method::default_orientation`]: `up` for optimise),
+    /// the method's orientation ([`Method::default_orientation`]: `upright` for optimise),
     /// seed 1, all threads of the current rayon pool.
     pub fn new(mesh: impl Into<MeshSource>, example: impl Into<ExampleSource>) -> Self {
         Self {
@@ -979,6 +979,7 @@ fn orientation_label(o: &Orientation) -> String {
         Orientation::Straight => "straight".into(),
         Orientation::Axis(a) => format!("axis ({}, {}, {})", a.x, a.y, a.z),
         Orientation::Up(a) => format!("up ({}, {}, {})", a.x, a.y, a.z),
+        Orientation::Upright(a) => format!("upright ({}, {}, {})", a.x, a.y, a.z),
         Orientation::Constraints(p) => p.display().to_string(),
     }
 }
@@ -1404,8 +1405,19 @@ pub fn summary_line(r: &Report, out: &Path) -> String {
         None => format!("{n}x{n} each", n = r.resolution),
         Some(l) => format!("texel size {l}, up to {n}x{n}", n = r.resolution),
     };
+    // `upright` lying flat is worth a word: the user asked for (or defaulted to) an upright
+    // example and gets the smooth field.
+    let field = match &r.orientation_choice {
+        Some(c) if c.chosen == "auto" => c.level_fraction.map_or(String::new(), |f| {
+            format!(
+                "; field auto: {:.0}% of the surface is level, no up to follow",
+                100.0 * f
+            )
+        }),
+        _ => String::new(),
+    };
     format!(
-        "synth: {} domains, {} texels ({each}) in {:.2} s ({} texels/s; synthesis {:.2} s, {} texels/s){pf} -> {}",
+        "synth: {} domains, {} texels ({each}) in {:.2} s ({} texels/s; synthesis {:.2} s, {} texels/s){pf}{field} -> {}",
         r.faces,
         r.texels,
         r.seconds.total,

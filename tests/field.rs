@@ -130,6 +130,22 @@ fn auto_fields_have_only_the_singularities_topology_forces() {
     }
 }
 
+/// The synthesizer's f32 frames (evaluated through leaf hints, per domain) are the f64
+/// frames of `texel_frames` rounded: the same bits.
+#[test]
+fn f32_texel_frames_are_the_f64_frames_rounded() {
+    let s = load("opensubdiv-reference/spot_control_mesh.obj");
+    let f = OrientationField::compute(&s, &Orientation::Auto).unwrap();
+    for n in [1, 7] {
+        let want = surfsynth::synth::frames_f32(&f.texel_frames(&s, n));
+        assert_eq!(
+            surfsynth::synth::texel_frames_f32(&f, &s, n),
+            want,
+            "N = {n}"
+        );
+    }
+}
+
 #[test]
 fn frames_are_orthonormal_and_continuous_across_domain_edges() {
     let s = load("opensubdiv-reference/spot_control_mesh.obj");

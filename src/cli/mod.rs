@@ -228,18 +228,24 @@ pub fn parse_orient(s: &str) -> Result<surfsynth::field::Orientation, String> {
     if lower == "straight" {
         return Ok(Orientation::Straight);
     }
-    if let Some(up) = lower.strip_prefix("up") {
+    let (up, upright) = match lower.strip_prefix("upright") {
+        Some(rest) => (Some(rest), true),
+        None => (lower.strip_prefix("up"), false),
+    };
+    if let Some(up) = up {
         let (sign, rest) = match up.as_bytes().first() {
             Some(b'+') => (1.0, &up[1..]),
             Some(b'-') => (-1.0, &up[1..]),
             _ => (1.0, up),
         };
         match axis(if rest.is_empty() { "y" } else { rest }) {
+            Some(a) if upright => return Ok(Orientation::Upright(a * sign)),
             Some(a) => return Ok(Orientation::Up(a * sign)),
             None if !std::path::Path::new(t).is_file() => {
+                let word = if upright { "upright" } else { "up" };
                 return Err(format!(
-                    "'{s}' is not up, up+x, up-x, up+y, up-y, up+z or up-z"
-                ))
+                    "'{s}' is not {word}, {word}+x, {word}-x, {word}+y, {word}-y, {word}+z or {word}-z"
+                ));
             }
             None => {}
         }
@@ -257,7 +263,7 @@ pub fn parse_orient(s: &str) -> Result<surfsynth::field::Orientation, String> {
         return Ok(Orientation::Constraints(p.to_path_buf()));
     }
     Err(format!(
-        "'{s}' is not auto, straight, up[+-axis], +x, -x, +y, -y, +z, -z or an existing constraints file"
+        "'{s}' is not auto, straight, up[+-axis], upright[+-axis], +x, -x, +y, -y, +z, -z or an existing constraints file"
     ))
 }
 
@@ -366,6 +372,8 @@ mod tests {
             ("up", O::Up(DVec3::Y)),
             ("UP+Z", O::Up(DVec3::Z)),
             ("up-x", O::Up(DVec3::NEG_X)),
+            ("upright", O::Upright(DVec3::Y)),
+            ("Upright-z", O::Upright(DVec3::NEG_Z)),
             ("-y", O::Axis(DVec3::NEG_Y)),
             ("auto", O::Auto),
             ("straight", O::Straight),
@@ -374,5 +382,7 @@ mod tests {
         }
         let e = parse_orient("up+w").unwrap_err();
         assert!(e.contains("up+x"), "{e}");
+        let e = parse_orient("upright+w").unwrap_err();
+        assert!(e.contains("upright+x"), "{e}");
     }
 }

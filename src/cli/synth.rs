@@ -167,10 +167,12 @@ pub struct SynthArgs {
     #[arg(long)]
     pub scale_from_orient: bool,
     /// Orientation field: auto (the smoothest field), up[+-AXIS] (the example upright
-    /// along an axis, +y by default: level brick courses), straight, +x|-x|+y|-y|+z|-z (the
-    /// example's x along an axis), or a constraints file. Default: `up` for optimise (the
-    /// default method), `auto` for the others.
-    #[arg(long, value_name = "auto|up|AXIS|FILE", value_parser = parse_orient, allow_hyphen_values = true)]
+    /// along an axis, +y by default: level brick courses), upright[+-AXIS] (`up`, unless
+    /// more than half of the surface is level against the axis — terrain, a floor — then
+    /// `auto`), straight, +x|-x|+y|-y|+z|-z (the example's x along an axis), or a
+    /// constraints file. Default: `upright` for optimise (the default method), `auto` for
+    /// the others.
+    #[arg(long, value_name = "auto|up|upright|AXIS|FILE", value_parser = parse_orient, allow_hyphen_values = true)]
     pub orient: Option<Orientation>,
     /// Random seed; the same seed gives the same files for any thread count.
     #[arg(

@@ -173,6 +173,20 @@ pub struct Quality {
     /// Number of those pairs.
     #[serde(default)]
     pub seam_pairs_mixed: usize,
+    /// [`Quality::seam_ratio`] over only the seam pairs that lie along a grid axis of their
+    /// first texel (within 23° of its u or v step), with the same interior mean — a
+    /// diagnostic, not BRIEF's measure. The interior pairs are u- and v-neighbours, but
+    /// BRIEF's 0.5h–1.25h band also takes diagonal pairs across a border wherever texels
+    /// are smaller than h (√2 × 0.88h < 1.25h), and a diagonal pair differs more (it is
+    /// farther, and crosses both a structure's rows and columns). On a closed cube with
+    /// bricks (optimise, N = 32) 41% of the seam pairs were diagonal and 93% of those
+    /// continued their copy: the seam ratio 1.22 was 0.75 along the axes
+    /// (docs/synthesis.md, "Known limits"). `None` without such pairs.
+    #[serde(default)]
+    pub seam_ratio_axis: Option<f64>,
+    /// Number of those pairs.
+    #[serde(default)]
+    pub seam_pairs_axis: usize,
     /// Fraction of texels whose colour (R, G, B) and position are all finite. Must be 1.
     pub coverage: f64,
     /// h: median distance between centres of adjacent texels of one face (`None` when
@@ -607,11 +621,12 @@ pub fn evaluate_maps_local(
     drop(distances);
 
     // Seam pairs: border texels of different domains 0.5h..1.25h apart.
-    let ((seam_sum, seam_pairs), (mixed_sum, seam_pairs_mixed)) = if h.is_finite() && h > 0.0 {
+    let seams = if h.is_finite() && h > 0.0 {
         seam_pairs_sum(l, h, &pos, &col)
     } else {
-        ((0.0, 0), (0.0, 0))
+        SeamSums::default()
     };
+    let (seam_sum, seam_pairs) = (seams.all.sum, seams.all.count);
     let interior_mean_sq = if colour_pairs > 0 {
         colour_sum / colour_pairs as f64
     } else {
@@ -632,8 +647,13 @@ pub fn evaluate_maps_local(
         None
     };
 
-    let seam_ratio_mixed = (seam_pairs_mixed > 0 && colour_pairs > 0 && interior_mean_sq > 0.0)
-        .then(|| mixed_sum / seam_pairs_mixed as f64 / interior_mean_sq);
+    let interior = if colour_pairs > 0 {
+        interior_mean_sq
+    } else {
+        0.0
+    };
+    let (seam_ratio_mixed, seam_pairs_mixed) = (seams.mixed.ratio(interior), seams.mixed.count);
+    let (seam_ratio_axis, seam_pairs_axis) = (seams.axis.ratio(interior), seams.axis.count);
     let pfs = example.map(|e| patch_fidelities(colour, geometry, e, scale));
     let patch_fidelity = example
         .filter(|_| is_flat(geometry))
@@ -645,6 +665,8 @@ pub fn evaluate_maps_local(
         spacing_spread,
         seam_ratio_mixed,
         seam_pairs_mixed,
+        seam_ratio_axis,
+        seam_pairs_axis,
         coverage: finite_texels as f64 / texels.max(1) as f64,
         texel_spacing: h.is_finite().then_some(h),
         seam_ratio,
@@ -667,14 +689,52 @@ pub fn evaluate_maps_local(
     })
 }
 
-/// Sum of |C_a - C_b|² over seam pairs, and their number; then the same over the pairs
-/// whose two faces differ in resolution.
+/// |C_a - C_b|² summed over a set of pairs, and their number.
+#[derive(Clone, Copy, Debug, Default)]
+struct PairSum {
+    sum: f64,
+    count: usize,
+}
+
+impl PairSum {
+    fn add(&mut self, e: f64) {
+        self.sum += e;
+        self.count += 1;
+    }
+
+    fn merge(self, o: PairSum) -> PairSum {
+        PairSum {
+            sum: self.sum + o.sum,
+            count: self.count + o.count,
+        }
+    }
+
+    /// The set's mean over `interior` (the interior pairs' mean), when both are defined.
+    fn ratio(self, interior: f64) -> Option<f64> {
+        (self.count > 0 && interior > 0.0).then(|| self.sum / self.count as f64 / interior)
+    }
+}
+
+/// The seam pairs' sums: all of them; those whose faces differ in resolution; those along
+/// a grid axis of their first texel ([`Quality::seam_ratio_axis`]).
+#[derive(Clone, Copy, Debug, Default)]
+struct SeamSums {
+    all: PairSum,
+    mixed: PairSum,
+    axis: PairSum,
+}
+
+/// A seam pair lies along a grid axis of a texel when its direction is within this angle's
+/// cosine (23°) of the texel's u or v step.
+const AXIS_COS: f64 = 0.92;
+
+/// Sums of |C_a - C_b|² over the seam pairs ([`SeamSums`]).
 fn seam_pairs_sum(
     l: &crate::layout::TexelLayout,
     h: f64,
     pos: &(impl Fn(usize) -> [f64; 3] + Sync),
     col: &(impl Fn(usize) -> [f64; 3] + Sync),
-) -> ((f64, usize), (f64, usize)) {
+) -> SeamSums {
     use kiddo::{ImmutableKdTree, SquaredEuclidean};
     // Border texels (each once) with finite positions.
     let mut border: Vec<usize> = Vec::new();
@@ -692,22 +752,42 @@ fn seam_pairs_sum(
         }
     }
     if border.is_empty() {
-        return ((0.0, 0), (0.0, 0));
+        return SeamSums::default();
     }
     let points: Vec<[f64; 3]> = border.iter().map(|&i| pos(i)).collect();
     let tree: ImmutableKdTree<f64, 3> =
         ImmutableKdTree::new_from_slice(&points).expect("finite border points build a tree");
     let (lo2, hi2) = ((0.5 * h).powi(2), (1.25 * h).powi(2));
+    let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+    let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    // The steps to the texel's neighbours along u and v inside its own face (toward the
+    // inside at the face's far edges).
+    let steps = |a: usize| -> [[f64; 3]; 2] {
+        let (d, x, y) = l.coords(a);
+        let (nu, nv) = l.dims(d);
+        let step = |(x1, y1): (usize, usize), (x0, y0): (usize, usize)| {
+            sub(pos(l.index(d, x1, y1)), pos(l.index(d, x0, y0)))
+        };
+        let u = match (x + 1 < nu, x > 0) {
+            (true, _) => step((x + 1, y), (x, y)),
+            (false, true) => step((x, y), (x - 1, y)),
+            _ => [0.0; 3],
+        };
+        let v = match (y + 1 < nv, y > 0) {
+            (true, _) => step((x, y + 1), (x, y)),
+            (false, true) => step((x, y), (x, y - 1)),
+            _ => [0.0; 3],
+        };
+        [u, v]
+    };
     // Per border texel: pairs with later border texels only (each pair once); results
     // collected in order and summed sequentially for thread-count independence.
-    let per: Vec<(f64, usize, f64, usize)> = (0..border.len())
+    let per: Vec<SeamSums> = (0..border.len())
         .into_par_iter()
         .map(|k| {
             let a = border[k];
             let ca = col(a);
-            let mut sum = 0.0;
-            let mut count = 0;
-            let (mut msum, mut mcount) = (0.0, 0);
+            let mut sums = SeamSums::default();
             let hits = tree
                 .query(&points[k])
                 .within::<SquaredEuclidean<f64>>(hi2)
@@ -715,6 +795,7 @@ fn seam_pairs_sum(
                 .execute();
             let mut js: Vec<(u32, f64)> = hits.iter().map(|r| (r.item, r.distance)).collect();
             js.sort_by_key(|j| j.0);
+            let mut axes = None;
             for (j, d2) in js {
                 let j = j as usize;
                 if j <= k || d2 < lo2 || d2 > hi2 {
@@ -729,21 +810,29 @@ fn seam_pairs_sum(
                 if ca.iter().chain(cb.iter()).all(|c| c.is_finite()) {
                     let e =
                         (ca[0] - cb[0]).powi(2) + (ca[1] - cb[1]).powi(2) + (ca[2] - cb[2]).powi(2);
-                    sum += e;
-                    count += 1;
+                    sums.all.add(e);
                     if l.dims(da) != l.dims(db) {
-                        msum += e;
-                        mcount += 1;
+                        sums.mixed.add(e);
+                    }
+                    let [u, v] = *axes.get_or_insert_with(|| steps(a));
+                    let ab = sub(points[j], points[k]);
+                    let along = |t: [f64; 3]| {
+                        let n = (dot(t, t) * d2).sqrt();
+                        n > 0.0 && dot(t, ab).abs() >= AXIS_COS * n
+                    };
+                    if along(u) || along(v) {
+                        sums.axis.add(e);
                     }
                 }
             }
-            (sum, count, msum, mcount)
+            sums
         })
         .collect();
-    per.iter().fold(
-        ((0.0, 0), (0.0, 0)),
-        |((s, c), (ms, mc)), &(ps, pc, pms, pmc)| ((s + ps, c + pc), (ms + pms, mc + pmc)),
-    )
+    per.iter().fold(SeamSums::default(), |t, p| SeamSums {
+        all: t.all.merge(p.all),
+        mixed: t.mixed.merge(p.mixed),
+        axis: t.axis.merge(p.axis),
+    })
 }
 
 /// Patch fidelity of a square 2D image (e.g. a [`crate::synth::synth2d`] result, the reference

@@ -163,6 +163,31 @@ pub struct Stats {
     pub texels_per_second: f64,
 }
 
+/// What the jump method's [`Plan`] needs from the texels alone, before any orientation
+/// field: the growth order ([`growth_order`]) and the cross neighbours
+/// ([`cross_neighbours`]). A prepared session computes it beside the field.
+#[derive(Debug)]
+pub struct Growth {
+    /// Texel indices in synthesis order.
+    pub order: Vec<u32>,
+    /// Cross neighbours (CSR: starts, list).
+    cross: (Vec<u32>, Vec<u32>),
+}
+
+impl Growth {
+    /// Both parts side by side: the order is one serial pass, the cross neighbours'
+    /// queries run in parallel beside it (they were a third of the plan's time on the
+    /// bunny at N = 16, after the field, when no other work was left to share the cores
+    /// with). The same result for any thread count.
+    pub fn compute(edges: &EdgeGraph, layout: &TexelLayout, pos: &[Vec3]) -> Growth {
+        let (order, cross) = rayon::join(
+            || growth_order(edges, layout, pos),
+            || cross_neighbours(layout, pos, edges),
+        );
+        Growth { order, cross }
+    }
+}
+
 /// The region-growing order (§4.1) over the edge graph: texel indices in synthesis order,
 /// by shortest-path distance from each component's seed ([`growth_order`]'s module docs).
 ///
@@ -357,8 +382,13 @@ impl Earlier {
 }
 
 impl Plan {
-    /// The plan of `level` in `order`. Parallel over ranks; the same for any thread count.
-    pub fn new(level: &LevelTexels, order: Vec<u32>) -> Self {
+    /// The plan of `level` in `growth`'s order. Parallel over ranks; the same for any
+    /// thread count.
+    pub fn new(level: &LevelTexels, growth: Growth) -> Self {
+        let Growth {
+            order,
+            cross: (xstart, xlist),
+        } = growth;
         use rayon::prelude::*;
         let n = order.len();
         assert!(
@@ -370,7 +400,6 @@ impl Plan {
             rank[*t as usize] = k as u32;
         }
         let (pos, frames, edges) = (&level.geometry.pos, &level.frames, level.edges());
-        let (xstart, xlist) = cross_neighbours(level);
         let near = |t: usize| &xlist[xstart[t] as usize..xstart[t + 1] as usize];
         const CHUNK: usize = 4096;
         // Computed texel by texel (positions, frames, edge lists and the neighbours' ranks
@@ -459,11 +488,9 @@ impl Plan {
 /// reach them along unrelated paths and their sources disagree — on faces' borders, which
 /// is what the seam ratio measures. Continuations from them too make such texels agree;
 /// in the consensus their agreement only breaks ties ([`keep_consensus`]).
-fn cross_neighbours(level: &LevelTexels) -> (Vec<u32>, Vec<u32>) {
+fn cross_neighbours(layout: &TexelLayout, pos: &[Vec3], edges: &EdgeGraph) -> (Vec<u32>, Vec<u32>) {
     use kiddo::{ImmutableKdTree, SquaredEuclidean};
     use rayon::prelude::*;
-    let layout = level.layout();
-    let (pos, edges) = (&level.geometry.pos, level.edges());
     let n = pos.len();
     let border = |t: usize| {
         let (d, x, y) = layout.coords(t);
@@ -782,9 +809,12 @@ mod tests {
                     .unwrap();
             let level = LevelTexels::new(&surface, &field, 6, 0.01);
             let e = level.edges();
-            let (xs, xl) = cross_neighbours(&level);
+            let (xs, xl) = cross_neighbours(level.layout(), &level.geometry.pos, e);
+            let growth = Growth::compute(e, level.layout(), &level.geometry.pos);
+            assert_eq!((&xs, &xl), (&growth.cross.0, &growth.cross.1));
             let order = growth_order(e, level.layout(), &level.geometry.pos);
-            let plan = Plan::new(&level, order.clone());
+            assert_eq!(order, growth.order);
+            let plan = Plan::new(&level, growth);
             let (pos, frames) = (&level.geometry.pos, &level.frames);
             let mut done = vec![false; level.len()];
             for (k, &t) in order.iter().enumerate() {
@@ -824,11 +854,12 @@ mod tests {
         };
         let grid = Surface::new(ControlMesh::grid(3));
         let level = LevelTexels::new(&grid, &field_of(&grid), 8, 0.01);
-        let (_, list) = cross_neighbours(&level);
+        let cross_of = |l: &LevelTexels| cross_neighbours(l.layout(), &l.geometry.pos, l.edges());
+        let (_, list) = cross_of(&level);
         assert!(list.is_empty(), "{} on a flat grid", list.len());
         let tris = Surface::new(ControlMesh::parse_obj(obj).unwrap());
         let level = LevelTexels::new(&tris, &field_of(&tris), 8, 0.01);
-        let (start, list) = cross_neighbours(&level);
+        let (start, list) = cross_of(&level);
         assert!(!list.is_empty(), "none around the triangles' centres");
         let layout = level.layout();
         for t in 0..level.len() {

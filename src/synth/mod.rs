@@ -107,12 +107,14 @@ impl Method {
     /// Texture optimisation copies whole patches, so it shows the example as it is — upright
     /// bricks stay level only if the field keeps the example's up along the world's
     /// (`up`, +y); with guided final assembly its seams stay within the bar there
-    /// (docs/synthesis.md, "The `up` field"). The per-texel methods keep the smoothest field
-    /// (`auto`): `up` raised patch sampling's seams on the double torus (1.31) and gains
-    /// them nothing measured.
+    /// (docs/synthesis.md, "The `up` field"). On a mostly level surface (terrain, a floor)
+    /// `up` has no up to follow and draws contour rings, so the default is `upright`: `up`
+    /// there only where the surface stands (`field::choice::upright`). The per-texel methods
+    /// keep the smoothest field (`auto`): `up` raised patch sampling's seams on the double
+    /// torus (1.31) and gains them nothing measured.
     pub fn default_orientation(self) -> crate::field::Orientation {
         match self {
-            Method::Optimise => crate::field::Orientation::Up(glam::DVec3::Y),
+            Method::Optimise => crate::field::Orientation::Upright(glam::DVec3::Y),
             _ => crate::field::Orientation::Auto,
         }
     }
@@ -184,16 +186,17 @@ impl Derived {
     /// The jump method's plan of `texels`.
     pub fn jump_plan(&self, texels: &LevelTexels) -> &jump::Plan {
         self.jump.get_or_init(|| {
-            let order = jump::growth_order(texels.edges(), texels.layout(), &texels.geometry.pos);
-            jump::Plan::new(texels, order)
+            let growth =
+                jump::Growth::compute(texels.edges(), texels.layout(), &texels.geometry.pos);
+            jump::Plan::new(texels, growth)
         })
     }
 
-    /// The jump method's plan of `texels` from a growth order computed beforehand
-    /// (`jump::growth_order` of the same texels: a session computes it beside the
-    /// orientation field, which the order does not need; the plan reads the field's frames).
-    pub fn jump_plan_from(&self, texels: &LevelTexels, order: Vec<u32>) -> &jump::Plan {
-        self.jump.get_or_init(|| jump::Plan::new(texels, order))
+    /// The jump method's plan of `texels` from what it needs of them computed beforehand
+    /// (`jump::Growth` of the same texels: a session computes it beside the orientation
+    /// field, which it does not need; the plan reads the field's frames).
+    pub fn jump_plan_from(&self, texels: &LevelTexels, growth: jump::Growth) -> &jump::Plan {
+        self.jump.get_or_init(|| jump::Plan::new(texels, growth))
     }
 }
 
@@ -719,10 +722,12 @@ pub fn texel_frames_f32(field: &OrientationField, surface: &Surface, n: usize) -
     out.par_chunks_mut(n * n)
         .enumerate()
         .for_each(|(d, chunk)| {
+            let mut hint = subdiv::surface::LeafHint::default();
             for (i, o) in chunk.iter_mut().enumerate() {
                 let (x, y) = (i % n, i / n);
                 let (u, v) = ((x as f64 + 0.5) * inv, (y as f64 + 0.5) * inv);
-                let f = field.frame(surface, subdiv::DomainId::from_idx(d), u, v);
+                let d = subdiv::DomainId::from_idx(d);
+                let f = field.frame_hinted(surface, d, u, v, &mut hint);
                 *o = [f.v1.as_vec3(), f.v2.as_vec3()];
             }
         });

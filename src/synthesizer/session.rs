@@ -418,8 +418,10 @@ impl Session {
         // its candidates at the texel scale, below): it runs beside the texel geometry, the
         // edge graph and what `method` derives from them alone. Its level-1 eigenvector
         // solve is one long serial stretch (bunny N = 16: ~1 s with one core busy), and
-        // the jump method's growth order is another; side by side they fill both cores.
-        // Each part computes exactly what it computed in sequence: the same results.
+        // the jump method's growth order is another; side by side they fill both cores,
+        // and the jump method's parallel cross-neighbour queries (`jump::Growth`) take up
+        // whichever core is free first. Each part computes exactly what it computed in
+        // sequence: the same results.
         report(Stage::Geometry, 0, faces);
         let options_at = |scale: Option<f64>| FieldOptions {
             texels: Some(layout.len() as u64),
@@ -448,9 +450,9 @@ impl Session {
                 let spacing = geometry.median_spacing(&surface);
                 let t0 = Instant::now();
                 let edges = EdgeGraph::build(&surface, &geometry);
-                let (order, graph) = match method {
+                let (growth, graph) = match method {
                     Some(Method::Jump) => (
-                        Some(crate::synth::jump::growth_order(
+                        Some(crate::synth::jump::Growth::compute(
                             &edges,
                             &geometry.layout,
                             &geometry.pos,
@@ -461,10 +463,10 @@ impl Session {
                     _ => (None, None),
                 };
                 let graph_s = t0.elapsed().as_secs_f64();
-                (geometry, geometry_s, spacing, edges, order, graph, graph_s)
+                (geometry, geometry_s, spacing, edges, growth, graph, graph_s)
             },
         );
-        let (geometry, geometry_s, spacing, edges, order, graph, mut graph_s) = texel_side;
+        let (geometry, geometry_s, spacing, edges, growth, graph, mut graph_s) = texel_side;
         report(Stage::Geometry, faces, faces);
 
         let (scale, scale_source) = match settings.scale {
@@ -501,8 +503,8 @@ impl Session {
         let texels = LevelTexels::from_built(geometry, frames, scale, edges, graph)
             .with_scale(&surface, scale_field.as_deref());
         let derived = Derived::default();
-        if let Some(order) = order {
-            derived.jump_plan_from(&texels, order);
+        if let Some(growth) = growth {
+            derived.jump_plan_from(&texels, growth);
         }
         graph_s += t0.elapsed().as_secs_f64();
         report(Stage::Graph, 1, 1);
@@ -922,14 +924,22 @@ impl Session {
                 .unwrap_or(layout.max_dims().0.max(layout.max_dims().1)),
             texel_size: self.texel_size,
             orientation: orientation_label(&self.orientation),
-            orientation_choice: self
-                .field
-                .choice()
-                .map(|c| crate::report::OrientationChoice {
+            orientation_choice: self.field.choice().map(|c| match &c.why {
+                crate::field::Why::Straightest { scores, length } => {
+                    crate::report::OrientationChoice {
+                        chosen: c.chosen.clone(),
+                        structure_length: Some(length * self.unit),
+                        bent_fraction: scores.clone(),
+                        level_fraction: None,
+                    }
+                }
+                crate::field::Why::Level { fraction } => crate::report::OrientationChoice {
                     chosen: c.chosen.clone(),
-                    structure_length: c.length * self.unit,
-                    bent_fraction: c.scores.clone(),
-                }),
+                    structure_length: None,
+                    bent_fraction: Vec::new(),
+                    level_fraction: Some(*fraction),
+                },
+            }),
             faces,
             control_faces: surface.control.mesh.num_faces(),
             texels: layout.len() as u64,

@@ -12,7 +12,7 @@
 
 use crate::ids::{BaseQuadId, DomainId, FaceId};
 use crate::mesh::ptex_count;
-use crate::surface::{from_child, mul_child, quadrant, to_child, LimitSample, Surface};
+use crate::surface::{from_child, mul_child, quadrant, to_child, LeafHint, LimitSample, Surface};
 
 /// What a domain is made of.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -117,11 +117,15 @@ impl Surface {
     /// Exact limit position, normal and derivatives with respect to (u, v) at a domain point.
     pub fn eval(&self, d: DomainId, u: f64, v: f64) -> LimitSample {
         let (b, s, t, jac) = self.domain_to_base(d, u, v);
-        let mut r = self.eval_base(b, s, t);
-        let (ds, dt) = (r.du, r.dv);
-        r.du = ds * jac[0][0] + dt * jac[1][0];
-        r.dv = ds * jac[0][1] + dt * jac[1][1];
-        r
+        domain_derivs(self.eval_base(b, s, t), &jac)
+    }
+
+    /// [`Self::eval`] starting from the regular patch `hint` remembers
+    /// ([`Surface::eval_base_derivs`]): the same bits. Neighbouring points (a row of texel
+    /// centres) mostly lie in one patch, and the descent of the patch tree is then skipped.
+    pub fn eval_hinted(&self, d: DomainId, u: f64, v: f64, hint: &mut LeafHint) -> LimitSample {
+        let (b, s, t, jac) = self.domain_to_base(d, u, v);
+        domain_derivs(self.eval_base_derivs(b, s, t, hint).sample(), &jac)
     }
 
     /// Evaluates the `n x n` texel centres of domain `d`, ((x+0.5)/n, (y+0.5)/n), row by row
@@ -129,11 +133,55 @@ impl Surface {
     pub fn eval_texels(&self, d: DomainId, n: usize, out: &mut [LimitSample]) {
         assert_eq!(out.len(), n * n);
         let inv = 1.0 / n as f64;
+        let mut hint = LeafHint::default();
         for y in 0..n {
             let v = (y as f64 + 0.5) * inv;
             for x in 0..n {
                 let u = (x as f64 + 0.5) * inv;
-                out[y * n + x] = self.eval(d, u, v);
+                out[y * n + x] = self.eval_hinted(d, u, v, &mut hint);
+            }
+        }
+    }
+}
+
+/// A base-quad sample with its derivatives turned into domain ones (`jac`: d(s,t) =
+/// jac · d(u,v)).
+#[inline]
+fn domain_derivs(mut r: LimitSample, jac: &[[f64; 2]; 2]) -> LimitSample {
+    let (ds, dt) = (r.du, r.dv);
+    r.du = ds * jac[0][0] + dt * jac[1][0];
+    r.dv = ds * jac[0][1] + dt * jac[1][1];
+    r
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::surface::SurfaceOptions;
+    use crate::{DomainId, Surface};
+
+    /// Texel grids evaluated through the hint (`eval_texels`) are `eval`'s bits, also at
+    /// extraordinary vertices, n-gon sub-faces and below the stored depth.
+    #[test]
+    fn texels_match_eval() {
+        for shape in [
+            "catmark_pole8",
+            "catmark_nonquads",
+            "catmark_cubes_infsharp",
+        ] {
+            let cm = crate::ControlMesh::load_obj(crate::test_data::shape(shape)).unwrap();
+            let s = Surface::with_options(cm, SurfaceOptions { max_depth: 2 });
+            for n in [1, 3, 8, 20] {
+                let mut out = vec![Default::default(); n * n];
+                for d in 0..s.num_domains() {
+                    let d = DomainId::from_idx(d);
+                    s.eval_texels(d, n, &mut out);
+                    for (i, got) in out.iter().enumerate() {
+                        let inv = 1.0 / n as f64;
+                        let (u, v) = ((i % n) as f64 + 0.5, (i / n) as f64 + 0.5);
+                        let want = s.eval(d, u * inv, v * inv);
+                        assert_eq!(*got, want, "{shape} N = {n} domain {d:?} texel {i}");
+                    }
+                }
             }
         }
     }
