@@ -919,18 +919,22 @@ mod tests {
                 );
             }
             // Per-face resolutions (ratios up to 8:1, non-square domains).
-            let res = (0..s.num_domains())
-                .map(|d| {
-                    crate::layout::Resolution::new((d % 4) as u8, ((d / 2) % 4) as u8).unwrap()
-                })
-                .collect();
-            let g = TexelGeometry::compute_layout(&s, Arc::new(TexelLayout::per_face(res)));
+            let g = TexelGeometry::compute_layout(&s, mixed_layout(&s));
             assert_eq!(
                 EdgeGraph::build(&s, &g),
                 edge_graph_by_pairs(&s, &g),
                 "per-face"
             );
         }
+    }
+
+    /// Per-face resolutions over `s`: ratios up to 8:1 between neighbours, non-square
+    /// domains.
+    fn mixed_layout(s: &Surface) -> Arc<TexelLayout> {
+        let res = (0..s.num_domains())
+            .map(|d| crate::layout::Resolution::new((d % 4) as u8, ((d / 2) % 4) as u8).unwrap())
+            .collect();
+        Arc::new(TexelLayout::per_face(res))
     }
 
     #[test]
@@ -960,12 +964,7 @@ mod tests {
                     "N = {n}"
                 );
             }
-            let res = (0..s.num_domains())
-                .map(|d| {
-                    crate::layout::Resolution::new((d % 4) as u8, ((d / 2) % 4) as u8).unwrap()
-                })
-                .collect();
-            let g = TexelGeometry::compute_layout(&s, Arc::new(TexelLayout::per_face(res)));
+            let g = TexelGeometry::compute_layout(&s, mixed_layout(&s));
             assert_eq!(
                 g.median_spacing(&s).to_bits(),
                 by_list(&g).to_bits(),
