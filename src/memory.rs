@@ -93,7 +93,8 @@ const IRREGULAR_QUAD_PER_LEVEL: u64 = 2867;
 /// solver's arrays; most of it is kept for the texel frames), measured ~430 B.
 pub const FIELD_FACE: u64 = 430;
 /// `synth`, per texel, besides 4 bytes per map channel: what the largest stage holds at
-/// once — during synthesis the texel geometry (24), frames (24), edge graph (20), sources
+/// once — during synthesis the texel geometry (24), frames (24), edge graph (4, and lists
+/// at the borders; 20 before 2026-12-06), sources
 /// (8) and the method's compact state; afterwards the maps, the tangents and the pf
 /// summary's k-d tree (32), or the atlas and the tiles being written. Measured on Spot with
 /// the coherent and jump methods (issue 14 item 6, 2026-12-03): whole-run peak 417–428

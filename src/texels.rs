@@ -499,18 +499,79 @@ impl TexelGraph {
 /// border texel ends up joined to the k fine texels along it.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct EdgeGraph {
-    start: Vec<u32>,
-    list: Vec<u32>,
+    /// Per texel: [`EdgeGraph::GRID`] | its domain's row stride when its edges are its
+    /// four grid neighbours (every interior texel but those a finer neighbour's walks
+    /// reach), else where its list starts in `lists`.
+    entry: Vec<u32>,
+    /// The listed texels' edges, each list its length first, then the neighbours
+    /// ascending. Only border texels (and the few interior ones that walks from a coarser
+    /// neighbour land on) have one: 4 B per texel plus ~5 B per border texel, where a list
+    /// for every texel took 20 B per texel (issue 14 item 6, memory per texel).
+    lists: Vec<u32>,
+}
+
+/// One texel's edge neighbours, ascending ([`EdgeGraph::of`]): a slice of the graph's
+/// lists, or the four grid neighbours computed from the row stride.
+#[derive(Clone, Copy, Debug)]
+pub enum Edges<'a> {
+    /// An interior texel's neighbours: up, left, right, down.
+    Grid([u32; 4]),
+    /// A listed texel's neighbours.
+    Listed(&'a [u32]),
+}
+
+impl std::ops::Deref for Edges<'_> {
+    type Target = [u32];
+    #[inline]
+    fn deref(&self) -> &[u32] {
+        match self {
+            Edges::Grid(a) => a,
+            Edges::Listed(s) => s,
+        }
+    }
+}
+
+impl<'a> IntoIterator for Edges<'a> {
+    type Item = u32;
+    type IntoIter = EdgesIter<'a>;
+    #[inline]
+    fn into_iter(self) -> EdgesIter<'a> {
+        match self {
+            Edges::Grid(a) => EdgesIter::Grid(a.into_iter()),
+            Edges::Listed(s) => EdgesIter::Listed(s.iter().copied()),
+        }
+    }
+}
+
+/// The neighbours of [`Edges`] by value.
+#[derive(Clone, Debug)]
+pub enum EdgesIter<'a> {
+    Grid(std::array::IntoIter<u32, 4>),
+    Listed(std::iter::Copied<std::slice::Iter<'a, u32>>),
+}
+
+impl Iterator for EdgesIter<'_> {
+    type Item = u32;
+    #[inline]
+    fn next(&mut self) -> Option<u32> {
+        match self {
+            EdgesIter::Grid(i) => i.next(),
+            EdgesIter::Listed(i) => i.next(),
+        }
+    }
 }
 
 impl EdgeGraph {
+    /// Flag of an entry that holds a row stride (a texel with its four grid neighbours).
+    const GRID: u32 = 1 << 31;
+
     /// Builds the graph (in parallel per domain; independent of the thread count).
     ///
     /// Within a domain the grid's 4-neighbourhood is symmetric by itself, so only the
-    /// walks across domain edges (from border texels) are collected and symmetrised; the
-    /// lists are then written in place. The peak is the graph itself plus the border
-    /// edges (it was 16 pairs of 8 B per texel, twice: 128 B per texel at the graph stage,
-    /// issue 14 item 6); the lists are the same.
+    /// walks across domain edges (from border texels) are collected and symmetrised; an
+    /// interior texel that no walk reaches keeps its row stride instead of a list. The
+    /// peak is the graph itself plus the border edges (it was 16 pairs of 8 B per texel,
+    /// twice: 128 B per texel at the graph stage, issue 14 item 6).
     pub fn build(surface: &Surface, geom: &TexelGeometry) -> Self {
         let layout = &geom.layout;
         let faces = layout.faces();
@@ -557,87 +618,99 @@ impl EdgeGraph {
         let mut extra: Vec<(u32, u32)> = walked.into_iter().flatten().collect();
         extra.par_sort_unstable();
         extra.dedup();
-        // Texel t = (d, x, y)'s list: its grid neighbours and its walked edges, ascending,
-        // unique. `lo` is where t's walked edges start in `extra` (sorted by texel): the
-        // callers visit a domain's texels in order and carry it from one to the next, so
-        // it is searched for once per domain.
-        let first = |d: usize| extra.partition_point(|p| (p.0 as usize) < layout.start(d));
-        let list_of = |d: usize, i: usize, lo: &mut usize, buf: &mut Vec<u32>| {
-            buf.clear();
-            let (nu, nv) = layout.dims(d);
-            let base = layout.start(d);
-            let t = base + i;
-            let (x, y) = (i % nu, i / nu);
-            let walked = extra.get(*lo).is_some_and(|p| p.0 as usize == t);
-            if !walked && x > 0 && y > 0 && x + 1 < nu && y + 1 < nv {
-                // Most texels: the four grid neighbours alone, already ascending.
-                let t = t as u32;
-                let nu = nu as u32;
-                buf.extend_from_slice(&[t - nu, t - 1, t + 1, t + nu]);
-                return;
-            }
-            for (a, b) in [(1i64, 0i64), (-1, 0), (0, 1), (0, -1)] {
-                let (xa, yb) = (x as i64 + a, y as i64 + b);
-                if (0..nu as i64).contains(&xa) && (0..nv as i64).contains(&yb) {
-                    buf.push((base + yb as usize * nu + xa as usize) as u32);
-                }
-            }
-            let mine = extra[*lo..].iter().take_while(|p| p.0 as usize == t);
-            let before = buf.len();
-            buf.extend(mine.map(|p| p.1));
-            *lo += buf.len() - before;
-            buf.sort_unstable();
-            buf.dedup();
-        };
-        // Counts, then the lists written in place per domain.
-        let mut start = vec![0u32; total + 1];
-        layout
-            .split_mut(&mut start[1..], 1)
+        // Per domain (in place in `entry`, lists apart): a texel's grid neighbours and its
+        // walked edges, ascending, unique. `lo` walks `extra` (sorted by texel) along the
+        // domain's texels, which are visited in order.
+        let mut entry = vec![0u32; total];
+        let per_domain: Vec<Vec<u32>> = layout
+            .split_mut(&mut entry, 1)
             .into_par_iter()
             .enumerate()
-            .for_each(|(d, c)| {
+            .map(|(d, out)| {
+                let (nu, nv) = layout.dims(d);
+                let base = layout.start(d);
+                let mut lo = extra.partition_point(|p| (p.0 as usize) < base);
+                let mut lists = Vec::new();
                 let mut buf = Vec::with_capacity(16);
-                let mut lo = first(d);
-                for (i, o) in c.iter_mut().enumerate() {
-                    list_of(d, i, &mut lo, &mut buf);
-                    *o = buf.len() as u32;
+                for (i, o) in out.iter_mut().enumerate() {
+                    let t = base + i;
+                    let (x, y) = (i % nu, i / nu);
+                    let walked = extra.get(lo).is_some_and(|p| p.0 as usize == t);
+                    if !walked && x > 0 && y > 0 && x + 1 < nu && y + 1 < nv {
+                        *o = Self::GRID | nu as u32;
+                        continue;
+                    }
+                    buf.clear();
+                    for (a, b) in [(1i64, 0i64), (-1, 0), (0, 1), (0, -1)] {
+                        let (xa, yb) = (x as i64 + a, y as i64 + b);
+                        if (0..nu as i64).contains(&xa) && (0..nv as i64).contains(&yb) {
+                            buf.push((base + yb as usize * nu + xa as usize) as u32);
+                        }
+                    }
+                    while extra.get(lo).is_some_and(|p| p.0 as usize == t) {
+                        buf.push(extra[lo].1);
+                        lo += 1;
+                    }
+                    buf.sort_unstable();
+                    buf.dedup();
+                    // Local offset; the domain's base in `lists` is added below.
+                    *o = lists.len() as u32;
+                    lists.push(buf.len() as u32);
+                    lists.extend_from_slice(&buf);
+                }
+                lists
+            })
+            .collect();
+        let mut offsets = Vec::with_capacity(faces + 1);
+        let mut sum = 0usize;
+        for l in &per_domain {
+            offsets.push(sum);
+            sum += l.len();
+        }
+        assert!(
+            sum < Self::GRID as usize,
+            "edge graph lists larger than 2^31 entries"
+        );
+        layout
+            .split_mut(&mut entry, 1)
+            .into_par_iter()
+            .enumerate()
+            .for_each(|(d, out)| {
+                for o in out.iter_mut().filter(|o| **o & Self::GRID == 0) {
+                    *o += offsets[d] as u32;
                 }
             });
-        for i in 1..start.len() {
-            start[i] += start[i - 1];
-        }
-        let mut list = vec![0u32; start[total] as usize];
-        let mut rest: &mut [u32] = &mut list;
-        let mut chunks = Vec::with_capacity(faces);
-        for d in 0..faces {
-            let r = layout.range(d);
-            let len = (start[r.end] - start[r.start]) as usize;
-            let (head, tail) = std::mem::take(&mut rest).split_at_mut(len);
-            chunks.push(head);
-            rest = tail;
-        }
-        chunks.into_par_iter().enumerate().for_each(|(d, out)| {
-            let mut buf = Vec::with_capacity(16);
-            let mut k = 0;
-            let mut lo = first(d);
-            for i in 0..layout.count(d) {
-                list_of(d, i, &mut lo, &mut buf);
-                out[k..k + buf.len()].copy_from_slice(&buf);
-                k += buf.len();
-            }
-        });
-        Self { start, list }
+        let lists = per_domain.concat();
+        Self { entry, lists }
     }
 
     /// The edge neighbours of texel `t`, ascending.
     #[inline]
-    pub fn of(&self, t: usize) -> &[u32] {
-        &self.list[self.start[t] as usize..self.start[t + 1] as usize]
+    pub fn of(&self, t: usize) -> Edges<'_> {
+        let e = self.entry[t];
+        if e & Self::GRID != 0 {
+            let (t, nu) = (t as u32, e & !Self::GRID);
+            Edges::Grid([t - nu, t - 1, t + 1, t + nu])
+        } else {
+            let s = e as usize;
+            let n = self.lists[s] as usize;
+            Edges::Listed(&self.lists[s + 1..s + 1 + n])
+        }
+    }
+
+    /// Number of texels.
+    pub fn len(&self) -> usize {
+        self.entry.len()
+    }
+
+    /// No texels.
+    pub fn is_empty(&self) -> bool {
+        self.entry.is_empty()
     }
 
     /// Bytes held.
     pub fn heap_bytes(&self) -> usize {
-        4 * (self.start.len() + self.list.len())
+        4 * (self.entry.len() + self.lists.len())
     }
 }
 
@@ -848,7 +921,7 @@ mod tests {
 
     /// The edge graph as it was first built (every edge as two pairs, sorted): the
     /// in-place build must give the same lists.
-    fn edge_graph_by_pairs(surface: &Surface, geom: &TexelGeometry) -> EdgeGraph {
+    fn edge_graph_by_pairs(surface: &Surface, geom: &TexelGeometry) -> Vec<Vec<u32>> {
         let layout = &geom.layout;
         let mut all = Vec::new();
         for d in 0..layout.faces() {
@@ -883,17 +956,16 @@ mod tests {
         }
         all.sort_unstable();
         all.dedup();
-        let mut start = vec![0u32; geom.len() + 1];
-        for &(a, _) in &all {
-            start[a as usize + 1] += 1;
+        let mut lists = vec![Vec::new(); geom.len()];
+        for (a, b) in all {
+            lists[a as usize].push(b);
         }
-        for i in 1..start.len() {
-            start[i] += start[i - 1];
-        }
-        EdgeGraph {
-            start,
-            list: all.into_iter().map(|p| p.1).collect(),
-        }
+        lists
+    }
+
+    /// Every texel's list of `e`.
+    fn lists_of(e: &EdgeGraph) -> Vec<Vec<u32>> {
+        (0..e.len()).map(|t| e.of(t).to_vec()).collect()
     }
 
     #[test]
@@ -913,7 +985,7 @@ mod tests {
             for &n in ns {
                 let g = TexelGeometry::compute(&s, n);
                 assert_eq!(
-                    EdgeGraph::build(&s, &g),
+                    lists_of(&EdgeGraph::build(&s, &g)),
                     edge_graph_by_pairs(&s, &g),
                     "N = {n}"
                 );
@@ -921,7 +993,7 @@ mod tests {
             // Per-face resolutions (ratios up to 8:1, non-square domains).
             let g = TexelGeometry::compute_layout(&s, mixed_layout(&s));
             assert_eq!(
-                EdgeGraph::build(&s, &g),
+                lists_of(&EdgeGraph::build(&s, &g)),
                 edge_graph_by_pairs(&s, &g),
                 "per-face"
             );
@@ -1141,7 +1213,7 @@ mod tests {
         let mut stack = vec![0usize];
         seen[0] = true;
         while let Some(t) = stack.pop() {
-            for &u in e.of(t) {
+            for u in e.of(t) {
                 assert!(e.of(u as usize).contains(&(t as u32)), "not symmetric");
                 if !seen[u as usize] {
                     seen[u as usize] = true;

@@ -910,7 +910,7 @@ fn flood(level: &LevelTexels, fl: &mut Flood, c: usize, half: f32) -> Flooded {
         if ls[0].abs().max(ls[1].abs()) > keep {
             continue; // outside the patch: not expanded further
         }
-        for &t in edges.of(s) {
+        for t in edges.of(s) {
             let t = t as usize;
             let nd = d + pos[s].distance(pos[t]);
             if nd > limit || !nd.is_finite() {
@@ -994,7 +994,7 @@ mod tests {
                 ts.iter().enumerate().map(|(i, &t)| (t, i)).collect();
             for (i, &s) in ts.iter().enumerate() {
                 largest = largest.max(bs[i].radians().abs());
-                for &t in level.edges().of(s as usize) {
+                for t in level.edges().of(s as usize) {
                     let Some(&j) = at.get(&t) else { continue };
                     let dl = [ls[j][0] - ls[i][0], ls[j][1] - ls[i][1]];
                     let e = level.offset(s as usize, t as usize);

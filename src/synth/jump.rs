@@ -232,7 +232,7 @@ pub fn growth_order(edges: &EdgeGraph, layout: &TexelLayout, pos: &[Vec3]) -> Ve
                 }
                 done[t] = true;
                 order.push(t as u32);
-                for &s in edges.of(t) {
+                for s in edges.of(t) {
                     let s = s as usize;
                     if done[s] {
                         continue;
@@ -269,8 +269,8 @@ fn bucket_width(edges: &EdgeGraph, pos: &[Vec3]) -> f32 {
         .flat_map(|t| {
             edges
                 .of(t)
-                .iter()
-                .map(move |&s| pos[t].distance(pos[s as usize]))
+                .into_iter()
+                .map(move |s| pos[t].distance(pos[s as usize]))
         })
         .filter(|l| l.is_finite() && *l > 0.0)
         .collect();

@@ -914,7 +914,7 @@ fn join<const K: usize>(
     for (i, &t) in texels.iter().enumerate().take(m) {
         let ci = s.class[i];
         let t = t as usize;
-        for &u in edges.of(t) {
+        for u in edges.of(t) {
             let u = u as usize;
             // Each edge once (from its lower texel), inside the footprint.
             if u < t || s.stamp[u] != s.gen {
