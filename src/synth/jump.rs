@@ -319,8 +319,10 @@ struct Entry {
 pub struct Plan {
     /// Texel indices in synthesis order ([`growth_order`]).
     pub order: Vec<u32>,
-    /// Rank k's earlier neighbours are `earlier[first[k]..first[k + 1]]`.
-    first: Vec<u32>,
+    /// How many earlier neighbours each rank has: rank k's are the `count[k]` entries of
+    /// `earlier` after those of ranks 0..k. The synthesis pass walks the ranks in order and
+    /// keeps the running offset, so a count of 2 B per texel does what starts of 4 B did.
+    count: Vec<u16>,
     /// In the edge graph's order of the texel's edges (as the selection table lists them).
     earlier: Vec<Earlier>,
     /// Per rank, in surface units: the largest |component| of the offsets from earlier
@@ -462,12 +464,26 @@ impl Plan {
             // SAFETY: as above; reach[k] is rank k's.
             unsafe { out.reach(k as usize, r) };
         });
+        let count = first
+            .windows(2)
+            .map(|w| u16::try_from(w[1] - w[0]).expect("under 2^16 earlier neighbours a texel"))
+            .collect();
         Self {
             order,
-            first,
+            count,
             earlier,
             reach,
         }
+    }
+
+    /// Every rank's earlier neighbours, rank by rank.
+    fn by_rank(&self) -> impl Iterator<Item = &[Earlier]> + '_ {
+        let mut at = 0usize;
+        self.count.iter().map(move |&c| {
+            let e = &self.earlier[at..at + c as usize];
+            at += c as usize;
+            e
+        })
     }
 
     /// Texels in the plan.
@@ -567,7 +583,7 @@ pub fn run(
     let mut table: Vec<Entry> = Vec::with_capacity(16);
     let mut counts: Vec<u64> = Vec::with_capacity(16);
     let step = (total / 64).max(1);
-    for (k, &t) in plan.order.iter().enumerate() {
+    for ((k, &t), earlier) in plan.order.iter().enumerate().zip(plan.by_rank()) {
         if k % step == 0 {
             progress(k, total);
         }
@@ -582,7 +598,7 @@ pub fn run(
         // The chord to a texel not yet synthesized bounds both components of its projected
         // offset (validity box).
         let margin = plan.reach[k] * inv_scale;
-        for e in &plan.earlier[plan.first[k] as usize..plan.first[k + 1] as usize] {
+        for e in earlier {
             let a = src[e.rank()];
             let d = [e.d[0] * inv_scale, e.d[1] * inv_scale];
             let c = [a[0] + d[0], a[1] + d[1]];
@@ -815,6 +831,7 @@ mod tests {
             let order = growth_order(e, level.layout(), &level.geometry.pos);
             assert_eq!(order, growth.order);
             let plan = Plan::new(&level, growth);
+            let lists: Vec<&[Earlier]> = plan.by_rank().collect();
             let (pos, frames) = (&level.geometry.pos, &level.frames);
             let mut done = vec![false; level.len()];
             for (k, &t) in order.iter().enumerate() {
@@ -832,10 +849,7 @@ mod tests {
                         reach = reach.max(pos[s].distance(pos[t]));
                     }
                 }
-                let got: Vec<_> = plan.earlier[plan.first[k] as usize..plan.first[k + 1] as usize]
-                    .iter()
-                    .map(|x| (x.rank(), x.d))
-                    .collect();
+                let got: Vec<_> = lists[k].iter().map(|x| (x.rank(), x.d)).collect();
                 assert_eq!(got, want, "rank {k}");
                 assert_eq!(plan.reach[k].to_bits(), reach.to_bits());
                 done[t] = true;
