@@ -354,13 +354,19 @@ impl Scatter {
 
 /// A neighbour synthesized before the texel: its rank, whether it is a cross neighbour
 /// ([`cross_neighbours`]) rather than an edge of the graph, and the edge offset d(s→t) in
-/// surface units (× 1/S: example pixels).
+/// example pixels at the level's global step (× that step / the local one where a scale
+/// map varies it).
+///
+/// The offset is a half float: offsets are a pixel or two, so half's 11 bits keep them to
+/// ~0.001 px, and an entry is 8 B instead of 12 — the plan's entries (~2 per texel) are
+/// the largest array of jump's peak, the plan's making (issue 14 item 6). In pixels, not
+/// surface units, so that tiny or huge meshes do not fall out of half's range.
 #[derive(Clone, Copy, Debug)]
 struct Earlier {
     /// The rank, with [`Earlier::CROSS`] set for a cross neighbour (ranks are below 2³¹:
     /// the flag costs no memory, the plan being ~2 entries a texel).
     rank_cross: u32,
-    d: [f32; 2],
+    d: [half::f16; 2],
 }
 
 impl Earlier {
@@ -370,8 +376,14 @@ impl Earlier {
         debug_assert!(rank < Self::CROSS);
         Self {
             rank_cross: rank | if cross { Self::CROSS } else { 0 },
-            d,
+            d: d.map(half::f16::from_f32),
         }
+    }
+
+    /// The offset in example pixels at the global step.
+    #[inline]
+    fn d(self) -> [f32; 2] {
+        self.d.map(half::f16::to_f32)
     }
 
     fn rank(self) -> usize {
@@ -402,6 +414,7 @@ impl Plan {
             rank[*t as usize] = k as u32;
         }
         let (pos, frames, edges) = (&level.geometry.pos, &level.frames, level.edges());
+        let inv_step = (1.0 / level.step) as f32;
         let near = |t: usize| &xlist[xstart[t] as usize..xstart[t + 1] as usize];
         const CHUNK: usize = 4096;
         // Computed texel by texel (positions, frames, edge lists and the neighbours' ranks
@@ -455,7 +468,8 @@ impl Plan {
                     // count above is of exactly these neighbours), and each rank is one
                     // texel's: no two iterations write the same element, and both arrays
                     // outlive the loop.
-                    unsafe { out.earlier(slot, Earlier::new(rs, i >= graph_edges, d)) };
+                    let px = [d[0] * inv_step, d[1] * inv_step];
+                    unsafe { out.earlier(slot, Earlier::new(rs, i >= graph_edges, px)) };
                     slot += 1;
                 } else {
                     r = r.max(pos[s].distance(pos[t]));
@@ -600,7 +614,14 @@ pub fn run(
         let margin = plan.reach[k] * inv_scale;
         for e in earlier {
             let a = src[e.rank()];
-            let d = [e.d[0] * inv_scale, e.d[1] * inv_scale];
+            let d = match level.factor {
+                None => e.d(),
+                Some(_) => {
+                    let f = inv_scale * level.step as f32;
+                    let d = e.d();
+                    [d[0] * f, d[1] * f]
+                }
+            };
             let c = [a[0] + d[0], a[1] + d[1]];
             let len = (d[0] * d[0] + d[1] * d[1]).sqrt().max(0.25);
             // Border ramp on the continuation (distance from the pixel-centre rectangle).
@@ -833,6 +854,7 @@ mod tests {
             let plan = Plan::new(&level, growth);
             let lists: Vec<&[Earlier]> = plan.by_rank().collect();
             let (pos, frames) = (&level.geometry.pos, &level.frames);
+            let inv_step = (1.0 / level.step) as f32;
             let mut done = vec![false; level.len()];
             for (k, &t) in order.iter().enumerate() {
                 let t = t as usize;
@@ -844,12 +866,15 @@ mod tests {
                     if done[s] {
                         let d = offset(pos, frames, s, t, 1.0);
                         reach = reach.max(d[0].abs()).max(d[1].abs());
-                        want.push((order.iter().position(|&o| o as usize == s).unwrap(), d));
+                        // Stored in pixels at the level's step, as half floats.
+                        let px = [d[0] * inv_step, d[1] * inv_step]
+                            .map(|x| half::f16::from_f32(x).to_f32());
+                        want.push((order.iter().position(|&o| o as usize == s).unwrap(), px));
                     } else {
                         reach = reach.max(pos[s].distance(pos[t]));
                     }
                 }
-                let got: Vec<_> = lists[k].iter().map(|x| (x.rank(), x.d)).collect();
+                let got: Vec<_> = lists[k].iter().map(|x| (x.rank(), x.d())).collect();
                 assert_eq!(got, want, "rank {k}");
                 assert_eq!(plan.reach[k].to_bits(), reach.to_bits());
                 done[t] = true;
