@@ -26,6 +26,7 @@
 pub mod peer;
 pub mod pf;
 pub mod surface;
+mod texel_bvh;
 
 use crate::error::{Error, Result};
 use crate::example::Example;
