@@ -1140,15 +1140,12 @@ impl SynthResult {
 
     /// Writes every file into `dir` (a staging folder), and runs `measure` beside them:
     /// what it returns edits the report before report.json is written (once, last).
-    fn write_staged<E: FnOnce(&mut Report)>(
+    fn write_staged<E: FnOnce(&mut Report) + Send>(
         &self,
         dir: &Path,
         extra: impl FnOnce(&Path) -> Result<Vec<PathBuf>> + Send,
         measure: impl FnOnce() -> E + Send,
-    ) -> Result<Report>
-    where
-        E: Send,
-    {
+    ) -> Result<Report> {
         let t0 = Instant::now();
         // Everything side by side: the two EXR files (each compressing its tiles in
         // parallel, but writing them from one thread: two files, two writers), the extra
@@ -1424,11 +1421,14 @@ pub fn run_command(c: &SynthCommand) -> Result<Report> {
             // Beside writing (it only reads the result), so report.json, written once
             // after both, has it. pf reads the texel geometry in place (not a copy as
             // geometry maps: 24 B per texel less at the run's peak, the pf point cloud).
-            let pf = crate::eval::summary_fidelity_of(
+            // The example banks through the analysis cache (`--cache`, `--no-cache`).
+            let banks = Analyses::new(&c.cache);
+            let pf = crate::eval::summary_fidelity_cached(
                 &r.maps,
                 crate::eval::TexelPoints::of_geometry(&r.geometry, r.local_scale.as_deref()),
                 &r.example,
                 r.report.scale,
+                &banks,
             );
             move |report: &mut Report| report.patch_fidelity = Some(pf)
         })?;

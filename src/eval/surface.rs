@@ -88,6 +88,9 @@ struct State {
     a: DVec3,
     b: DVec3,
     n: DVec3,
+    /// A texel near `p` (the nearest one to the point before its last projection): where
+    /// the next nearest-texel search starts ([`TexelBvh::nearest`]'s hint).
+    near: usize,
 }
 
 /// Three f32 values per texel, read as f64 (exact): the planes of geometry maps
@@ -107,7 +110,7 @@ impl Xyz<'_> {
         }
     }
 
-    fn len(&self) -> usize {
+    pub(crate) fn len(&self) -> usize {
         match self {
             Xyz::Planar([x, y, z]) => x.len().min(y.len()).min(z.len()),
             Xyz::Packed(v) => v.len(),
@@ -343,10 +346,9 @@ impl<'a> Cloud<'a> {
     }
 
     #[inline]
-    fn nearest(&self, p: DVec3) -> usize {
-        // A cloud has a valid texel (`build`); a NaN point finds none: the first texel, as
-        // the k-d tree answered.
-        self.index.nearest(p).unwrap_or(0)
+    fn nearest(&self, p: DVec3, near: usize) -> usize {
+        // A cloud has a valid texel (`build`); a NaN point finds none: the first texel.
+        self.index.nearest(p, Some(near)).unwrap_or(0)
     }
 
     /// Texels within `radius` of `p`, in texel order.
@@ -535,7 +537,7 @@ impl<'a> Cloud<'a> {
         for _ in 0..steps {
             let v = if along_b { cur.b } else { cur.a };
             let p = cur.p + v.normalize_or_zero() * (sign * d);
-            let k = self.nearest(p);
+            let k = self.nearest(p, cur.near);
             let nk = self.nrm(k);
             let off = p - self.pos(k);
             let dn = off.dot(nk);
@@ -546,13 +548,14 @@ impl<'a> Cloud<'a> {
             cur.a = transport(cur.a, nk, la);
             cur.b = transport(cur.b, nk, lb);
             cur.n = nk;
+            cur.near = k;
         }
         Some(cur)
     }
 
     /// One sample's colour at spacing `s` (module docs, step 3).
     fn sample(&self, st: &State, s: usize) -> [f32; 3] {
-        let k = self.nearest(st.p);
+        let k = self.nearest(st.p, st.near);
         if s <= 1 {
             return self.col(k);
         }
@@ -602,6 +605,7 @@ impl<'a> Cloud<'a> {
             a: fr.a,
             b: fr.b,
             n: self.nrm(t),
+            near: t,
         };
         let (sp, ext) = (s as f64, (s / 2) as f64);
         let line = |from: &State, along_b: bool| -> Option<[State; WINDOW]> {
@@ -934,10 +938,23 @@ pub fn patch_fidelities_of(
     scale: Option<f64>,
     opts: &PfOptions,
 ) -> PatchFidelity {
+    patch_fidelities_in(colour, geometry, example, scale, opts, None)
+}
+
+/// [`patch_fidelities_of`] with the example banks through `banks` (memory and the disk
+/// cache, [`super::pf::BANK_KIND`]), when given: the same figures.
+pub(crate) fn patch_fidelities_in(
+    colour: &FaceMaps,
+    geometry: TexelPoints,
+    example: &Example,
+    scale: Option<f64>,
+    opts: &PfOptions,
+    banks: Option<&crate::synth::Analyses>,
+) -> PatchFidelity {
     let ex = Rgb::from_example(example);
     if !opts.force_surface {
         if let Some(img) = lattice_image(colour, geometry, scale) {
-            return image_patch_fidelities_as(&img, &ex, opts, PfMethod::Lattice);
+            return image_patch_fidelities_as(&img, &ex, opts, PfMethod::Lattice, banks);
         }
     }
     let Some(cloud) = Cloud::build(colour, geometry, scale) else {
@@ -956,7 +973,7 @@ pub fn patch_fidelities_of(
                 .zip(frames.par_iter())
                 .map(|(&t, fr)| cloud.window(t, fr, s))
                 .collect();
-            score_scale(s, &windows, &ex, opts)
+            score_scale(s, &windows, &ex, opts, banks)
         })
         .collect();
     PatchFidelity::from_scales(PfMethod::Surface, drawn.len(), fallbacks, scales)

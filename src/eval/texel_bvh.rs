@@ -26,6 +26,11 @@ use rayon::prelude::*;
 /// Side of a block of texels (the last block of a face row or column may be narrower).
 pub const BLOCK: usize = 4;
 
+/// Depth-first stacks of the queries: a balanced tree (median splits) of up to 2³² blocks
+/// is at most 33 levels deep, and a query keeps at most one pending sibling per level (two
+/// for `within`'s last push).
+const STACK: usize = 72;
+
 /// Below this many blocks a subtree is built on the current thread.
 const PARALLEL_BLOCKS: usize = 4096;
 
@@ -80,11 +85,11 @@ fn dist2(p: &[f64; 3], q: DVec3) -> f64 {
 #[inline(always)]
 fn box_dist2(p: &[f64; 3], n: &Node) -> f64 {
     let mut acc = 0.0;
-    for k in 0..3 {
-        let d = if p[k] < n.lo[k] {
-            n.lo[k] - p[k]
-        } else if p[k] > n.hi[k] {
-            p[k] - n.hi[k]
+    for ((&x, &lo), &hi) in p.iter().zip(&n.lo).zip(&n.hi) {
+        let d = if x < lo {
+            lo - x
+        } else if x > hi {
+            x - hi
         } else {
             0.0
         };
@@ -162,6 +167,16 @@ impl<'a> TexelBvh<'a> {
         s
     }
 
+    /// Texel `i` counts.
+    #[inline(always)]
+    fn counts(&self, i: usize) -> bool {
+        i < self.pos.len()
+            && self
+                .valid
+                .as_ref()
+                .is_none_or(|v| v[i / 64] >> (i % 64) & 1 != 0)
+    }
+
     /// Calls `f(texel, position)` for the counted texels of block `b`.
     #[inline(always)]
     fn each(&self, b: &Block, mut f: impl FnMut(usize, DVec3)) {
@@ -180,16 +195,30 @@ impl<'a> TexelBvh<'a> {
     }
 
     /// The counted texel nearest to `p` (lowest index among exact ties), `None` without
-    /// texels.
-    pub fn nearest(&self, p: DVec3) -> Option<usize> {
+    /// texels. `hint`, a counted texel likely near `p` (a walk's previous nearest texel),
+    /// only makes the search prune earlier: the answer is the least (distance, index) over
+    /// all counted texels whatever the hint and the order of the visit.
+    pub fn nearest(&self, p: DVec3, hint: Option<usize>) -> Option<usize> {
         let q = p.to_array();
         let (mut best, mut best_i) = (f64::INFINITY, usize::MAX);
         if self.nodes.is_empty() {
             return None;
         }
-        let mut stack: Vec<(usize, f64)> = Vec::with_capacity(64);
-        stack.push((0, box_dist2(&q, &self.nodes[0])));
-        while let Some((k, d)) = stack.pop() {
+        if let Some(h) = hint.filter(|&h| self.counts(h)) {
+            let d2 = dist2(&q, self.pos.get(h));
+            // A NaN distance (a NaN point) is no bound.
+            if !d2.is_nan() {
+                (best, best_i) = (d2, h);
+            }
+        }
+        // Depth-first, nearer child first: at most one pending sibling per level of a
+        // balanced tree (median splits), so a fixed stack, no allocation per query.
+        let mut stack = [(0usize, 0f64); STACK];
+        stack[0] = (0, box_dist2(&q, &self.nodes[0]));
+        let mut top = 1;
+        while top > 0 {
+            top -= 1;
+            let (k, d) = stack[top];
             // Equal bounds are visited: they may hold a tie of lower index.
             if d > best {
                 continue;
@@ -206,13 +235,19 @@ impl<'a> TexelBvh<'a> {
             }
             let (l, r) = (k + 1, k + n.right as usize);
             let (dl, dr) = (box_dist2(&q, &self.nodes[l]), box_dist2(&q, &self.nodes[r]));
-            // The nearer child on top.
-            if dl <= dr {
-                stack.push((r, dr));
-                stack.push((l, dl));
+            // The nearer child on top; a child farther than the best is not pushed.
+            let (near, far) = if dl <= dr {
+                ((l, dl), (r, dr))
             } else {
-                stack.push((l, dl));
-                stack.push((r, dr));
+                ((r, dr), (l, dl))
+            };
+            if far.1 <= best {
+                stack[top] = far;
+                top += 1;
+            }
+            if near.1 <= best {
+                stack[top] = near;
+                top += 1;
             }
         }
         (best_i != usize::MAX).then_some(best_i)
@@ -225,9 +260,11 @@ impl<'a> TexelBvh<'a> {
         if self.nodes.is_empty() {
             return out;
         }
-        let mut stack: Vec<usize> = Vec::with_capacity(64);
-        stack.push(0);
-        while let Some(k) = stack.pop() {
+        let mut stack = [0usize; STACK];
+        let mut top = 1;
+        while top > 0 {
+            top -= 1;
+            let k = stack[top];
             let n = &self.nodes[k];
             if box_dist2(&q, n) > r2 {
                 continue;
@@ -240,8 +277,9 @@ impl<'a> TexelBvh<'a> {
                 });
                 continue;
             }
-            stack.push(k + n.right as usize);
-            stack.push(k + 1);
+            stack[top] = k + n.right as usize;
+            stack[top + 1] = k + 1;
+            top += 2;
         }
         out.sort_unstable();
         out
@@ -378,7 +416,10 @@ mod tests {
                     .query(&pt.to_array())
                     .nearest_one::<SquaredEuclidean<f64>>()
                     .execute();
-                let got = bvh.nearest(pt).unwrap();
+                let got = bvh.nearest(pt, None).unwrap();
+                // Any hint, the same answer.
+                let hint = (next() * p.len() as f64) as usize;
+                assert_eq!(bvh.nearest(pt, Some(hint)), Some(got));
                 assert_eq!(dist2(&pt.to_array(), p[got].as_dvec3()), k.distance);
                 let lowest = (0..p.len())
                     .find(|&i| dist2(&pt.to_array(), p[i].as_dvec3()) == k.distance)
@@ -392,16 +433,17 @@ mod tests {
     #[test]
     fn invalid_texels_left_out() {
         let (l, p) = sheet(4, 8, false);
-        let bvh = TexelBvh::build(&l, Xyz::Packed(&p), false, |i| i % 3 != 0);
+        let bvh = TexelBvh::build(&l, Xyz::Packed(&p), false, |i: usize| !i.is_multiple_of(3));
         for i in (0..p.len()).step_by(5) {
             let q = p[i].as_dvec3();
-            let k = bvh.nearest(q).unwrap();
-            assert!(k % 3 != 0);
-            assert_eq!(k == i, i % 3 != 0);
-            assert!(bvh.within(q, 1.0).iter().all(|&j| j % 3 != 0));
+            let k = bvh.nearest(q, Some(i)).unwrap();
+            assert_eq!(bvh.nearest(q, None), Some(k));
+            assert!(!k.is_multiple_of(3));
+            assert_eq!(k == i, !i.is_multiple_of(3));
+            assert!(bvh.within(q, 1.0).iter().all(|&j| !j.is_multiple_of(3)));
         }
         let none = TexelBvh::build(&l, Xyz::Packed(&p), false, |_| false);
-        assert_eq!(none.nearest(DVec3::ZERO), None);
+        assert_eq!(none.nearest(DVec3::ZERO, Some(3)), None);
         assert!(none.within(DVec3::ZERO, 1e9).is_empty());
     }
 }
