@@ -95,7 +95,7 @@ pub const FIELD_FACE: u64 = 430;
 /// `synth`, per texel, besides 4 bytes per map channel: what the largest stage holds at
 /// once — during synthesis the texel geometry (24), frames (24), edge graph (20), sources
 /// (8) and the method's compact state; afterwards the maps, the tangents, and the tiles
-/// being written beside the pf summary's block index and cover spacings (~10; a k-d tree of
+/// being written beside the pf summary's block index and cover spacings (~12; a k-d tree of
 /// 32 before 2026-12-06, measured alone before writing). Measured on Spot with
 /// the coherent and jump methods (issue 14 item 6, 2026-12-03): whole-run peak 417–428
 /// MiB at N = 128, 152–154 at N = 64, 135 at N = 32; 84 B per texel in all at 5 channels
