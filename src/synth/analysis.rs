@@ -64,6 +64,9 @@ pub struct Analyses {
     dir: Option<PathBuf>,
     memo: Mutex<HashMap<(String, Key), Shared>>,
     events: Mutex<Vec<Event>>,
+    /// A save already failed and said so: a folder that cannot be written costs one
+    /// warning per store, not one per analysis (the pf summary saves three banks).
+    save_warned: std::sync::atomic::AtomicBool,
 }
 
 impl std::fmt::Debug for Analyses {
@@ -87,6 +90,7 @@ impl Analyses {
         Self {
             dir: dir.resolve(),
             memo: Mutex::new(HashMap::new()),
+            save_warned: Default::default(),
             events: Mutex::new(Vec::new()),
         }
     }
@@ -159,10 +163,17 @@ impl Analyses {
             v.save(&mut w);
             match cache::store(dir, kind, key, &w.0) {
                 Ok(_) => bytes = w.0.len() as u64,
-                Err(e) => eprintln!(
-                    "warning: cannot save the {kind} analysis in the cache folder {}: {e} (the run goes on without it)",
-                    dir.display()
-                ),
+                Err(e) => {
+                    if !self
+                        .save_warned
+                        .swap(true, std::sync::atomic::Ordering::Relaxed)
+                    {
+                        eprintln!(
+                            "warning: cannot save the {kind} analysis in the cache folder {}: {e} (the run goes on without it)",
+                            dir.display()
+                        )
+                    }
+                }
             }
         }
         self.remember(id, v.clone());
