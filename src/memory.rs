@@ -94,9 +94,10 @@ const IRREGULAR_QUAD_PER_LEVEL: u64 = 2867;
 pub const FIELD_FACE: u64 = 430;
 /// `synth`, per texel, besides 4 bytes per map channel: what the largest stage holds at
 /// once — during synthesis the texel geometry (24), frames (24), edge graph (4, and lists
-/// at the borders; 20 before 2026-12-06), sources
-/// (8) and the method's compact state; afterwards the maps, the tangents and the pf
-/// summary's k-d tree (32), or the atlas and the tiles being written. Measured on Spot with
+/// at the borders; 20 before 2026-12-06), sources (8) and the method's compact state;
+/// afterwards the maps, the tangents, and the tiles being written beside the pf summary's
+/// block index and cover spacings (~12; a k-d tree of 32 before 2026-12-06, measured alone
+/// before writing). Measured on Spot with
 /// the coherent and jump methods (issue 14 item 6, 2026-12-03): whole-run peak 417–428
 /// MiB at N = 128, 152–154 at N = 64, 135 at N = 32; 84 B per texel in all at 5 channels
 /// puts the estimate at 1.03–1.04x at N = 128, 1.2x at N = 64 and 0.9x at N = 32, where

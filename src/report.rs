@@ -55,10 +55,12 @@ pub struct ExampleInfo {
     pub channels: Vec<String>,
 }
 
-/// Wall-clock seconds per stage. `total` covers everything up to writing this report.
-/// The orientation field is computed beside the texel geometry and the graphs (but for
-/// `straight`), so `field` overlaps `geometry` and `graph` and the stages can add up to
-/// more than `total`.
+/// Wall-clock seconds per stage. `total` covers everything up to writing this report,
+/// the pf summary included (the wall a user of `synth` waits, but for starting and ending
+/// the process). The orientation field is computed beside the texel geometry and the
+/// graphs (but for `straight`), and the pf summary beside writing, so `field` overlaps
+/// `geometry` and `graph`, `pf` overlaps `write`, and the stages can add up to more than
+/// `total`.
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct Seconds {
     /// Reading and validating the mesh and example, building the limit surface.
@@ -75,6 +77,9 @@ pub struct Seconds {
     pub maps: f64,
     /// Writing facemaps.exr, geometry.exr and any other outputs.
     pub write: f64,
+    /// `synth`'s pf summary (`patch_fidelity`), measured beside writing (so it overlaps
+    /// `write`); 0 when not measured.
+    pub pf: f64,
     pub total: f64,
 }
 
@@ -137,7 +142,7 @@ pub struct Report {
     /// so that it can be compared with `peak_memory_bytes`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub memory_estimate_bytes: Option<u64>,
-    /// pf1/pf4/pf8 of the result (`surfsynth synth` measures them after writing;
+    /// pf1/pf4/pf8 of the result (`surfsynth synth` measures them while writing;
     /// [`crate::eval::summary_fidelity`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub patch_fidelity: Option<crate::eval::PfSummary>,

@@ -647,28 +647,27 @@ impl Synthesizer {
     /// everything into the transaction's staging folder ([`SynthResult::write`]) and moves
     /// it into place. Returns the result and the final report.
     pub fn run_to(self, dir: impl AsRef<Path>) -> Result<(SynthResult, Report)> {
-        self.run_to_with(dir, |_| {})
+        self.run_to_with(dir, |_| |_: &mut Report| {})
     }
 
-    /// [`Synthesizer::run_to`] with `finish` called on the result before anything is
-    /// written (e.g. to add measures to its report): everything lands in `dir` together.
-    pub fn run_to_with(
+    /// [`Synthesizer::run_to`] with `measure` run on the result while its files are
+    /// written (e.g. a quality measure for its report: `synth`'s pf summary); what it
+    /// returns edits the report before report.json is written, once, with the rest, and
+    /// everything lands in `dir` together. Its time is part of the run's: the run is not
+    /// done before it is (`seconds.total`; its own wall in `seconds.pf`).
+    pub fn run_to_with<E: FnOnce(&mut Report) + Send>(
         self,
         dir: impl AsRef<Path>,
-        finish: impl FnOnce(&mut SynthResult),
+        measure: impl FnOnce(&SynthResult) -> E + Send,
     ) -> Result<(SynthResult, Report)> {
         let dir = dir.as_ref();
         let progress = self.progress.clone();
-        let (mut result, txn) = self.run_in_pool(Some(dir))?;
+        let (result, txn) = self.run_in_pool(Some(dir))?;
         let txn = txn.expect("run_in_pool opens the transaction when given a directory");
-        // What `finish` measures is not part of the run's times.
-        let t = Instant::now();
-        finish(&mut result);
-        result.started += t.elapsed();
         if let Some(p) = &progress {
             p(Stage::Write, 0, 1);
         }
-        let report = result.write_into(&txn)?;
+        let report = result.write_measured_into(&txn, || measure(&result))?;
         txn.commit()?;
         if let Some(p) = &progress {
             p(Stage::Write, 1, 1);
@@ -1033,7 +1032,17 @@ impl SynthResult {
     /// [`SynthResult::write`] into an open transaction (its staging folder); the caller
     /// commits.
     pub fn write_into(&self, txn: &OutputTxn) -> Result<Report> {
-        self.write_staged(txn.dir(), |d| self.write_renderer_outputs(d))
+        self.write_measured_into(txn, || |_: &mut Report| {})
+    }
+
+    /// [`SynthResult::write_into`] with `measure` run beside the writing
+    /// ([`Synthesizer::run_to_with`]).
+    fn write_measured_into<E: FnOnce(&mut Report) + Send>(
+        &self,
+        txn: &OutputTxn,
+        measure: impl FnOnce() -> E + Send,
+    ) -> Result<Report> {
+        self.write_staged(txn.dir(), |d| self.write_renderer_outputs(d), measure)
             .map_err(|e| txn.explain(e))
     }
 
@@ -1123,113 +1132,66 @@ impl SynthResult {
     ) -> Result<Report> {
         let txn = OutputTxn::begin(dir, crate::io::txn::SYNTH_OUTPUTS)?;
         let report = self
-            .write_staged(txn.dir(), extra)
+            .write_staged(txn.dir(), extra, || |_: &mut Report| {})
             .map_err(|e| txn.explain(e))?;
         txn.commit()?;
         Ok(report)
     }
 
-    /// Writes every file into `dir` (a staging folder).
-    fn write_staged(
+    /// Writes every file into `dir` (a staging folder), and runs `measure` beside them:
+    /// what it returns edits the report before report.json is written (once, last).
+    fn write_staged<E: FnOnce(&mut Report) + Send>(
         &self,
         dir: &Path,
         extra: impl FnOnce(&Path) -> Result<Vec<PathBuf>> + Send,
+        measure: impl FnOnce() -> E + Send,
     ) -> Result<Report> {
         let t0 = Instant::now();
-        // The two EXR files (parallel inside) and the extra outputs side by side.
-        let ((mut written, exr), extra) = rayon::join(
+        // Everything side by side: the two EXR files (each compressing its tiles in
+        // parallel, but writing them from one thread: two files, two writers), the extra
+        // outputs, and `measure` (the pf summary of `synth`, which only reads the result).
+        // Their bytes do not depend on the order or the threads; report.json waits for all.
+        let (((fm, geo), extra), (edit, measured)) = rayon::join(
             || {
-                let mut written: Vec<PathBuf> = Vec::new();
-                let r = (|| {
-                    let p = dir.join(FACEMAPS_FILE);
-                    // The last guard (issue 18): no NaN or ±inf in what synth writes.
-                    for (name, data) in &self.maps.channels {
-                        crate::io::exr::check_finite(
-                            &format!("face map channel '{name}'"),
-                            data,
-                            &self.maps.layout,
-                        )?;
-                    }
-                    write_face_maps(&p, &self.maps)?;
-                    written.push(p);
-                    // Streamed from the texel geometry (the same bytes as writing
-                    // `geometry_maps()`, without a second copy of the maps).
-                    let p = dir.join(GEOMETRY_FILE);
-                    let g = &self.geometry;
-                    // Streamed below, so checked here.
-                    use crate::io::exr::check_finite_by;
-                    check_finite_by(
-                        "texel position",
-                        g.pos.len(),
-                        |i| g.pos[i].is_finite(),
-                        &g.layout,
-                    )?;
-                    check_finite_by(
-                        "texel normal",
-                        g.normal.len(),
-                        |i| g.normal[i].is_finite(),
-                        &g.layout,
-                    )?;
-                    check_finite_by(
-                        "field tangent",
-                        self.tangents.len(),
-                        |i| self.tangents[i].iter().all(|v| v.is_finite()),
-                        &g.layout,
-                    )?;
-                    let mut names = crate::bake::GEOMETRY_CHANNELS.to_vec();
-                    names.extend(TANGENT_CHANNELS);
-                    if self.local_scale.is_some() {
-                        names.push(LOCAL_SCALE_CHANNEL);
-                    }
-                    crate::io::exr::write_tiles_with_attributes(
-                        &p,
-                        crate::io::exr::TileLayout::of(g.layout.clone()),
-                        &names,
-                        crate::io::exr::compression_for(&g.layout),
-                        &[(TANGENT_HANDEDNESS, self.handedness.bitangent_sign())],
-                        |f, tile| {
-                            let r = g.layout.range(f);
-                            for (c, out) in tile.chunks_exact_mut(r.len()).enumerate() {
-                                if c == 9 {
-                                    let s = self.local_scale.as_ref().expect("named above");
-                                    out.copy_from_slice(&s[r.clone()]);
-                                    continue;
-                                }
-                                if c >= 6 {
-                                    for (o, t) in out.iter_mut().zip(&self.tangents[r.clone()]) {
-                                        *o = t[c % 3];
-                                    }
-                                    continue;
-                                }
-                                let src = if c < 3 { &g.pos } else { &g.normal };
-                                for (o, v) in out.iter_mut().zip(&src[r.clone()]) {
-                                    *o = v[c % 3];
-                                }
-                            }
-                        },
-                        &|_| {},
-                    )?;
-                    written.push(p);
-                    Ok(())
-                })();
-                (written, r)
+                rayon::join(
+                    || {
+                        rayon::join(
+                            || (self.write_facemaps_exr(dir), t0.elapsed()),
+                            || (self.write_geometry_exr(dir), t0.elapsed()),
+                        )
+                    },
+                    || (extra(dir), t0.elapsed()),
+                )
             },
-            || extra(dir),
+            || {
+                let t = Instant::now();
+                (measure(), t.elapsed())
+            },
         );
-        let result = (|| {
-            match (exr, extra) {
-                (Ok(()), Ok(p)) => written.extend(p),
-                (Err(e), Ok(p)) => {
-                    written.extend(p);
-                    return Err(e);
+        // Writing ends when its last file does.
+        let files = fm.1.max(geo.1).max(extra.1);
+        let mut written: Vec<PathBuf> = Vec::new();
+        let mut first_err = None;
+        for r in [fm.0.map(|p| vec![p]), geo.0.map(|p| vec![p]), extra.0] {
+            match r {
+                Ok(p) => written.extend(p),
+                Err(e) => {
+                    first_err.get_or_insert(e);
                 }
-                (Ok(()), Err(e)) | (Err(e), Err(_)) => return Err(e),
+            }
+        }
+        let result = (|| {
+            if let Some(e) = first_err {
+                return Err(e);
             }
             // The files' background fsyncs (in a transaction's staging folder) count as
             // writing.
+            let t_sync = Instant::now();
             crate::io::atomic::finish_syncs_in(dir)?;
             let mut report = self.report.clone();
-            report.seconds.write = t0.elapsed().as_secs_f64();
+            edit(&mut report);
+            report.seconds.write = (files + t_sync.elapsed()).as_secs_f64();
+            report.seconds.pf = measured.as_secs_f64();
             report.seconds.total = self.started.elapsed().as_secs_f64();
             report.peak_memory_bytes = crate::report::peak_memory_bytes();
             report.update_rates();
@@ -1241,6 +1203,82 @@ impl SynthResult {
             remove_all(&written);
         }
         result
+    }
+
+    /// facemaps.exr, after the last guard (issue 18): no NaN or ±inf in what synth writes.
+    fn write_facemaps_exr(&self, dir: &Path) -> Result<PathBuf> {
+        let p = dir.join(FACEMAPS_FILE);
+        for (name, data) in &self.maps.channels {
+            crate::io::exr::check_finite(
+                &format!("face map channel '{name}'"),
+                data,
+                &self.maps.layout,
+            )?;
+        }
+        write_face_maps(&p, &self.maps)?;
+        Ok(p)
+    }
+
+    /// geometry.exr: positions, normals, the field's tangents (and the local scale).
+    fn write_geometry_exr(&self, dir: &Path) -> Result<PathBuf> {
+        // Streamed from the texel geometry (the same bytes as writing
+        // `geometry_maps()`, without a second copy of the maps).
+        let p = dir.join(GEOMETRY_FILE);
+        let g = &self.geometry;
+        // Streamed below, so checked here.
+        use crate::io::exr::check_finite_by;
+        check_finite_by(
+            "texel position",
+            g.pos.len(),
+            |i| g.pos[i].is_finite(),
+            &g.layout,
+        )?;
+        check_finite_by(
+            "texel normal",
+            g.normal.len(),
+            |i| g.normal[i].is_finite(),
+            &g.layout,
+        )?;
+        check_finite_by(
+            "field tangent",
+            self.tangents.len(),
+            |i| self.tangents[i].iter().all(|v| v.is_finite()),
+            &g.layout,
+        )?;
+        let mut names = crate::bake::GEOMETRY_CHANNELS.to_vec();
+        names.extend(TANGENT_CHANNELS);
+        if self.local_scale.is_some() {
+            names.push(LOCAL_SCALE_CHANNEL);
+        }
+        crate::io::exr::write_tiles_with_attributes(
+            &p,
+            crate::io::exr::TileLayout::of(g.layout.clone()),
+            &names,
+            crate::io::exr::compression_for(&g.layout),
+            &[(TANGENT_HANDEDNESS, self.handedness.bitangent_sign())],
+            |f, tile| {
+                let r = g.layout.range(f);
+                for (c, out) in tile.chunks_exact_mut(r.len()).enumerate() {
+                    if c == 9 {
+                        let s = self.local_scale.as_ref().expect("named above");
+                        out.copy_from_slice(&s[r.clone()]);
+                        continue;
+                    }
+                    if c >= 6 {
+                        for (o, t) in out.iter_mut().zip(&self.tangents[r.clone()]) {
+                            *o = t[c % 3];
+                        }
+                        continue;
+                    }
+                    let src = if c < 3 { &g.pos } else { &g.normal };
+                    for (o, v) in out.iter_mut().zip(&src[r.clone()]) {
+                        *o = v[c % 3];
+                    }
+                }
+            },
+            &|_| {},
+        )?;
+        Ok(p)
     }
 }
 
@@ -1371,23 +1409,28 @@ impl SynthCommand {
 }
 
 /// Runs a [`SynthCommand`] with a progress bar per stage on stderr (when it is a
-/// terminal), measures pf1/pf4/pf8 of the result in memory (recorded in report.json as
-/// `patch_fidelity`, outside the run's `seconds`) and prints the end summary on stdout.
+/// terminal), measures pf1/pf4/pf8 of the result in memory while its files are written
+/// (recorded in report.json as `patch_fidelity`; its time is in `seconds.pf` and in
+/// `seconds.total`, the wall the user waits) and prints the end summary on stdout.
 pub fn run_command(c: &SynthCommand) -> Result<Report> {
     let bars = StageBars::default();
     let (_, report) = c
         .synthesizer()
         .on_progress(move |s, d, t| bars.update(s, d, t))
         .run_to_with(&c.out, |r| {
-            // Measured before writing, so report.json is written once, with the rest.
-            // pf reads the texel geometry in place (not a copy as geometry maps: 24 B per
-            // texel less at the run's peak, the pf point cloud).
-            r.report.patch_fidelity = Some(crate::eval::summary_fidelity_of(
+            // Beside writing (it only reads the result), so report.json, written once
+            // after both, has it. pf reads the texel geometry in place (not a copy as
+            // geometry maps: 24 B per texel less at the run's peak, the pf point cloud).
+            // The example banks through the analysis cache (`--cache`, `--no-cache`).
+            let banks = Analyses::new(&c.cache);
+            let pf = crate::eval::summary_fidelity_cached(
                 &r.maps,
                 crate::eval::TexelPoints::of_geometry(&r.geometry, r.local_scale.as_deref()),
                 &r.example,
                 r.report.scale,
-            ));
+                &banks,
+            );
+            move |report: &mut Report| report.patch_fidelity = Some(pf)
         })?;
     println!("{}", summary_line(&report, &c.out));
     Ok(report)

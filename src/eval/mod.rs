@@ -26,6 +26,7 @@
 pub mod peer;
 pub mod pf;
 pub mod surface;
+mod texel_bvh;
 
 use crate::error::{Error, Result};
 use crate::example::Example;
@@ -50,8 +51,14 @@ pub struct PfSummary {
     pub method: PfMethod,
     /// Texels drawn ([`PF_SUMMARY_SAMPLES`] unless the maps have fewer).
     pub samples: usize,
-    /// Wall-clock seconds of the measurement (not part of the run's `seconds`).
+    /// Wall-clock seconds of the measurement (`synth`: also `seconds.pf`, beside writing,
+    /// and part of `seconds.total`).
     pub seconds: f64,
+    /// Where the example banks came from, one per spacing with windows, sorted (`synth`:
+    /// the analysis cache, `hit` from the second run with an example on; empty when not
+    /// asked).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub bank_sources: Vec<crate::synth::analysis::Source>,
 }
 
 /// [`PfSummary`] of maps in memory: [`PF_SUMMARY_SAMPLES`] drawn texels, so that it costs
@@ -65,7 +72,7 @@ pub fn summary_fidelity(
 ) -> PfSummary {
     let t0 = std::time::Instant::now();
     let p = match TexelPoints::of_maps(geometry) {
-        Some(g) => summary_pf(colour, g, example, scale),
+        Some(g) => summary_pf(colour, g, example, scale, None),
         None => PatchFidelity::empty(PfMethod::Surface),
     };
     summary_of(p, t0)
@@ -80,7 +87,29 @@ pub fn summary_fidelity_of(
     scale: f64,
 ) -> PfSummary {
     let t0 = std::time::Instant::now();
-    summary_of(summary_pf(colour, geometry, example, scale), t0)
+    summary_of(summary_pf(colour, geometry, example, scale, None), t0)
+}
+
+/// [`summary_fidelity_of`] with the example-side banks (one per spacing S) taken from
+/// `banks` — memory, else its disk cache, else built and saved (kind `pf-bank`) — as
+/// `synth` does: they depend on the example alone and were most of the summary's time on
+/// small meshes. The same figures; `bank_sources` says where the banks came from.
+pub fn summary_fidelity_cached(
+    colour: &FaceMaps,
+    geometry: TexelPoints,
+    example: &Example,
+    scale: f64,
+    banks: &crate::synth::Analyses,
+) -> PfSummary {
+    let t0 = std::time::Instant::now();
+    let mut s = summary_of(
+        summary_pf(colour, geometry, example, scale, Some(banks)),
+        t0,
+    );
+    // The spacings run side by side: sorted, so the list does not depend on the threads.
+    s.bank_sources = banks.take_events().into_iter().map(|e| e.source).collect();
+    s.bank_sources.sort();
+    s
 }
 
 fn summary_pf(
@@ -88,12 +117,13 @@ fn summary_pf(
     geometry: TexelPoints,
     example: &Example,
     scale: f64,
+    banks: Option<&crate::synth::Analyses>,
 ) -> PatchFidelity {
     let opts = PfOptions {
         samples: PF_SUMMARY_SAMPLES,
         ..Default::default()
     };
-    patch_fidelities_of(colour, geometry, example, Some(scale), &opts)
+    surface::patch_fidelities_in(colour, geometry, example, Some(scale), &opts, banks)
 }
 
 fn summary_of(p: PatchFidelity, t0: std::time::Instant) -> PfSummary {
@@ -104,6 +134,7 @@ fn summary_of(p: PatchFidelity, t0: std::time::Instant) -> PfSummary {
         method: p.detail.method,
         samples: p.detail.drawn,
         seconds: t0.elapsed().as_secs_f64(),
+        bank_sources: Vec::new(),
     }
 }
 

@@ -433,21 +433,125 @@ impl Bank {
     /// The bank of `example` at spacing `s`; `None` when no window fits the example (or
     /// its values are not finite).
     pub fn build(example: &Rgb, s: usize, pairs: usize, seed: u64) -> Option<Self> {
+        let win = Self::windows(example, s)?;
+        let core = BankCore::compute(&win, pairs, seed)?;
+        Self::assemble(win, core)
+    }
+
+    /// [`Bank::build`] through `analyses` (memory, the disk cache, else built and saved
+    /// under kind [`BANK_KIND`]): the same bank, bit for bit. Its source is returned.
+    pub fn build_in(
+        example: &Rgb,
+        s: usize,
+        pairs: usize,
+        seed: u64,
+        analyses: &crate::synth::Analyses,
+    ) -> Option<Self> {
+        let win = Self::windows(example, s)?;
+        let key = BankCore::key(example, s, pairs, seed);
+        let core = analyses
+            .try_get(BANK_KIND, key, || {
+                BankCore::compute(&win, pairs, seed).ok_or(())
+            })
+            .ok()?;
+        Self::assemble(win, (*core).clone())
+    }
+
+    /// The windows of `example` at spacing `s` (`None`: none fits).
+    fn windows(example: &Rgb, s: usize) -> Option<Windows> {
         let m = margin(s);
         let (w, h) = (example.width, example.height);
         if w <= 2 * m || h <= 2 * m {
             return None;
         }
         let (nx, ny) = (w - 2 * m, h - 2 * m);
-        let win = Windows {
+        Some(Windows {
             s,
             width: w,
             blur: disc_blur(example, s),
             m,
             nx,
             count: nx * ny,
-        };
-        let (mean, basis) = fit_pca(&win);
+        })
+    }
+
+    /// The bank from its windows and computed part: the tree over the blocks' leading
+    /// coordinates.
+    fn assemble(win: Windows, core: BankCore) -> Option<Self> {
+        let BankCore {
+            mean,
+            basis,
+            blocks,
+            pairs_mean_sq,
+        } = core;
+        if blocks.len() != win.count.div_ceil(LANES) * ROWS {
+            return None;
+        }
+        let count = win.count;
+        let points: Vec<[f32; TREE_DIMS]> = (0..count)
+            .map(|j| {
+                let blk = &blocks[(j / LANES) * ROWS..];
+                let mut p = [0f32; TREE_DIMS];
+                for (k, x) in p.iter_mut().enumerate() {
+                    // Rows 0..TREE_PCA are the first coordinates, then their residual.
+                    *x = blk[k][j % LANES];
+                }
+                p
+            })
+            .collect();
+        let tree = ImmutableKdTree::new_from_slice(&points).ok()?;
+        Some(Self {
+            win,
+            mean,
+            basis,
+            blocks,
+            tree,
+            pairs_mean_sq,
+        })
+    }
+}
+
+/// What [`Bank::build`] computes from the example windows (the PCA, every window's
+/// projection, the denominator), saved in the analysis cache: on the end-of-run pf summary
+/// of a small mesh it was most of the summary's time (three banks of ~50 k windows each
+/// for a 256² example), and it depends on the example alone.
+#[derive(Clone, Debug)]
+pub(crate) struct BankCore {
+    mean: Vec<f32>,
+    basis: Vec<f32>,
+    blocks: Vec<[f32; LANES]>,
+    pairs_mean_sq: f64,
+}
+
+/// Cache kind of [`BankCore`].
+pub const BANK_KIND: &str = "pf-bank";
+/// Bump when [`BankCore::compute`] changes what it computes.
+const BANK_VERSION: u64 = 1;
+
+impl BankCore {
+    /// The cache key: the example's pixels, the spacing, the denominator's draw, and the
+    /// constants that shape the windows and their projection.
+    fn key(example: &Rgb, s: usize, pairs: usize, seed: u64) -> crate::cache::Key {
+        let px: Vec<f32> = example.px.iter().flatten().copied().collect();
+        crate::cache::KeyBuilder::new(BANK_KIND)
+            .u64(BANK_VERSION)
+            .u64(example.width as u64)
+            .u64(example.height as u64)
+            .f32s(&px)
+            .u64(s as u64)
+            .u64(pairs as u64)
+            .u64(seed)
+            .u64(WINDOW as u64)
+            .u64(SCAN_DIMS as u64)
+            .u64(TREE_PCA as u64)
+            .u64(PCA_WINDOWS as u64)
+            .u64(PCA_ITERATIONS as u64)
+            .finish()
+    }
+
+    fn compute(win: &Windows, pairs: usize, seed: u64) -> Option<Self> {
+        let s = win.s;
+        let (mean, basis) = fit_pca(win);
         let count = win.count;
         let nblocks = count.div_ceil(LANES);
         let mut blocks = vec![[1e30f32; LANES]; nblocks * ROWS];
@@ -466,18 +570,6 @@ impl Bank {
         if blocks.iter().flatten().any(|v| !v.is_finite()) {
             return None;
         }
-        let points: Vec<[f32; TREE_DIMS]> = (0..count)
-            .map(|j| {
-                let blk = &blocks[(j / LANES) * ROWS..];
-                let mut p = [0f32; TREE_DIMS];
-                for (k, x) in p.iter_mut().enumerate() {
-                    // Rows 0..TREE_PCA are the first coordinates, then their residual.
-                    *x = blk[k][j % LANES];
-                }
-                p
-            })
-            .collect();
-        let tree = ImmutableKdTree::new_from_slice(&points).ok()?;
         // Denominator: random pairs of distinct windows.
         let mut state = seed ^ 0x0A11_BA1C_0000_0000 ^ s as u64;
         let mut sum = 0f64;
@@ -500,15 +592,54 @@ impl Bank {
         }
         let pairs_mean_sq = if n > 0 { sum / n as f64 } else { 0.0 };
         Some(Self {
-            win,
             mean,
             basis,
             blocks,
-            tree,
             pairs_mean_sq,
         })
     }
+}
 
+impl crate::cache::Persist for BankCore {
+    fn save(&self, w: &mut crate::cache::Writer) {
+        w.f32s(&self.mean);
+        w.f32s(&self.basis);
+        w.f32s(self.blocks.as_flattened());
+        w.f64(self.pairs_mean_sq);
+    }
+
+    fn load(r: &mut crate::cache::Reader<'_>) -> Option<Self> {
+        let mean = r.f32s()?;
+        let basis = r.f32s()?;
+        let flat = r.f32s()?;
+        let pairs_mean_sq = r.f64()?;
+        if mean.len() != DIMS
+            || basis.len() != SCAN_DIMS * DIMS_PAD
+            || flat.len() % (LANES * ROWS) != 0
+            || !r.at_end()
+            || !pairs_mean_sq.is_finite()
+            || mean
+                .iter()
+                .chain(&basis)
+                .chain(&flat)
+                .any(|v| !v.is_finite())
+        {
+            return None;
+        }
+        let blocks = flat
+            .chunks_exact(LANES)
+            .map(|c| c.try_into().expect("LANES values"))
+            .collect();
+        Some(Self {
+            mean,
+            basis,
+            blocks,
+            pairs_mean_sq,
+        })
+    }
+}
+
+impl Bank {
     /// Number of example windows.
     pub fn len(&self) -> usize {
         self.win.count
@@ -799,6 +930,7 @@ pub(crate) fn score_scale(
     windows: &[Option<Vec<f32>>],
     example: &Rgb,
     opts: &PfOptions,
+    banks: Option<&crate::synth::Analyses>,
 ) -> PfScale {
     let laid: Vec<&Vec<f32>> = windows
         .iter()
@@ -815,7 +947,11 @@ pub(crate) fn score_scale(
         nearest_mean_sq: None,
         pairs_mean_sq: None,
     };
-    let Some(bank) = Bank::build(example, s, opts.pairs, opts.seed) else {
+    let bank = match banks {
+        Some(a) => Bank::build_in(example, s, opts.pairs, opts.seed, a),
+        None => Bank::build(example, s, opts.pairs, opts.seed),
+    };
+    let Some(bank) = bank else {
         return out;
     };
     out.example_windows = bank.len();
@@ -836,7 +972,7 @@ pub(crate) fn score_scale(
 /// pf1/pf4/pf8 of a 2D image against an example: centres drawn among the finite pixels,
 /// windows on the pixel grid of the disc-blurred image.
 pub fn image_patch_fidelities(image: &Rgb, example: &Rgb, opts: &PfOptions) -> PatchFidelity {
-    image_patch_fidelities_as(image, example, opts, PfMethod::Image)
+    image_patch_fidelities_as(image, example, opts, PfMethod::Image, None)
 }
 
 pub(crate) fn image_patch_fidelities_as(
@@ -844,6 +980,7 @@ pub(crate) fn image_patch_fidelities_as(
     example: &Rgb,
     opts: &PfOptions,
     method: PfMethod,
+    banks: Option<&crate::synth::Analyses>,
 ) -> PatchFidelity {
     let (w, h) = (image.width, image.height);
     let candidates: Vec<usize> = (0..w * h)
@@ -867,7 +1004,7 @@ pub(crate) fn image_patch_fidelities_as(
                     Some(v)
                 })
                 .collect();
-            score_scale(s, &windows, example, opts)
+            score_scale(s, &windows, example, opts, banks)
         })
         .collect();
     PatchFidelity::from_scales(method, drawn.len(), 0, scales)
@@ -969,5 +1106,45 @@ mod tests {
                 "len {len}, count {count}, seed {seed}"
             );
         }
+    }
+
+    /// A bank from the analysis cache is the bank built here: same denominator, same
+    /// nearest distances; a damaged entry is rebuilt.
+    #[test]
+    fn a_cached_bank_is_the_built_bank() {
+        use crate::cache::CacheDir;
+        use crate::synth::analysis::Source;
+        use crate::synth::Analyses;
+        let dir = tempfile::tempdir().unwrap();
+        let ex = noise(40, 36, 7);
+        let qs: Vec<Vec<f32>> = (0..20)
+            .map(|k| {
+                let img = noise(WINDOW, WINDOW, 100 + k);
+                img.px.iter().flatten().copied().collect()
+            })
+            .collect();
+        let q: Vec<&[f32]> = qs.iter().map(|v| v.as_slice()).collect();
+        let built = Bank::build(&ex, 4, 256, 3).unwrap();
+        let want = (built.pairs_mean_sq, built.nearest_all(&q));
+        let cache = CacheDir::Dir(dir.path().to_path_buf());
+        for expect in [Source::Miss, Source::Hit] {
+            let a = Analyses::new(&cache);
+            let b = Bank::build_in(&ex, 4, 256, 3, &a).unwrap();
+            assert_eq!((b.pairs_mean_sq, b.nearest_all(&q)), want);
+            let ev = a.events();
+            assert_eq!(ev.len(), 1);
+            assert_eq!(ev[0].source, expect);
+        }
+        for f in std::fs::read_dir(dir.path()).unwrap() {
+            let f = f.unwrap().path();
+            let mut b = std::fs::read(&f).unwrap();
+            let k = b.len() - 5;
+            b[k] ^= 0x40;
+            std::fs::write(&f, b).unwrap();
+        }
+        let a = Analyses::new(&cache);
+        let b = Bank::build_in(&ex, 4, 256, 3, &a).unwrap();
+        assert_eq!((b.pairs_mean_sq, b.nearest_all(&q)), want);
+        assert_eq!(a.events()[0].source, Source::Rebuilt);
     }
 }

@@ -38,10 +38,10 @@ use super::pf::{
     draw, draw_from, image_patch_fidelities_as, score_scale, PatchFidelity, PfMethod, PfOptions,
     Rgb, DIMS, PF_SCALES, WINDOW,
 };
+use super::texel_bvh::TexelBvh;
 use crate::example::Example;
 use crate::io::exr::FaceMaps;
 use glam::DVec3;
-use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicU32, Ordering};
 
@@ -88,6 +88,9 @@ struct State {
     a: DVec3,
     b: DVec3,
     n: DVec3,
+    /// A texel near `p` (the nearest one to the point before its last projection): where
+    /// the next nearest-texel search starts ([`TexelBvh::nearest`]'s hint).
+    near: usize,
 }
 
 /// Three f32 values per texel, read as f64 (exact): the planes of geometry maps
@@ -100,23 +103,14 @@ pub enum Xyz<'a> {
 
 impl Xyz<'_> {
     #[inline]
-    fn get(&self, i: usize) -> DVec3 {
+    pub(crate) fn get(&self, i: usize) -> DVec3 {
         match self {
             Xyz::Planar([x, y, z]) => DVec3::new(x[i] as f64, y[i] as f64, z[i] as f64),
             Xyz::Packed(v) => v[i].as_dvec3(),
         }
     }
 
-    /// One coordinate of texel `i` (what the k-d tree's construction reads).
-    #[inline]
-    fn coord(&self, i: usize, dim: usize) -> f64 {
-        match self {
-            Xyz::Planar(c) => c[dim][i] as f64,
-            Xyz::Packed(v) => v[i][dim] as f64,
-        }
-    }
-
-    fn len(&self) -> usize {
+    pub(crate) fn len(&self) -> usize {
         match self {
             Xyz::Planar([x, y, z]) => x.len().min(y.len()).min(z.len()),
             Xyz::Packed(v) => v.len(),
@@ -169,12 +163,14 @@ impl<'a> TexelPoints<'a> {
 
 /// The texel point cloud of one result.
 ///
-/// Per texel it holds only the k-d tree (24 B of f64 coordinates and a 4-byte texel
-/// index) and the lazily computed cover spacing (4 B); positions, normals and colours are
-/// read where they already are (the maps or the texel geometry) and converted on use
-/// (exactly: f32 to f64, the normal normalised as before). It used to copy them as f64
-/// beside the tree (~110 B per texel), which made pf the peak of a whole `synth` run
-/// (issue 14 item 6).
+/// Per texel it holds only the lazily computed cover spacing (4 B) and its share of the
+/// neighbour index ([`TexelBvh`]: two tree nodes of 56 B per 4x4 block of texels, ~8 B
+/// per texel);
+/// positions, normals and colours are read where they already are (the maps or the texel
+/// geometry) and converted on use (exactly: f32 to f64, the normal normalised as before).
+/// It used to copy them as f64 beside the tree (~110 B per texel), which made pf the peak
+/// of a whole `synth` run (issue 14 item 6), and then kept a k-d tree over all texels
+/// (28 B per texel, and a sort of all of them: most of the summary's time).
 pub(crate) struct Cloud<'a> {
     layout: std::sync::Arc<crate::layout::TexelLayout>,
     pos: Xyz<'a>,
@@ -182,8 +178,8 @@ pub(crate) struct Cloud<'a> {
     given: Option<Xyz<'a>>,
     col: [&'a [f32]; 3],
     src: Option<(&'a [f32], &'a [f32])>,
-    /// Items are texel indices.
-    tree: ImmutableKdTree<f64, 3>,
+    /// Nearest texel and texels within a radius.
+    index: TexelBvh<'a>,
     /// Every texel has a finite position and colour (the usual case).
     all_valid: bool,
     /// Per texel, the spacing that decides whether a point nearest to it is on the
@@ -233,54 +229,24 @@ impl<'a> Cloud<'a> {
             (Some(u), Some(v)) => Some((u, v)),
             _ => None,
         };
-        let mut cloud = Self {
-            layout,
-            pos: geometry.pos,
+        let pos = geometry.pos;
+        let valid = |i: usize| pos.get(i).is_finite() && col.iter().all(|c| c[i].is_finite());
+        let all_valid = (0..total).into_par_iter().all(valid);
+        let h = median_spacing(&layout, pos, all_valid, &valid)?;
+        let index = TexelBvh::build(&layout, pos, all_valid, valid);
+        Some(Self {
+            pos,
             given: geometry.normal.filter(|n| n.len() >= total),
             col,
             src,
-            tree: ImmutableKdTree::new_from_slice(&[]).ok()?,
-            all_valid: false,
-            cover: Vec::new(),
-            h: 0.0,
-            scale: 0.0,
+            index,
+            all_valid,
+            cover: (0..total).map(|_| AtomicU32::new(COVER_UNKNOWN)).collect(),
+            h,
+            scale: scale.filter(|s| s.is_finite() && *s > 0.0).unwrap_or(h),
             local: geometry.local_scale.filter(|c| c.len() == total),
-        };
-        // h first: its spacings (16 B per texel) are gone before the tree is built.
-        cloud.h = median_spacing(&cloud)?;
-        cloud.scale = scale
-            .filter(|s| s.is_finite() && *s > 0.0)
-            .unwrap_or(cloud.h);
-        // The tree straight from the positions, its items the texel indices: the same
-        // tree (coordinates, splits, leaf order) as one built from a copied f64 point
-        // list whose items were positions in the list of valid texels (that list is
-        // ascending, so the items' order is the same).
-        // When every texel is valid (the usual case) and the positions are packed (the
-        // texel geometry), the tree reads them directly: one lookup per coordinate instead
-        // of two (pf's time; issue 14's no-slower rule).
-        cloud.all_valid = (0..total).into_par_iter().all(|i| cloud.valid(i));
-        let pos = cloud.pos;
-        cloud.tree = match pos {
-            Xyz::Packed(v) if cloud.all_valid && total > 0 => {
-                ImmutableKdTree::new_from_source(v, |p, dim| p[dim] as f64, |i, _| i as u32).ok()?
-            }
-            _ => {
-                let items: Vec<u32> = (0..total as u32)
-                    .filter(|&i| cloud.valid(i as usize))
-                    .collect();
-                if items.is_empty() {
-                    return None;
-                }
-                ImmutableKdTree::new_from_source(
-                    &items,
-                    |&i, dim| pos.coord(i as usize, dim),
-                    |_, &i| i,
-                )
-                .ok()?
-            }
-        };
-        cloud.cover = (0..total).map(|_| AtomicU32::new(COVER_UNKNOWN)).collect();
-        Some(cloud)
+            layout,
+        })
     }
 
     /// Texel `i`'s position.
@@ -381,26 +347,14 @@ impl<'a> Cloud<'a> {
     }
 
     #[inline]
-    fn nearest(&self, p: DVec3) -> usize {
-        let r = self
-            .tree
-            .query(&p.to_array())
-            .nearest_one::<SquaredEuclidean<f64>>()
-            .execute();
-        r.item as usize
+    fn nearest(&self, p: DVec3, near: usize) -> usize {
+        // A cloud has a valid texel (`build`); a NaN point finds none: the first texel.
+        self.index.nearest(p, Some(near)).unwrap_or(0)
     }
 
     /// Texels within `radius` of `p`, in texel order.
     fn within(&self, p: DVec3, radius: f64) -> Vec<usize> {
-        let hits = self
-            .tree
-            .query(&p.to_array())
-            .within::<SquaredEuclidean<f64>>(radius * radius)
-            .unsorted()
-            .execute();
-        let mut v: Vec<usize> = hits.iter().map(|r| r.item as usize).collect();
-        v.sort_unstable();
-        v
+        self.index.within(p, radius * radius)
     }
 
     /// Largest distance to the texel's valid in-face 4-neighbours (h when it has none).
@@ -584,7 +538,7 @@ impl<'a> Cloud<'a> {
         for _ in 0..steps {
             let v = if along_b { cur.b } else { cur.a };
             let p = cur.p + v.normalize_or_zero() * (sign * d);
-            let k = self.nearest(p);
+            let k = self.nearest(p, cur.near);
             let nk = self.nrm(k);
             let off = p - self.pos(k);
             let dn = off.dot(nk);
@@ -595,13 +549,14 @@ impl<'a> Cloud<'a> {
             cur.a = transport(cur.a, nk, la);
             cur.b = transport(cur.b, nk, lb);
             cur.n = nk;
+            cur.near = k;
         }
         Some(cur)
     }
 
     /// One sample's colour at spacing `s` (module docs, step 3).
     fn sample(&self, st: &State, s: usize) -> [f32; 3] {
-        let k = self.nearest(st.p);
+        let k = self.nearest(st.p, st.near);
         if s <= 1 {
             return self.col(k);
         }
@@ -651,6 +606,7 @@ impl<'a> Cloud<'a> {
             a: fr.a,
             b: fr.b,
             n: self.nrm(t),
+            near: t,
         };
         let (sp, ext) = (s as f64, (s / 2) as f64);
         let line = |from: &State, along_b: bool| -> Option<[State; WINDOW]> {
@@ -710,30 +666,99 @@ fn grid_normal(c: &Cloud, i: usize) -> DVec3 {
 }
 
 /// Median distance between horizontally or vertically adjacent valid texels of one face.
-/// Faces in parallel (the median is the same whatever the order the spacings are listed
-/// in).
-fn median_spacing(c: &Cloud) -> Option<f64> {
-    let l = &c.layout;
+///
+/// Exactly the median of all those distances, without listing them all (10 M on the bunny
+/// at N = 16: 80 MB written and selected in, ~15% of the summary's time): a sample of
+/// every [`SPACING_SAMPLE`]-th texel's spacings brackets the median, one pass over the
+/// faces counts the spacings below the bracket and keeps those in it, and the median is
+/// selected among the kept ones. Should the bracket miss (it cannot be sure to hold it),
+/// all spacings are listed as before. Faces in parallel: neither the counts nor the set of
+/// kept values depend on the order.
+fn median_spacing(
+    l: &crate::layout::TexelLayout,
+    pos: Xyz,
+    all_valid: bool,
+    valid: &(impl Fn(usize) -> bool + Sync),
+) -> Option<f64> {
+    let ok = |i: usize| all_valid || valid(i);
+    // Texel i's spacings to its +x and +y neighbours in its face.
+    let spacings = |i: usize, x: usize, y: usize, n: usize, nv: usize, f: &mut dyn FnMut(f64)| {
+        if !ok(i) {
+            return;
+        }
+        let pi = pos.get(i);
+        if x + 1 < n && ok(i + 1) {
+            f((pos.get(i + 1) - pi).length());
+        }
+        if y + 1 < nv && ok(i + n) {
+            f((pos.get(i + n) - pi).length());
+        }
+    };
+    let each_face = |face: usize, f: &mut dyn FnMut(f64)| {
+        let (n, nv) = l.dims(face);
+        for y in 0..nv {
+            for x in 0..n {
+                spacings(l.index(face, x, y), x, y, n, nv, f);
+            }
+        }
+    };
+    let median =
+        |d: &mut [f64], rank: usize| -> f64 { *d.select_nth_unstable_by(rank, f64::total_cmp).1 };
+    let result = |m: f64| (m.is_finite() && m > 0.0).then_some(m);
+    // The bracket from a sample.
+    let mut sample: Vec<f64> = (0..l.len())
+        .into_par_iter()
+        .step_by(SPACING_SAMPLE)
+        .flat_map_iter(|i| {
+            let (face, x, y) = l.coords(i);
+            let (n, nv) = l.dims(face);
+            let mut v = Vec::with_capacity(2);
+            spacings(i, x, y, n, nv, &mut |s| v.push(s));
+            v
+        })
+        .collect();
+    if sample.len() >= 1000 {
+        sample.sort_unstable_by(f64::total_cmp);
+        let m = sample.len() as f64;
+        let half = (4.0 * m.sqrt()) as usize + 8;
+        let mid = sample.len() / 2;
+        let (lo, hi) = (
+            sample[mid.saturating_sub(half)],
+            sample[(mid + half).min(sample.len() - 1)],
+        );
+        let (below, total, mut kept) = (0..l.faces())
+            .into_par_iter()
+            .fold(
+                || (0usize, 0usize, Vec::new()),
+                |(mut below, mut total, mut kept), face| {
+                    each_face(face, &mut |s| {
+                        total += 1;
+                        if s.total_cmp(&lo).is_lt() {
+                            below += 1;
+                        } else if s.total_cmp(&hi).is_le() {
+                            kept.push(s);
+                        }
+                    });
+                    (below, total, kept)
+                },
+            )
+            .reduce(
+                || (0, 0, Vec::new()),
+                |mut a, b| {
+                    a.2.extend(b.2);
+                    (a.0 + b.0, a.1 + b.1, a.2)
+                },
+            );
+        let mid = total / 2;
+        if below <= mid && mid < below + kept.len() {
+            return result(median(&mut kept, mid - below));
+        }
+    }
     let mut d: Vec<f64> = (0..l.faces())
         .into_par_iter()
         .flat_map_iter(|face| {
-            let (n, nv) = l.dims(face);
-            let mut d = Vec::with_capacity(2 * n * nv);
-            for y in 0..nv {
-                for x in 0..n {
-                    let i = l.index(face, x, y);
-                    if !c.valid(i) {
-                        continue;
-                    }
-                    let pi = c.pos(i);
-                    if x + 1 < n && c.valid(i + 1) {
-                        d.push((c.pos(i + 1) - pi).length());
-                    }
-                    if y + 1 < nv && c.valid(i + n) {
-                        d.push((c.pos(i + n) - pi).length());
-                    }
-                }
-            }
+            let mut d = Vec::new();
+            each_face(face, &mut |s| d.push(s));
             d
         })
         .collect();
@@ -741,9 +766,12 @@ fn median_spacing(c: &Cloud) -> Option<f64> {
         return None;
     }
     let mid = d.len() / 2;
-    let (_, m, _) = d.select_nth_unstable_by(mid, f64::total_cmp);
-    (m.is_finite() && *m > 0.0).then_some(*m)
+    result(median(&mut d, mid))
 }
+
+/// One texel in this many lends its spacings to [`median_spacing`]'s bracket (prime, so
+/// that the sample does not follow the texel rows).
+const SPACING_SAMPLE: usize = 61;
 
 /// The maps as one image when their texel centres form a square lattice, tile by tile,
 /// and the source positions step one pixel per texel along it (or, without sources, the
@@ -911,10 +939,23 @@ pub fn patch_fidelities_of(
     scale: Option<f64>,
     opts: &PfOptions,
 ) -> PatchFidelity {
+    patch_fidelities_in(colour, geometry, example, scale, opts, None)
+}
+
+/// [`patch_fidelities_of`] with the example banks through `banks` (memory and the disk
+/// cache, [`super::pf::BANK_KIND`]), when given: the same figures.
+pub(crate) fn patch_fidelities_in(
+    colour: &FaceMaps,
+    geometry: TexelPoints,
+    example: &Example,
+    scale: Option<f64>,
+    opts: &PfOptions,
+    banks: Option<&crate::synth::Analyses>,
+) -> PatchFidelity {
     let ex = Rgb::from_example(example);
     if !opts.force_surface {
         if let Some(img) = lattice_image(colour, geometry, scale) {
-            return image_patch_fidelities_as(&img, &ex, opts, PfMethod::Lattice);
+            return image_patch_fidelities_as(&img, &ex, opts, PfMethod::Lattice, banks);
         }
     }
     let Some(cloud) = Cloud::build(colour, geometry, scale) else {
@@ -923,15 +964,17 @@ pub fn patch_fidelities_of(
     let drawn = cloud.draw_centres(opts.samples, opts.seed);
     let frames: Vec<Frame> = drawn.par_iter().map(|&t| cloud.frame(t)).collect();
     let fallbacks = frames.iter().filter(|f| f.fallback).count();
+    // The three spacings side by side (each builds its own example bank; the same values
+    // in any order).
     let scales = PF_SCALES
-        .iter()
+        .par_iter()
         .map(|&s| {
             let windows: Vec<Option<Vec<f32>>> = drawn
                 .par_iter()
                 .zip(frames.par_iter())
                 .map(|(&t, fr)| cloud.window(t, fr, s))
                 .collect();
-            score_scale(s, &windows, &ex, opts)
+            score_scale(s, &windows, &ex, opts, banks)
         })
         .collect();
     PatchFidelity::from_scales(PfMethod::Surface, drawn.len(), fallbacks, scales)

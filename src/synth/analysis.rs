@@ -11,7 +11,7 @@
 //! rebuilt). report.json carries those events.
 
 use crate::cache::{self, CacheDir, Key, Lookup, Persist, Reader, Writer};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::any::Any;
 use std::collections::HashMap;
 use std::path::PathBuf;
@@ -19,7 +19,7 @@ use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 /// Where an analysis came from.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Source {
     /// Already in this process (e.g. an earlier run of the same session).
@@ -64,6 +64,9 @@ pub struct Analyses {
     dir: Option<PathBuf>,
     memo: Mutex<HashMap<(String, Key), Shared>>,
     events: Mutex<Vec<Event>>,
+    /// A save already failed and said so: a folder that cannot be written costs one
+    /// warning per store, not one per analysis (the pf summary saves three banks).
+    save_warned: std::sync::atomic::AtomicBool,
 }
 
 impl std::fmt::Debug for Analyses {
@@ -87,6 +90,7 @@ impl Analyses {
         Self {
             dir: dir.resolve(),
             memo: Mutex::new(HashMap::new()),
+            save_warned: Default::default(),
             events: Mutex::new(Vec::new()),
         }
     }
@@ -159,10 +163,17 @@ impl Analyses {
             v.save(&mut w);
             match cache::store(dir, kind, key, &w.0) {
                 Ok(_) => bytes = w.0.len() as u64,
-                Err(e) => eprintln!(
-                    "warning: cannot save the {kind} analysis in the cache folder {}: {e} (the run goes on without it)",
-                    dir.display()
-                ),
+                Err(e) => {
+                    if !self
+                        .save_warned
+                        .swap(true, std::sync::atomic::Ordering::Relaxed)
+                    {
+                        eprintln!(
+                            "warning: cannot save the {kind} analysis in the cache folder {}: {e} (the run goes on without it)",
+                            dir.display()
+                        )
+                    }
+                }
             }
         }
         self.remember(id, v.clone());

@@ -967,6 +967,7 @@ impl Session {
                 synthesis: s.seconds,
                 maps: maps_s,
                 write: 0.0,
+                pf: 0.0,
                 total: started.elapsed().as_secs_f64(),
             },
             texels_per_second: 0.0,

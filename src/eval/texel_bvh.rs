@@ -1,0 +1,449 @@
+//! The texel point cloud's neighbour index for pf ([`super::surface`]): nearest texel and
+//! texels within a radius of a point, over every valid texel of every domain.
+//!
+//! Why not a k-d tree over the texels: pf's summary at the end of `synth` draws 256
+//! windows, but a k-d tree over all texels costs a sort of every texel position (5 M on the
+//! bunny at N = 16: ~40% of the summary's time, more than the windows themselves). The texels
+//! of a face already come in a grid, so the index groups them in [`BLOCK`] x [`BLOCK`]
+//! blocks of their face, bounds each block with a box (one pass over the positions, no
+//! sort of texels) and builds a bounding-volume tree over the blocks only (1/16 of the
+//! items). A query descends the tree by box distance and reads the positions of the blocks
+//! it reaches where they already are.
+//!
+//! Same answers as the k-d tree it replaced (kiddo's `ImmutableKdTree`, squared Euclidean,
+//! f64 coordinates of the f32 positions): `within` keeps the texels whose squared distance,
+//! summed as ((dx² + dy²) + dz²), is at most the bound, and lists them in texel order;
+//! `nearest` returns the texel of least squared distance, the lowest texel index among
+//! exact ties (the k-d tree took whichever its leaf order met first). An exact tie needs a
+//! point exactly as far from two texels in floating point, such as the midpoint of two
+//! texels in a straight line: walks do not land there but by coincidence.
+
+use super::surface::Xyz;
+use crate::layout::TexelLayout;
+use glam::DVec3;
+use rayon::prelude::*;
+
+/// Side of a block of texels (the last block of a face row or column may be narrower).
+pub const BLOCK: usize = 4;
+
+/// Depth-first stacks of the queries: a balanced tree (median splits) of up to 2³² blocks
+/// is at most 33 levels deep, and a query keeps at most one pending sibling per level (two
+/// for `within`'s last push).
+const STACK: usize = 72;
+
+/// Below this many blocks a subtree is built on the current thread.
+const PARALLEL_BLOCKS: usize = 4096;
+
+/// Texels `start + y * stride + x`, x < w, y < h.
+#[derive(Clone, Copy, Debug)]
+struct Block {
+    start: u32,
+    stride: u32,
+    w: u8,
+    h: u8,
+}
+
+/// A tree node: the box of its blocks; a leaf holds one block, an inner node's left child
+/// is the next node and its right child `right`.
+#[derive(Clone, Copy, Debug)]
+struct Node {
+    lo: [f64; 3],
+    hi: [f64; 3],
+    right: u32,
+    /// The block of a leaf, [`INNER`] for an inner node.
+    block: u32,
+}
+
+const INNER: u32 = u32::MAX;
+
+const EMPTY: Node = Node {
+    lo: [f64::INFINITY; 3],
+    hi: [f64::NEG_INFINITY; 3],
+    right: 0,
+    block: INNER,
+};
+
+/// The neighbour index (module docs).
+pub(crate) struct TexelBvh<'a> {
+    pos: Xyz<'a>,
+    blocks: Vec<Block>,
+    /// 2 x blocks - 1 nodes, the root first (empty without blocks).
+    nodes: Vec<Node>,
+    /// Which texels count, one bit each; `None`: all of them (the usual case, no lookups).
+    valid: Option<Vec<u64>>,
+}
+
+/// Squared distance of `q` from `p`, summed in the k-d tree's order.
+#[inline(always)]
+fn dist2(p: &[f64; 3], q: DVec3) -> f64 {
+    let (dx, dy, dz) = (q.x - p[0], q.y - p[1], q.z - p[2]);
+    dx * dx + dy * dy + dz * dz
+}
+
+/// Squared distance of `p` from a box: a lower bound of [`dist2`] of every point in it
+/// (rounding is monotonic, so the bound holds in floating point too).
+#[inline(always)]
+fn box_dist2(p: &[f64; 3], n: &Node) -> f64 {
+    let mut acc = 0.0;
+    for ((&x, &lo), &hi) in p.iter().zip(&n.lo).zip(&n.hi) {
+        let d = if x < lo {
+            lo - x
+        } else if x > hi {
+            x - hi
+        } else {
+            0.0
+        };
+        acc += d * d;
+    }
+    acc
+}
+
+impl<'a> TexelBvh<'a> {
+    /// The index over the texels of `layout` at `pos` for which `valid` holds (`all_valid`:
+    /// every texel, without asking). Deterministic: the same tree for any thread count.
+    pub fn build(
+        layout: &TexelLayout,
+        pos: Xyz<'a>,
+        all_valid: bool,
+        valid: impl Fn(usize) -> bool + Sync,
+    ) -> Self {
+        let blocks: Vec<Block> = (0..layout.faces())
+            .flat_map(|f| {
+                let (nu, nv) = layout.dims(f);
+                let start = layout.start(f);
+                (0..nv.div_ceil(BLOCK)).flat_map(move |by| {
+                    (0..nu.div_ceil(BLOCK)).map(move |bx| {
+                        let (x0, y0) = (bx * BLOCK, by * BLOCK);
+                        Block {
+                            start: (start + y0 * nu + x0) as u32,
+                            stride: nu as u32,
+                            w: (nu - x0).min(BLOCK) as u8,
+                            h: (nv - y0).min(BLOCK) as u8,
+                        }
+                    })
+                })
+            })
+            .collect();
+        let valid = (!all_valid).then(|| {
+            (0..layout.len().div_ceil(64))
+                .into_par_iter()
+                .map(|w| {
+                    let lo = w * 64;
+                    (lo..(lo + 64).min(layout.len()))
+                        .filter(|&i| valid(i))
+                        .fold(0u64, |m, i| m | 1 << (i - lo))
+                })
+                .collect()
+        });
+        let mut s = Self {
+            pos,
+            blocks,
+            nodes: Vec::new(),
+            valid,
+        };
+        // Leaf boxes (empty boxes for blocks without a valid texel: left out).
+        let boxes: Vec<([f64; 3], [f64; 3])> = s
+            .blocks
+            .par_iter()
+            .map(|b| {
+                let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+                s.each(b, |_, q| {
+                    for k in 0..3 {
+                        lo[k] = lo[k].min(q[k]);
+                        hi[k] = hi[k].max(q[k]);
+                    }
+                });
+                (lo, hi)
+            })
+            .collect();
+        let mut items: Vec<u32> = (0..s.blocks.len() as u32)
+            .filter(|&b| boxes[b as usize].0[0] <= boxes[b as usize].1[0])
+            .collect();
+        if !items.is_empty() {
+            let mut nodes = vec![EMPTY; 2 * items.len() - 1];
+            build_tree(&mut nodes, &mut items, &boxes);
+            s.nodes = nodes;
+        }
+        s
+    }
+
+    /// Texel `i` counts.
+    #[inline(always)]
+    fn counts(&self, i: usize) -> bool {
+        i < self.pos.len()
+            && self
+                .valid
+                .as_ref()
+                .is_none_or(|v| v[i / 64] >> (i % 64) & 1 != 0)
+    }
+
+    /// Calls `f(texel, position)` for the counted texels of block `b`.
+    #[inline(always)]
+    fn each(&self, b: &Block, mut f: impl FnMut(usize, DVec3)) {
+        for y in 0..b.h as usize {
+            let row = b.start as usize + y * b.stride as usize;
+            for i in row..row + b.w as usize {
+                if self
+                    .valid
+                    .as_ref()
+                    .is_none_or(|v| v[i / 64] >> (i % 64) & 1 != 0)
+                {
+                    f(i, self.pos.get(i));
+                }
+            }
+        }
+    }
+
+    /// The counted texel nearest to `p` (lowest index among exact ties), `None` without
+    /// texels. `hint`, a counted texel likely near `p` (a walk's previous nearest texel),
+    /// only makes the search prune earlier: the answer is the least (distance, index) over
+    /// all counted texels whatever the hint and the order of the visit.
+    pub fn nearest(&self, p: DVec3, hint: Option<usize>) -> Option<usize> {
+        let q = p.to_array();
+        let (mut best, mut best_i) = (f64::INFINITY, usize::MAX);
+        if self.nodes.is_empty() {
+            return None;
+        }
+        if let Some(h) = hint.filter(|&h| self.counts(h)) {
+            let d2 = dist2(&q, self.pos.get(h));
+            // A NaN distance (a NaN point) is no bound.
+            if !d2.is_nan() {
+                (best, best_i) = (d2, h);
+            }
+        }
+        // Depth-first, nearer child first: at most one pending sibling per level of a
+        // balanced tree (median splits), so a fixed stack, no allocation per query.
+        let mut stack = [(0usize, 0f64); STACK];
+        stack[0] = (0, box_dist2(&q, &self.nodes[0]));
+        let mut top = 1;
+        while top > 0 {
+            top -= 1;
+            let (k, d) = stack[top];
+            // Equal bounds are visited: they may hold a tie of lower index.
+            if d > best {
+                continue;
+            }
+            let n = &self.nodes[k];
+            if n.block != INNER {
+                self.each(&self.blocks[n.block as usize], |i, x| {
+                    let d2 = dist2(&q, x);
+                    if d2 < best || (d2 == best && i < best_i) {
+                        (best, best_i) = (d2, i);
+                    }
+                });
+                continue;
+            }
+            let (l, r) = (k + 1, k + n.right as usize);
+            let (dl, dr) = (box_dist2(&q, &self.nodes[l]), box_dist2(&q, &self.nodes[r]));
+            // The nearer child on top; a child farther than the best is not pushed.
+            let (near, far) = if dl <= dr {
+                ((l, dl), (r, dr))
+            } else {
+                ((r, dr), (l, dl))
+            };
+            if far.1 <= best {
+                stack[top] = far;
+                top += 1;
+            }
+            if near.1 <= best {
+                stack[top] = near;
+                top += 1;
+            }
+        }
+        (best_i != usize::MAX).then_some(best_i)
+    }
+
+    /// The counted texels whose squared distance from `p` is at most `r2`, in texel order.
+    pub fn within(&self, p: DVec3, r2: f64) -> Vec<usize> {
+        let q = p.to_array();
+        let mut out = Vec::new();
+        if self.nodes.is_empty() {
+            return out;
+        }
+        let mut stack = [0usize; STACK];
+        let mut top = 1;
+        while top > 0 {
+            top -= 1;
+            let k = stack[top];
+            let n = &self.nodes[k];
+            if box_dist2(&q, n) > r2 {
+                continue;
+            }
+            if n.block != INNER {
+                self.each(&self.blocks[n.block as usize], |i, x| {
+                    if dist2(&q, x) <= r2 {
+                        out.push(i);
+                    }
+                });
+                continue;
+            }
+            stack[top] = k + n.right as usize;
+            stack[top + 1] = k + 1;
+            top += 2;
+        }
+        out.sort_unstable();
+        out
+    }
+}
+
+/// Builds the subtree of `items` (block indices) into `nodes` (exactly 2 x items - 1 of
+/// them, this subtree's root first, the right child's offset from its parent in `right`):
+/// split at the median of the block centres along the longest side of their bounds, ties
+/// by block index, so the tree depends on nothing but the boxes.
+fn build_tree(nodes: &mut [Node], items: &mut [u32], boxes: &[([f64; 3], [f64; 3])]) {
+    debug_assert_eq!(nodes.len(), 2 * items.len() - 1);
+    if items.len() == 1 {
+        let (lo, hi) = boxes[items[0] as usize];
+        nodes[0] = Node {
+            lo,
+            hi,
+            right: 0,
+            block: items[0],
+        };
+        return;
+    }
+    let centre = |b: u32, k: usize| {
+        let (lo, hi) = &boxes[b as usize];
+        0.5 * (lo[k] + hi[k])
+    };
+    let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+    for &b in items.iter() {
+        for k in 0..3 {
+            let c = centre(b, k);
+            lo[k] = lo[k].min(c);
+            hi[k] = hi[k].max(c);
+        }
+    }
+    let axis = (0..3)
+        .max_by(|&a, &b| (hi[a] - lo[a]).total_cmp(&(hi[b] - lo[b])).then(b.cmp(&a)))
+        .unwrap_or(0);
+    let mid = items.len() / 2;
+    items.select_nth_unstable_by(mid, |&a, &b| {
+        centre(a, axis).total_cmp(&centre(b, axis)).then(a.cmp(&b))
+    });
+    let (left_items, right_items) = items.split_at_mut(mid);
+    let (root, rest) = nodes.split_first_mut().expect("at least 3 nodes");
+    let (left, right) = rest.split_at_mut(2 * left_items.len() - 1);
+    if left_items.len() + right_items.len() >= PARALLEL_BLOCKS {
+        rayon::join(
+            || build_tree(left, left_items, boxes),
+            || build_tree(right, right_items, boxes),
+        );
+    } else {
+        build_tree(left, left_items, boxes);
+        build_tree(right, right_items, boxes);
+    }
+    let (l, r) = (&left[0], &right[0]);
+    *root = Node {
+        lo: std::array::from_fn(|k| l.lo[k].min(r.lo[k])),
+        hi: std::array::from_fn(|k| l.hi[k].max(r.hi[k])),
+        right: 2 * left_items.len() as u32,
+        block: INNER,
+    };
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use kiddo::{ImmutableKdTree, SquaredEuclidean};
+
+    /// A curved sheet of `faces` faces of n x n texels, or (`flat`) an exactly regular grid
+    /// whose texels have many exact ties.
+    fn sheet(faces: usize, n: usize, flat: bool) -> (TexelLayout, Vec<glam::Vec3>) {
+        let l = TexelLayout::uniform(faces, n);
+        let mut p = vec![glam::Vec3::ZERO; l.len()];
+        for f in 0..faces {
+            for y in 0..n {
+                for x in 0..n {
+                    let (u, v) = ((f * n + x) as f32 * 0.125, y as f32 * 0.125);
+                    p[l.index(f, x, y)] = if flat {
+                        glam::Vec3::new(u, v, 0.0)
+                    } else {
+                        glam::Vec3::new(u.sin() * 3.0, v, u.cos() * 3.0 + 0.1 * (u * v).sin())
+                    };
+                }
+            }
+        }
+        (l, p)
+    }
+
+    /// Nearest and within agree with the k-d tree they replaced: the same sets, the same
+    /// nearest distance (the texel may differ on exact ties: then it is the lowest index).
+    /// Half the queries sit on texels or midpoints of two, where ties are.
+    #[test]
+    fn answers_as_the_kd_tree() {
+        for (faces, n, flat) in [(7, 16, false), (5, 9, true), (3, 1, false), (40, 5, false)] {
+            let (l, p) = sheet(faces, n, flat);
+            let pos = Xyz::Packed(&p);
+            let bvh = TexelBvh::build(&l, pos, true, |_| true);
+            let tree: ImmutableKdTree<f64, 3> =
+                ImmutableKdTree::new_from_source(&p, |q, d| q[d] as f64, |i, _| i as u32).unwrap();
+            let mut rng = 12345u64;
+            let mut next = || {
+                rng = rng
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                (rng >> 11) as f64 / (1u64 << 53) as f64
+            };
+            for q in 0..2000 {
+                // Half the queries on texels and midpoints (ties), half anywhere near.
+                let pt = if q % 2 == 0 {
+                    let (i, j) = (
+                        (next() * p.len() as f64) as usize,
+                        (next() * p.len() as f64) as usize,
+                    );
+                    let (a, b) = (p[i].as_dvec3(), p[j.min(i + 1).min(p.len() - 1)].as_dvec3());
+                    if q % 4 == 0 {
+                        a
+                    } else {
+                        (a + b) * 0.5
+                    }
+                } else {
+                    DVec3::new(next() * 8.0 - 4.0, next() * 2.5 - 0.3, next() * 8.0 - 4.0)
+                };
+                let r = next() * 0.5;
+                let mut want: Vec<usize> = tree
+                    .query(&pt.to_array())
+                    .within::<SquaredEuclidean<f64>>(r * r)
+                    .unsorted()
+                    .execute()
+                    .iter()
+                    .map(|h| h.item as usize)
+                    .collect();
+                want.sort_unstable();
+                assert_eq!(bvh.within(pt, r * r), want, "within {r} of {pt}");
+                let k = tree
+                    .query(&pt.to_array())
+                    .nearest_one::<SquaredEuclidean<f64>>()
+                    .execute();
+                let got = bvh.nearest(pt, None).unwrap();
+                // Any hint, the same answer.
+                let hint = (next() * p.len() as f64) as usize;
+                assert_eq!(bvh.nearest(pt, Some(hint)), Some(got));
+                assert_eq!(dist2(&pt.to_array(), p[got].as_dvec3()), k.distance);
+                let lowest = (0..p.len())
+                    .find(|&i| dist2(&pt.to_array(), p[i].as_dvec3()) == k.distance)
+                    .unwrap();
+                assert_eq!(got, lowest);
+            }
+        }
+    }
+
+    /// Texels that do not count are never answered.
+    #[test]
+    fn invalid_texels_left_out() {
+        let (l, p) = sheet(4, 8, false);
+        let bvh = TexelBvh::build(&l, Xyz::Packed(&p), false, |i: usize| !i.is_multiple_of(3));
+        for i in (0..p.len()).step_by(5) {
+            let q = p[i].as_dvec3();
+            let k = bvh.nearest(q, Some(i)).unwrap();
+            assert_eq!(bvh.nearest(q, None), Some(k));
+            assert!(!k.is_multiple_of(3));
+            assert_eq!(k == i, !i.is_multiple_of(3));
+            assert!(bvh.within(q, 1.0).iter().all(|&j| !j.is_multiple_of(3)));
+        }
+        let none = TexelBvh::build(&l, Xyz::Packed(&p), false, |_| false);
+        assert_eq!(none.nearest(DVec3::ZERO, Some(3)), None);
+        assert!(none.within(DVec3::ZERO, 1e9).is_empty());
+    }
+}
