@@ -93,10 +93,18 @@ pub struct MultiscaleParams {
     /// paper's randomised choice there too.
     pub coherence: Option<f32>,
     /// Pass 2 compares the level's own block at the samples of the sparse block only
-    /// ([`sparse_block`]; sides 9, 13, ...), else at every sample.
+    /// ([`sparse_gains`]; sides 9, 13, ...), else at every sample. On by default: 0.90x
+    /// the CPU of a Spot N = 32 run, and over seeds 1–3 on Spot, the double torus and
+    /// the flat grid with bricks, scales and gravel every mean pf1/pf4/pf8 within the
+    /// seeds' spread or below it (bricks pf8 on Spot 0.134 → 0.129), seams alike
+    /// (docs/multiscale.md, "Speed, second round"). Textons keep the full block (not
+    /// measured there).
     pub sparse: bool,
     /// The finest level starts pass 2 from its texels' continuations of the coarser level
-    /// ([`continued`]) instead of pass 1's matches.
+    /// ([`continued`]) instead of pass 1's matches. On by default for the same reason and
+    /// measured the same way: pass 1 at the finest level was a fifth of a run, and
+    /// bricks came out better without it (pf4 on Spot 0.081 → 0.073, double torus
+    /// 0.098 → 0.084), scales and gravel within the spread. Textons keep pass 1.
     pub continue_finest: bool,
 }
 
@@ -128,8 +136,8 @@ impl Default for MultiscaleParams {
             sampler_tolerance: Some(crate::sampling::DEFAULT_TOLERANCE),
             pattern_tolerance: level::PATTERN_TOLERANCE,
             coherence: Some(COHERENCE),
-            sparse: false,
-            continue_finest: false,
+            sparse: true,
+            continue_finest: true,
         }
     }
 }
@@ -409,7 +417,11 @@ impl Ctx<'_> {
     fn choose(&self, level: usize, pass: Pass, t: usize, w: &mut Work) -> u32 {
         let model = self.model;
         let f = &model.searcher(level, pass).features;
-        f.prepare(&w.q, &mut w.prep);
+        if matches!(model.params.method, Method::Ann(_)) {
+            f.prepare(&w.q, &mut w.prep);
+        } else {
+            f.prepare_distances(&w.q, &mut w.prep);
+        }
         let n = model.search(level, pass, &w.prep, &w.seeds, &mut w.scratch);
         w.queries += 1;
         w.candidates += n as u64;
