@@ -296,6 +296,7 @@ impl<'a> Sampler<'a> {
         self.sample_impl(centre, Some(frame), delta, k, kind, true, out)
     }
 
+    #[allow(clippy::too_many_arguments)]
     fn sample_impl(
         &self,
         centre: DomainLocation,

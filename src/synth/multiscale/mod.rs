@@ -447,6 +447,7 @@ impl Ctx<'_> {
 
     /// The K×K pattern of texel `t` of `geo` at step `delta` into `w.locs`
     /// ([`level::pattern`] with this run's sampler and tolerance and `w`'s scratch).
+    #[allow(clippy::too_many_arguments)]
     fn pattern(
         &self,
         geo: &LevelGeometry,
