@@ -55,6 +55,8 @@ pub fn command(out: &Path) -> SynthCommand {
         search: None,
         neighbourhood: None,
         kcoherence_k: None,
+        sparse: None,
+        continue_finest: None,
         displace: None,
         appearance: Default::default(),
         feature_distance: 0.0,

@@ -548,6 +548,20 @@ impl Synthesizer {
         *m = m.with_side(k);
         self
     }
+    /// Multiscale's pass 2 compares its own block at the samples of the sparse block only
+    /// (`--neighbourhood-samples sparse`: 41 of the 9x9 block's 81, the same reach;
+    /// [`crate::synth::multiscale::sparse_gains`]) or at all of them (`full`).
+    pub fn sparse_neighbourhood(mut self, sparse: bool) -> Self {
+        self.settings.multiscale.sparse = sparse;
+        self
+    }
+    /// Multiscale's finest level starts from its texels' continuations of the coarser level
+    /// (`--finest-start continued`) rather than from pass 1's matches (`matched`)
+    /// ([`crate::synth::multiscale::MultiscaleParams::continue_finest`]).
+    pub fn continue_finest(mut self, on: bool) -> Self {
+        self.settings.multiscale.continue_finest = on;
+        self
+    }
     /// k-coherence's k for multiscale and textons (`--kcoherence-k K`): how many entries of
     /// each proposing neighbour's list become candidates. No effect with another search.
     pub fn kcoherence_k(mut self, k: usize) -> Self {
@@ -1333,6 +1347,10 @@ pub struct SynthCommand {
     pub neighbourhood: Option<usize>,
     /// `--kcoherence-k K` (k-coherence's k; `None`: the default).
     pub kcoherence_k: Option<usize>,
+    /// `--neighbourhood-samples sparse|full` (multiscale; `None`: the default).
+    pub sparse: Option<bool>,
+    /// `--finest-start continued|matched` (multiscale; `None`: the default).
+    pub continue_finest: Option<bool>,
     /// `--displace AMOUNT`.
     pub displace: Option<f64>,
     /// `--appearance`.
@@ -1397,6 +1415,12 @@ impl SynthCommand {
         }
         if let Some(k) = self.kcoherence_k {
             s = s.kcoherence_k(k);
+        }
+        if let Some(sparse) = self.sparse {
+            s = s.sparse_neighbourhood(sparse);
+        }
+        if let Some(on) = self.continue_finest {
+            s = s.continue_finest(on);
         }
         if self.patch_size.is_some() {
             let mut settings = s.current_settings().clone();

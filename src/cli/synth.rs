@@ -42,6 +42,22 @@ pub enum Search {
 }
 
 #[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum NeighbourhoodSamples {
+    /// Every sample of the level's own block.
+    Full,
+    /// The inner 5x5 of the 9x9 block and every other sample beyond (41 of 81).
+    Sparse,
+}
+
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FinestStart {
+    /// Pass 1 matches every texel against the coarser level's block.
+    Matched,
+    /// Every texel continues its coarser texel's patch (no search).
+    Continued,
+}
+
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Handedness {
     /// Face maps show the example as stored.
     Tiles,
@@ -146,6 +162,15 @@ pub struct SynthArgs {
     /// (paper 003's k; default 11).
     #[arg(long, value_name = "K", value_parser = parse_kcoherence_k, allow_negative_numbers = true)]
     pub kcoherence_k: Option<usize>,
+    /// Multiscale: compare the level's own 9x9 block at every sample (full) or at its
+    /// inner 5x5 and every other sample beyond (sparse, 41 of 81; faster).
+    #[arg(long, value_enum, value_name = "WHICH")]
+    pub neighbourhood_samples: Option<NeighbourhoodSamples>,
+    /// Multiscale: what the finest level's refinement starts from — pass 1's matches
+    /// against the coarser level, or each texel continuing its coarser texel's patch
+    /// (faster).
+    #[arg(long, value_enum, value_name = "HOW")]
+    pub finest_start: Option<FinestStart>,
     /// Texels per side of every face map.
     #[arg(long, value_name = "N", default_value_t = 32, value_parser = parse_resolution, allow_negative_numbers = true)]
     pub resolution: usize,
@@ -278,6 +303,13 @@ pub fn run(mut a: SynthArgs) -> anyhow::Result<()> {
             "--neighbourhood and --kcoherence-k apply to --method multiscale and textons only",
         );
     }
+    if (a.neighbourhood_samples.is_some() || a.finest_start.is_some())
+        && chosen != Method::Multiscale
+    {
+        return super::usage(
+            "--neighbourhood-samples and --finest-start apply to --method multiscale only",
+        );
+    }
     if a.kcoherence_k.is_some() && matches!(a.search, Some(Search::Ann)) {
         return super::usage("--kcoherence-k applies to --search kcoherence only");
     }
@@ -381,6 +413,10 @@ pub fn run(mut a: SynthArgs) -> anyhow::Result<()> {
         }),
         neighbourhood: a.neighbourhood,
         kcoherence_k: a.kcoherence_k,
+        sparse: a
+            .neighbourhood_samples
+            .map(|n| n == NeighbourhoodSamples::Sparse),
+        continue_finest: a.finest_start.map(|f| f == FinestStart::Continued),
         displace: a.displace,
         appearance: match a.appearance {
             Appearance::Pca => surfsynth::synthesizer::AppearanceMode::Pca,

@@ -260,7 +260,7 @@ impl<'a> Sampler<'a> {
         kind: SamplerKind,
         out: &mut [Option<DomainLocation>],
     ) -> PatternInfo {
-        self.sample_impl(centre, None, delta, k, kind, out)
+        self.sample_impl(centre, None, delta, k, kind, false, out)
     }
 
     /// As [`Self::sample`] with a given frame (e.g. from
@@ -274,9 +274,29 @@ impl<'a> Sampler<'a> {
         kind: SamplerKind,
         out: &mut [Option<DomainLocation>],
     ) -> PatternInfo {
-        self.sample_impl(centre, Some(frame), delta, k, kind, out)
+        self.sample_impl(centre, Some(frame), delta, k, kind, false, out)
     }
 
+    /// As [`Self::sample_with_frame`], but only the samples of the *sparse* K×K block need
+    /// be laid out: those within K/4 steps of the centre (both offsets) and those whose
+    /// offsets are both even ([`sparse_keeps`]; K = 9: the inner 5x5 and every other
+    /// sample of the outer rings, 41 of 81); the others may be `None`. *Why*: marching
+    /// walks one path per primitive direction (l, m); a sparse block needs only the 16
+    /// with |l|, |m| ≤ K/4 (each kept sample of the outer rings is a multiple of one of
+    /// them), a third of a 9x9 block's 48 paths of the same reach.
+    pub fn sample_sparse(
+        &self,
+        centre: DomainLocation,
+        frame: &Frame,
+        delta: f64,
+        k: usize,
+        kind: SamplerKind,
+        out: &mut [Option<DomainLocation>],
+    ) -> PatternInfo {
+        self.sample_impl(centre, Some(frame), delta, k, kind, true, out)
+    }
+
+    #[allow(clippy::too_many_arguments)]
     fn sample_impl(
         &self,
         centre: DomainLocation,
@@ -284,6 +304,7 @@ impl<'a> Sampler<'a> {
         delta: f64,
         k: usize,
         kind: SamplerKind,
+        sparse: bool,
         out: &mut [Option<DomainLocation>],
     ) -> PatternInfo {
         assert!(k % 2 == 1, "pattern size {k} must be odd");
@@ -342,12 +363,24 @@ impl<'a> Sampler<'a> {
             }
         }
         if info.method == Method::March {
-            let stalled = self.march_pattern(centre, loc, e.p, e.n, frame, delta, k, out);
+            if sparse {
+                // Samples the sparse paths do not reach stay None, not a chart's leftovers.
+                out[..k * k].fill(None);
+            }
+            let stalled = self.march_pattern(centre, loc, e.p, e.n, frame, delta, k, sparse, out);
             if stalled > 0 {
                 c.stalled.fetch_add(stalled as u64, Relaxed);
             }
         }
-        info.missing = out[..k * k].iter().filter(|s| s.is_none()).count();
+        let h = (k / 2) as i64;
+        info.missing = out[..k * k]
+            .iter()
+            .enumerate()
+            .filter(|&(i, s)| {
+                let (l, m) = (i as i64 % k as i64 - h, i as i64 / k as i64 - h);
+                s.is_none() && (!sparse || sparse_keeps(k, l, m))
+            })
+            .count();
         if info.missing > 0 {
             c.missing.fetch_add(info.missing as u64, Relaxed);
         }
@@ -365,6 +398,7 @@ impl<'a> Sampler<'a> {
         frame: &Frame,
         delta: f64,
         k: usize,
+        sparse: bool,
         out: &mut [Option<DomainLocation>],
     ) -> usize {
         let mm = self.march_mesh();
@@ -417,7 +451,9 @@ impl<'a> Sampler<'a> {
             let h0 = hint;
             for m0 in -h..=h {
                 for l0 in -h..=h {
-                    if geodesic::gcd(l0.unsigned_abs(), m0.unsigned_abs()) != 1 {
+                    if geodesic::gcd(l0.unsigned_abs(), m0.unsigned_abs()) != 1
+                        || (sparse && l0.abs().max(m0.abs()) > h / 2)
+                    {
                         continue;
                     }
                     let reps = h / l0.abs().max(m0.abs());
@@ -452,7 +488,12 @@ impl<'a> Sampler<'a> {
         // at K = 9).
         for m0 in -h..=h {
             for l0 in -h..=h {
-                if geodesic::gcd(l0.unsigned_abs(), m0.unsigned_abs()) != 1 {
+                // A sparse block's samples are multiples of the directions within h/2
+                // ([`sparse_keeps`]): a primitive direction beyond reaches one sample
+                // only, an odd offset outside the block.
+                if geodesic::gcd(l0.unsigned_abs(), m0.unsigned_abs()) != 1
+                    || (sparse && l0.abs().max(m0.abs()) > h / 2)
+                {
                     continue;
                 }
                 let reps = h / l0.abs().max(m0.abs());
@@ -546,6 +587,17 @@ impl<'a> Sampler<'a> {
             a.store(0, Relaxed);
         }
     }
+}
+
+/// Whether sample (l, m) (offsets from the centre, |l|, |m| ≤ K/2) is in the sparse K×K
+/// block: within K/4 (rounded down) of the centre in both offsets, or both offsets even.
+/// K = 9: the inner 5x5 and every other sample of the rings at 3 and 4 — 41 of 81 samples
+/// with the same reach; the even ones are where the coarser level's 5x5 block (twice the
+/// step) samples. Meant for K = 4j + 1 (5, 9, 13): with K/2 odd the outermost ring would
+/// be left out.
+pub fn sparse_keeps(k: usize, l: i64, m: i64) -> bool {
+    let inner = (k / 2) as i64 / 2;
+    l.abs().max(m.abs()) <= inner || (l % 2 == 0 && m % 2 == 0)
 }
 
 /// Median distance between the limit positions of horizontally or vertically adjacent texel

@@ -340,7 +340,10 @@ impl PatternStats {
 /// * otherwise (near extraordinary vertices, or at coarse levels where the metric changes
 ///   across the pattern) the vertex charts of [`Sampler`], which march where no chart fits.
 ///
-/// `kind` = march (the coarsest level, 000 §4) always marches.
+/// `kind` = march (the coarsest level, 000 §4) always marches. With `sparse` only the
+/// samples of the sparse block ([`crate::sampling::sparse_keeps`]) need be laid out by
+/// the sampler (parameter-space patterns lay out and check every sample regardless, so
+/// which chart a texel gets does not depend on it); the others may be `None`.
 ///
 /// `pts` is scratch space (K² positions). Measured against [`Sampler`] on the same
 /// patterns in `docs/multiscale.md`.
@@ -352,6 +355,7 @@ pub fn pattern(
     delta: f64,
     k: usize,
     kind: SamplerKind,
+    sparse: bool,
     tol: f64,
     locs: &mut [Option<DomainLocation>],
     scratch: &mut PatternScratch,
@@ -400,7 +404,18 @@ pub fn pattern(
             match scratch.known.as_ref().and_then(|known| known.get(a, kk)) {
                 Some(p) => dst.copy_from_slice(p),
                 None => {
-                    sample(geo, sampler, a, delta, k, kind, &mut scratch.buf, dst, st);
+                    sample(
+                        geo,
+                        sampler,
+                        a,
+                        delta,
+                        k,
+                        kind,
+                        sparse,
+                        &mut scratch.buf,
+                        dst,
+                        st,
+                    );
                     if let Some(r) = scratch.record.as_mut() {
                         r.push(a, dst);
                     }
@@ -419,7 +434,18 @@ pub fn pattern(
             return;
         }
     }
-    sample(geo, sampler, t, delta, k, kind, &mut scratch.buf, locs, st);
+    sample(
+        geo,
+        sampler,
+        t,
+        delta,
+        k,
+        kind,
+        sparse,
+        &mut scratch.buf,
+        locs,
+        st,
+    );
 }
 
 /// Working buffers of [`pattern`] (one per task; no allocation per texel).
@@ -517,6 +543,7 @@ fn sample(
     delta: f64,
     k: usize,
     kind: SamplerKind,
+    sparse: bool,
     buf: &mut Vec<Option<DomainLocation>>,
     locs: &mut [Option<DomainLocation>],
     st: &mut PatternStats,
@@ -524,7 +551,12 @@ fn sample(
     let h = (k / 2) as i64;
     let centre = geo.location(t);
     buf.resize(k * k, None);
-    let info = sampler.sample_with_frame(centre, &geo.frame(t), delta, k, kind, buf);
+    let frame = geo.frame(t);
+    let info = if sparse {
+        sampler.sample_sparse(centre, &frame, delta, k, kind, buf)
+    } else {
+        sampler.sample_with_frame(centre, &frame, delta, k, kind, buf)
+    };
     match kind {
         SamplerKind::Chart => st.sampler_chart += 1,
         SamplerKind::March => st.sampler_march += 1,

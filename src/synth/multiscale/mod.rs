@@ -53,7 +53,7 @@ use crate::example::Example;
 use crate::field::OrientationField;
 use crate::layout::TexelLayout;
 use crate::pyramid::{levels_for, Image};
-use crate::sampling::{Sampler, SamplerKind, SamplerStats};
+use crate::sampling::{sparse_keeps, Sampler, SamplerKind, SamplerStats};
 use crate::synth::matching::appearance::{
     Appearance, AppearanceInfo, AppearanceMode, DIMS, WINDOW,
 };
@@ -92,6 +92,20 @@ pub struct MultiscaleParams {
     /// κ of the coherent choice at the finest level ([`COHERENCE`]); `None`: the
     /// paper's randomised choice there too.
     pub coherence: Option<f32>,
+    /// Pass 2 compares the level's own block at the samples of the sparse block only
+    /// ([`sparse_gains`]; sides 9, 13, ...), else at every sample. On by default: 0.90x
+    /// the CPU of a Spot N = 32 run, and over seeds 1–3 on Spot, the double torus and
+    /// the flat grid with bricks, scales and gravel every mean pf1/pf4/pf8 within the
+    /// seeds' spread or below it (bricks pf8 on Spot 0.134 → 0.129), seams alike
+    /// (docs/multiscale.md, "Speed, second round"). Textons keep the full block (not
+    /// measured there).
+    pub sparse: bool,
+    /// The finest level starts pass 2 from its texels' continuations of the coarser level
+    /// ([`continued`]) instead of pass 1's matches. On by default for the same reason and
+    /// measured the same way: pass 1 at the finest level was a fifth of a run, and
+    /// bricks came out better without it (pf4 on Spot 0.081 → 0.073, double torus
+    /// 0.098 → 0.084), scales and gravel within the spread. Textons keep pass 1.
+    pub continue_finest: bool,
 }
 
 /// κ of the finest level's coherent choice (Ashikhmin 2001; the κ of Hertzmann et al.'s
@@ -122,6 +136,8 @@ impl Default for MultiscaleParams {
             sampler_tolerance: Some(crate::sampling::DEFAULT_TOLERANCE),
             pattern_tolerance: level::PATTERN_TOLERANCE,
             coherence: Some(COHERENCE),
+            sparse: true,
+            continue_finest: true,
         }
     }
 }
@@ -388,6 +404,8 @@ struct Ctx<'a> {
     coherence: Option<f32>,
     channels: usize,
     pattern_tolerance: f64,
+    /// [`MultiscaleParams::sparse`].
+    sparse: bool,
 }
 
 impl Ctx<'_> {
@@ -399,7 +417,11 @@ impl Ctx<'_> {
     fn choose(&self, level: usize, pass: Pass, t: usize, w: &mut Work) -> u32 {
         let model = self.model;
         let f = &model.searcher(level, pass).features;
-        f.prepare(&w.q, &mut w.prep);
+        if matches!(model.params.method, Method::Ann(_)) {
+            f.prepare(&w.q, &mut w.prep);
+        } else {
+            f.prepare_distances(&w.q, &mut w.prep);
+        }
         let n = model.search(level, pass, &w.prep, &w.seeds, &mut w.scratch);
         w.queries += 1;
         w.candidates += n as u64;
@@ -425,6 +447,7 @@ impl Ctx<'_> {
 
     /// The K×K pattern of texel `t` of `geo` at step `delta` into `w.locs`
     /// ([`level::pattern`] with this run's sampler and tolerance and `w`'s scratch).
+    #[allow(clippy::too_many_arguments)]
     fn pattern(
         &self,
         geo: &LevelGeometry,
@@ -432,6 +455,7 @@ impl Ctx<'_> {
         delta: f64,
         k: usize,
         kind: SamplerKind,
+        sparse: bool,
         w: &mut Work,
     ) {
         pattern(
@@ -441,6 +465,7 @@ impl Ctx<'_> {
             delta,
             k,
             kind,
+            sparse,
             self.pattern_tolerance,
             &mut w.locs,
             &mut w.pat,
@@ -622,6 +647,7 @@ pub fn run_on_model(
         coherence: params.coherence,
         channels: model.pyramid.level(0).channels,
         pattern_tolerance: params.pattern_tolerance,
+        sparse: params.sparse,
     };
     let adj = crate::texels::domain_edge_adjacency(surface);
     let conflicts = conflicts(&adj);
@@ -674,7 +700,11 @@ pub fn run_on_model(
         let fine_fac = Factors::of(inputs, &fine);
         geometry_seconds += t0.elapsed().as_secs_f64();
         let t0 = Instant::now();
-        let (s1, anchors) = pass_one(&ctx, i, &fine, &fine_fac, &geo, &state, &mut stats);
+        let (s1, anchors) = if i == 0 && params.continue_finest {
+            (continued(&ctx, i, &fine, &fine_fac, &geo, &state), None)
+        } else {
+            pass_one(&ctx, i, &fine, &fine_fac, &geo, &state, &mut stats)
+        };
         done += fine.len() as u64;
         progress(done, total);
         let s2 = pass_two(
@@ -1115,7 +1145,15 @@ fn coarsest(
         let mut own_src = vec![0u32; nn];
         for li in 0..nn {
             let t = start + li;
-            ctx.pattern(geo, t, fac.step(delta, t), k, SamplerKind::March, &mut w);
+            ctx.pattern(
+                geo,
+                t,
+                fac.step(delta, t),
+                k,
+                SamplerKind::March,
+                false,
+                &mut w,
+            );
             let view = View {
                 channels: c,
                 texels,
@@ -1228,7 +1266,7 @@ fn coarse_block(
 ) {
     let k = ctx.model.shape(level, Pass::One).coarse;
     let delta = fine_fac.step(ctx.steps[level + 1], t);
-    ctx.pattern(fine, t, delta, k, SamplerKind::Chart, w);
+    ctx.pattern(fine, t, delta, k, SamplerKind::Chart, false, w);
     for s in 0..k * k {
         match w.locs[s] {
             Some(loc) if view.fetch_at(&coarse.layout, loc, &mut w.val) => {
@@ -1250,6 +1288,57 @@ fn coarse_block(
 /// by those patterns' own errors (the sampler walks δ rather than 2δ per step).
 fn coarse_from_fine(k: usize, kc: usize) -> bool {
     kc > 0 && k == 2 * kc - 1
+}
+
+/// Whether pass 2's own `k`×`k` block can be made sparse: k = 4j + 1 ≥ 9, so that the
+/// samples with both offsets even reach the block's edge ([`sparse_keeps`]).
+pub fn sparse_block(k: usize) -> bool {
+    k >= 9 && k % 4 == 1
+}
+
+/// The sparse block ([`MultiscaleParams::sparse`]): which samples of pass 2's own `k`×`k`
+/// block are compared, and the factors of their Gaussian weights ([`Query::gain`], over
+/// the `k`² + `kc`² samples of the pass-2 shape; the coarser block's are 1).
+///
+/// The block keeps its inner (k/4)-ring whole and every other sample beyond
+/// ([`sparse_keeps`]): 41 of 81 samples at k = 9, the same reach. The kept outer samples
+/// carry the weight of the whole outer part (each its share of it), so the block's reach
+/// weighs in the distance as much as the full block's does. *Why*: the 9x9 block's reach
+/// carries the lines of structured examples (a 5x5 or 7x7 block broke mortar lines into
+/// short pieces, docs/multiscale.md), but its 81 samples cost pass 2 its distances, its
+/// fetches and — near extraordinary vertices — a marched path for each of 48 directions
+/// ([`crate::sampling::Sampler::sample_sparse`]: 16 suffice for the sparse block).
+pub fn sparse_gains(k: usize, kc: usize) -> (Vec<bool>, Vec<f32>) {
+    let h = (k / 2) as i64;
+    let inner = h / 2;
+    let sigma = k as f64 / 4.0;
+    let mut keep = Vec::with_capacity(k * k);
+    let (mut all, mut kept) = (0.0f64, 0.0f64);
+    for m in -h..=h {
+        for l in -h..=h {
+            let kp = sparse_keeps(k, l, m);
+            keep.push(kp);
+            if l.abs().max(m.abs()) > inner {
+                let w = (-((l * l + m * m) as f64) / (2.0 * sigma * sigma)).exp();
+                all += w;
+                if kp {
+                    kept += w;
+                }
+            }
+        }
+    }
+    let g = if kept > 0.0 { (all / kept) as f32 } else { 1.0 };
+    let mut gain = Vec::with_capacity(k * k + kc * kc);
+    for (i, &kp) in keep.iter().enumerate() {
+        let (l, m) = (i as i64 % k as i64 - h, i as i64 / k as i64 - h);
+        gain.push(match (kp, l.abs().max(m.abs()) > inner) {
+            (false, _) => 0.0,
+            (true, true) => g,
+            (true, false) => 1.0,
+        });
+    }
+    gain.resize(k * k + kc * kc, 1.0);
+    (keep, gain)
 }
 
 /// The view of a finished coarser level (every texel generated, no domain in progress).
@@ -1333,6 +1422,46 @@ fn pass_one(
     (State { src }, anchors)
 }
 
+/// What pass 2 of a level starts from when pass 1 is left out
+/// ([`MultiscaleParams::continue_finest`]): each texel continues the source of its nearest
+/// coarser texel (that source, minus the offset between the two, at twice the
+/// resolution — the candidate pass 1's k-coherence search starts from), with no search.
+/// *Why*: pass 1 matches every texel against the coarser block alone, and at the finest
+/// level that is a fifth of a run (Spot N = 32), while pass 2 replaces every one of its
+/// choices; what pass 2 needs from it is the not-yet-refined neighbours of each texel,
+/// which the continued coarse patches give as well (Lefebvre & Hoppe 2005's
+/// upsampling of coordinates).
+fn continued(
+    ctx: &Ctx<'_>,
+    level: usize,
+    fine: &LevelGeometry,
+    fine_fac: &Factors,
+    coarse: &LevelGeometry,
+    cstate: &State,
+) -> State {
+    let src = (0..fine.len())
+        .into_par_iter()
+        .map_init(Vec::new, |seeds, t| {
+            let at = [Some(fine.location(t))];
+            coarse_seeds(
+                ctx,
+                level,
+                fine,
+                fine_fac,
+                coarse,
+                &cstate.src,
+                t,
+                &at,
+                1,
+                1,
+                seeds,
+            );
+            seeds.first().copied().unwrap_or(0)
+        })
+        .collect();
+    State { src }
+}
+
 /// Pass 2: refine with the level's 9x9 block plus the coarser block (gathered again,
 /// [`coarse_block`]); scan-line order inside each domain (at the finest level with the
 /// coherent choice, [`growth_order`]), domains in the schedule's order ([`DomainOrder`]).
@@ -1364,10 +1493,17 @@ fn pass_two(
         .unwrap_or(0);
     let all_gen = vec![true; largest];
     let before = &state;
+    // Which samples of the own block are compared, and their weights' factors.
+    let sparse = (ctx.sparse && sparse_block(k)).then(|| sparse_gains(k, shape.coarse));
+    let keep = sparse.as_ref().map(|(keep, _)| &keep[..]);
+    let is_sparse = sparse.is_some();
     let outs = order.run(&|d, done| {
         let (start, nn) = (texels.start(d), texels.count(d));
         let finished = order.visible(d, done);
         let mut w = Work::new(ctx.model, level, Pass::Two);
+        if let Some((_, gain)) = &sparse {
+            w.q.gain = gain.clone();
+        }
         // The coarser block's samples are every other sample of the level's own pattern
         // when the blocks reach equally far ([`coarse_from_fine`]); otherwise pass 1's
         // pattern calls again, with a scratch (and counters) of their own.
@@ -1390,7 +1526,7 @@ fn pass_two(
             let li = li as usize;
             let t = start + li;
             let delta = fac.step(delta, t);
-            ctx.pattern(geo, t, delta, k, SamplerKind::Chart, &mut w);
+            ctx.pattern(geo, t, delta, k, SamplerKind::Chart, is_sparse, &mut w);
             let view = View {
                 channels: c,
                 texels,
@@ -1407,6 +1543,10 @@ fn pass_two(
                 }),
             };
             for s in 0..nf {
+                if keep.is_some_and(|keep| !keep[s]) {
+                    w.q.clear(s);
+                    continue;
+                }
                 match w.locs[s] {
                     Some(loc) => {
                         view.fetch_at(&geo.layout, loc, &mut w.val);
@@ -1662,6 +1802,39 @@ impl crate::cache::Persist for Model {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_sparse_block_keeps_its_reach_and_its_weight() {
+        assert!(sparse_block(9) && sparse_block(13));
+        assert!(!sparse_block(5) && !sparse_block(7) && !sparse_block(11));
+        let (keep, gain) = sparse_gains(9, 5);
+        assert_eq!(keep.len(), 81);
+        assert_eq!(gain.len(), 81 + 25);
+        assert_eq!(keep.iter().filter(|&&k| k).count(), 41);
+        // The corners and edge midpoints of the block are kept; (3, 0) and (4, 1) are not.
+        let at = |l: i64, m: i64| ((m + 4) * 9 + l + 4) as usize;
+        for (l, m) in [(4, 4), (-4, 4), (4, 0), (0, -4), (2, 2), (1, 2), (-4, 2)] {
+            assert!(keep[at(l, m)], "({l}, {m})");
+        }
+        for (l, m) in [(3, 0), (4, 1), (-3, 3), (1, 4)] {
+            assert!(!keep[at(l, m)], "({l}, {m})");
+        }
+        // Every sample the coarser 5x5 block takes from the fine pattern is kept.
+        for cy in 0..5 {
+            for cx in 0..5 {
+                assert!(keep[2 * cy * 9 + 2 * cx]);
+            }
+        }
+        // The kept samples weigh what the full block weighs.
+        let sc = crate::synth::matching::search::Shape::new(9, 5, 1).sample_scales();
+        let full: f64 = sc[..81].iter().map(|&s| (s as f64).powi(2)).sum();
+        let sparse: f64 = (0..81)
+            .filter(|&i| keep[i])
+            .map(|i| (sc[i] as f64).powi(2) * gain[i] as f64)
+            .sum();
+        assert!((full - sparse).abs() < 1e-5, "{full} vs {sparse}");
+        assert!(gain[81..].iter().all(|&g| g == 1.0));
+    }
 
     #[test]
     fn levels_follow_the_scale() {

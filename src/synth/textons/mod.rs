@@ -142,6 +142,13 @@ pub fn run(
             })
         })
     };
+    // The sparse block and the continued finest start were measured for multiscale
+    // synthesis of single images only: textons keep the full block and pass 1.
+    let ms = &MultiscaleParams {
+        sparse: false,
+        continue_finest: false,
+        ..*ms
+    };
     let out = multiscale::run_on_model(
         [sample.width, sample.height],
         &inputs,

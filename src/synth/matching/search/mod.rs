@@ -268,6 +268,13 @@ pub struct Query {
     pub shape: Shape,
     pub values: Vec<f32>,
     pub present: Vec<bool>,
+    /// Per-sample factors of the Gaussian weights ([`Shape`] order) for a *sparse* query,
+    /// one that leaves samples out on purpose and lets the ones it keeps carry their
+    /// weight (multiscale's sparse 9x9 block, `level::sparse_gains`). Empty: every factor
+    /// 1 and [`Features::distance`] reads every stored sample as before. Non-empty: the
+    /// prepared query keeps only its present samples ([`Prepared::offs`]), so distances
+    /// cost what the present samples cost.
+    pub gain: Vec<f32>,
 }
 
 impl Query {
@@ -277,6 +284,7 @@ impl Query {
             shape,
             values: vec![0.0; shape.dim()],
             present: vec![false; shape.samples()],
+            gain: Vec::new(),
         }
     }
 
@@ -320,6 +328,10 @@ pub struct Prepared {
     /// Per stored sample: its Gaussian weight (the square of its [`Features::scales`]
     /// entry), 0 where missing.
     pub w2: Vec<f32>,
+    /// Empty, or for a sparse query ([`Query::gain`]) the offsets (as
+    /// [`Features::offsets`]) of its present samples only, in storage order; `raw` and
+    /// `w2` then hold those samples only, `w2` times the query's gain.
+    pub offs: Vec<isize>,
 }
 
 /// The weighted neighbourhood vectors of the valid pixels of one example level, gathered
@@ -576,34 +588,65 @@ impl Features {
 
     /// Applies the weights and mask of `q` into `out`.
     pub fn prepare(&self, q: &Query, out: &mut Prepared) {
+        self.prepare_impl(q, out, true);
+    }
+
+    /// [`Self::prepare`] for [`Self::distance`] only: `raw`, `w2` (and `offs`), not the
+    /// weighted vector and mask that projections read (left empty). *Why*: k-coherence and
+    /// exhaustive searches never project, and filling `v` and `mask` was most of
+    /// preparing a query — ~4% of a multiscale run (issue 14).
+    pub fn prepare_distances(&self, q: &Query, out: &mut Prepared) {
+        self.prepare_impl(q, out, false);
+    }
+
+    fn prepare_impl(&self, q: &Query, out: &mut Prepared, projections: bool) {
         assert_eq!(
             q.shape, self.shape,
             "query shape differs from the features'"
         );
         let c = self.shape.channels;
         let dim = self.dim();
-        out.v.resize(dim, 0.0);
-        out.mask.resize(dim, 0.0);
-        out.raw.resize(dim, 0.0);
-        out.w2.resize(self.order.len(), 0.0);
+        if projections {
+            out.v.resize(dim, 0.0);
+            out.mask.resize(dim, 0.0);
+        } else {
+            out.v.clear();
+            out.mask.clear();
+        }
+        // A sparse query keeps its present samples only, in storage order (the same
+        // order and blocks as a complete query when every sample is present).
+        let sparse = !q.gain.is_empty();
+        out.raw.clear();
+        out.w2.clear();
+        out.offs.clear();
         let mut present = 0;
         for (t, &s) in self.order.iter().enumerate() {
             let p = q.present[s];
             let sc = self.scales[s];
-            for k in 0..c {
-                if p {
-                    let x = q.values[s * c + k];
-                    out.v[t * c + k] = x * sc;
-                    out.mask[t * c + k] = 1.0;
-                    out.raw[t * c + k] = x;
-                } else {
-                    out.v[t * c + k] = 0.0;
-                    out.mask[t * c + k] = 0.0;
-                    out.raw[t * c + k] = 0.0;
+            if projections {
+                for k in 0..c {
+                    if p {
+                        out.v[t * c + k] = q.values[s * c + k] * sc;
+                        out.mask[t * c + k] = 1.0;
+                    } else {
+                        out.v[t * c + k] = 0.0;
+                        out.mask[t * c + k] = 0.0;
+                    }
                 }
             }
-            out.w2[t] = if p { sc * sc } else { 0.0 };
             present += p as usize;
+            if p {
+                out.raw.extend_from_slice(&q.values[s * c..(s + 1) * c]);
+                if sparse {
+                    out.w2.push(sc * sc * q.gain[s]);
+                    out.offs.push(self.offsets[t]);
+                } else {
+                    out.w2.push(sc * sc);
+                }
+            } else if !sparse {
+                out.raw.extend(std::iter::repeat_n(0.0, c));
+                out.w2.push(0.0);
+            }
         }
         out.present = present;
         out.complete = present == q.present.len();
@@ -632,7 +675,12 @@ impl Features {
     /// lists stay valid.
     #[inline]
     pub fn distance(&self, q: &Prepared, i: usize, bound: f32) -> f32 {
-        weighted_dispatch(&q.raw, &q.w2, self, self.base(i), bound)
+        let offs = if q.offs.is_empty() {
+            &self.offsets[..]
+        } else {
+            &q.offs[..]
+        };
+        weighted_dispatch(&q.raw, &q.w2, offs, self, self.base(i), bound)
     }
 
     /// Exact search over every valid pixel (the paper's coarsest-level search) into `top`:
@@ -848,12 +896,13 @@ fn gather_dispatch(a: &[f32], m: Option<&[f32]>, f: &Features, base: usize, boun
 fn weighted_kernel<const C: usize>(
     q: &[f32],
     w2: &[f32],
+    offs: &[isize],
     f: &Features,
     base: usize,
     bound: f32,
 ) -> f32 {
     let c = if C == 0 { f.shape.channels } else { C };
-    let ns = w2.len().min(f.offsets.len()).min(q.len() / c);
+    let ns = w2.len().min(offs.len()).min(q.len() / c);
     let per = (BLOCK / c).max(1);
     let src = &f.source[..];
     let base = base as isize;
@@ -865,7 +914,7 @@ fn weighted_kernel<const C: usize>(
         if C > 0 {
             let mut acc = [0.0f32; LANES];
             for t in s..e {
-                let at = (base + f.offsets[t]) as usize;
+                let at = (base + offs[t]) as usize;
                 let x = &src[at..at + C];
                 let qq = &q[t * C..t * C + C];
                 let w = w2[t];
@@ -879,7 +928,7 @@ fn weighted_kernel<const C: usize>(
             }
         } else {
             for t in s..e {
-                let at = (base + f.offsets[t]) as usize;
+                let at = (base + offs[t]) as usize;
                 let x = &src[at..at + c];
                 let qq = &q[t * c..t * c + c];
                 let mut a = 0.0f32;
@@ -901,30 +950,51 @@ fn weighted_kernel<const C: usize>(
 
 /// [`weighted_kernel`] for the channel count of `f`.
 #[inline]
-fn weighted_any(q: &[f32], w2: &[f32], f: &Features, base: usize, bound: f32) -> f32 {
+fn weighted_any(
+    q: &[f32],
+    w2: &[f32],
+    offs: &[isize],
+    f: &Features,
+    base: usize,
+    bound: f32,
+) -> f32 {
     match f.shape.channels {
-        8 => weighted_kernel::<8>(q, w2, f, base, bound),
-        4 => weighted_kernel::<4>(q, w2, f, base, bound),
-        _ => weighted_kernel::<0>(q, w2, f, base, bound),
+        8 => weighted_kernel::<8>(q, w2, offs, f, base, bound),
+        4 => weighted_kernel::<4>(q, w2, offs, f, base, bound),
+        _ => weighted_kernel::<0>(q, w2, offs, f, base, bound),
     }
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn weighted_avx2(q: &[f32], w2: &[f32], f: &Features, base: usize, bound: f32) -> f32 {
-    weighted_any(q, w2, f, base, bound)
+unsafe fn weighted_avx2(
+    q: &[f32],
+    w2: &[f32],
+    offs: &[isize],
+    f: &Features,
+    base: usize,
+    bound: f32,
+) -> f32 {
+    weighted_any(q, w2, offs, f, base, bound)
 }
 
 #[inline]
-fn weighted_dispatch(q: &[f32], w2: &[f32], f: &Features, base: usize, bound: f32) -> f32 {
+fn weighted_dispatch(
+    q: &[f32],
+    w2: &[f32],
+    offs: &[isize],
+    f: &Features,
+    base: usize,
+    bound: f32,
+) -> f32 {
     #[cfg(target_arch = "x86_64")]
     {
         if std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU supports AVX2 (checked just above).
-            return unsafe { weighted_avx2(q, w2, f, base, bound) };
+            return unsafe { weighted_avx2(q, w2, offs, f, base, bound) };
         }
     }
-    weighted_any(q, w2, f, base, bound)
+    weighted_any(q, w2, offs, f, base, bound)
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -1067,6 +1137,86 @@ mod tests {
         }
         let idx: Vec<u32> = t.as_slice().iter().map(|m| m.index).collect();
         assert_eq!(idx, vec![0, 1, 2, 3, 4, 5, 6, 7]);
+    }
+
+    #[test]
+    fn a_sparse_query_measures_its_present_samples_with_their_gains() {
+        // A sparse query (gains set) reads only its present samples; its distance is the
+        // dense one over the same samples with each weight times its gain.
+        let (w, h) = (24, 22);
+        let mut img = Image::new(w, h, 8);
+        for y in 0..h {
+            for x in 0..w {
+                for c in 0..8 {
+                    img.pixel_mut(x, y)[c] =
+                        (hash(5, &[x as u64, y as u64, c as u64]) % 1000) as f32 / 1e3;
+                }
+            }
+        }
+        let pyr = Pyramid::build(img.clone(), 2);
+        let shape = Shape::new(9, 5, 8);
+        let f = Features::build(&pyr, 0, shape, 0).unwrap();
+        let mut q = Query::new(shape);
+        for s in 0..shape.samples() {
+            let v: Vec<f32> = (0..8)
+                .map(|c| (hash(9, &[s as u64, c]) % 1000) as f32 / 1e3)
+                .collect();
+            if s % 3 != 1 {
+                q.set(s, &v);
+            }
+        }
+        let gain: Vec<f32> = (0..shape.samples())
+            .map(|s| 1.0 + (s % 4) as f32 * 0.5)
+            .collect();
+        let (mut dense, mut sparse) = (Prepared::default(), Prepared::default());
+        f.prepare(&q, &mut dense);
+        let mut qs = q.clone();
+        qs.gain = gain.clone();
+        f.prepare(&qs, &mut sparse);
+        assert_eq!(sparse.offs.len(), q.present_count());
+        for i in [0, 7, 100, f.len() - 1] {
+            let d = f.distance(&sparse, i, f32::INFINITY);
+            // The reference: Σ gain·w·(q − x)² over present samples.
+            let v = f.vector(i);
+            let mut want = 0.0f64;
+            for (t, &s) in f.order.iter().enumerate() {
+                if !q.present[s] {
+                    continue;
+                }
+                let sc = f.scales[s] as f64;
+                for c in 0..8 {
+                    let x = v[t * 8 + c] as f64 / sc;
+                    let e = q.values[s * 8 + c] as f64 - x;
+                    want += gain[s] as f64 * sc * sc * e * e;
+                }
+            }
+            assert!(
+                (d as f64 - want).abs() <= 1e-4 * want.max(1.0),
+                "{d} vs {want}"
+            );
+            // Without gains (all 1) it is the dense distance up to rounding.
+            let dd = f.distance(&dense, i, f32::INFINITY);
+            assert!(dd.is_finite() && dd >= 0.0);
+        }
+        // Prepared for distances only: the same distances, no projection vectors.
+        let mut only = Prepared::default();
+        f.prepare_distances(&qs, &mut only);
+        assert!(only.v.is_empty() && only.mask.is_empty());
+        f.prepare_distances(&q, &mut dense);
+        for i in [0, 7, 100] {
+            assert_eq!(
+                f.distance(&only, i, f32::INFINITY),
+                f.distance(&sparse, i, f32::INFINITY)
+            );
+        }
+        f.prepare(&q, &mut dense);
+        // A dense query prepared after a sparse one reads every stored sample again.
+        f.prepare(&q, &mut sparse);
+        assert!(sparse.offs.is_empty());
+        assert_eq!(
+            f.distance(&sparse, 5, f32::INFINITY),
+            f.distance(&dense, 5, f32::INFINITY)
+        );
     }
 
     #[test]
