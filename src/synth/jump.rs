@@ -328,6 +328,11 @@ pub struct Plan {
     /// Per rank, in surface units: the largest |component| of the offsets from earlier
     /// neighbours and chord to later ones (× 1/S: the validity margin in example pixels).
     reach: Vec<f32>,
+    /// The entries' offsets are in surface units × 2^e, e the power of two nearest to
+    /// 1 / the level's step (so about a pixel, well inside half's range); this is 2^−e.
+    /// A power of two, not the step itself, so that rounding to half commutes with it: a
+    /// constant scale-map factor k and `--scale S·k` give the same offsets bit for bit.
+    unscale: f32,
 }
 
 /// Where [`Plan::new`]'s parallel loop writes (disjoint elements per texel).
@@ -354,13 +359,12 @@ impl Scatter {
 
 /// A neighbour synthesized before the texel: its rank, whether it is a cross neighbour
 /// ([`cross_neighbours`]) rather than an edge of the graph, and the edge offset d(s→t) in
-/// example pixels at the level's global step (× that step / the local one where a scale
-/// map varies it).
+/// surface units × [`Plan::unscale`]⁻¹ (about example pixels).
 ///
 /// The offset is a half float: offsets are a pixel or two, so half's 11 bits keep them to
 /// ~0.001 px, and an entry is 8 B instead of 12 — the plan's entries (~2 per texel) are
-/// the largest array of jump's peak, the plan's making (issue 14 item 6). In pixels, not
-/// surface units, so that tiny or huge meshes do not fall out of half's range.
+/// the largest array of jump's peak, the plan's making (issue 14 item 6). Scaled to about
+/// a pixel so that tiny or huge meshes do not fall out of half's range.
 #[derive(Clone, Copy, Debug)]
 struct Earlier {
     /// The rank, with [`Earlier::CROSS`] set for a cross neighbour (ranks are below 2³¹:
@@ -380,7 +384,7 @@ impl Earlier {
         }
     }
 
-    /// The offset in example pixels at the global step.
+    /// The offset in surface units × [`Plan::unscale`]⁻¹.
     #[inline]
     fn d(self) -> [f32; 2] {
         self.d.map(half::f16::to_f32)
@@ -414,7 +418,8 @@ impl Plan {
             rank[*t as usize] = k as u32;
         }
         let (pos, frames, edges) = (&level.geometry.pos, &level.frames, level.edges());
-        let inv_step = (1.0 / level.step) as f32;
+        let e = (-level.step.log2()).round().clamp(-100.0, 100.0) as i32;
+        let (scale_up, unscale) = (2f32.powi(e), 2f32.powi(-e));
         let near = |t: usize| &xlist[xstart[t] as usize..xstart[t + 1] as usize];
         const CHUNK: usize = 4096;
         // Computed texel by texel (positions, frames, edge lists and the neighbours' ranks
@@ -468,8 +473,8 @@ impl Plan {
                     // count above is of exactly these neighbours), and each rank is one
                     // texel's: no two iterations write the same element, and both arrays
                     // outlive the loop.
-                    let px = [d[0] * inv_step, d[1] * inv_step];
-                    unsafe { out.earlier(slot, Earlier::new(rs, i >= graph_edges, px)) };
+                    let up = [d[0] * scale_up, d[1] * scale_up];
+                    unsafe { out.earlier(slot, Earlier::new(rs, i >= graph_edges, up)) };
                     slot += 1;
                 } else {
                     r = r.max(pos[s].distance(pos[t]));
@@ -487,6 +492,7 @@ impl Plan {
             count,
             earlier,
             reach,
+            unscale,
         }
     }
 
@@ -614,14 +620,11 @@ pub fn run(
         let margin = plan.reach[k] * inv_scale;
         for e in earlier {
             let a = src[e.rank()];
-            let d = match level.factor {
-                None => e.d(),
-                Some(_) => {
-                    let f = inv_scale * level.step as f32;
-                    let d = e.d();
-                    [d[0] * f, d[1] * f]
-                }
-            };
+            let d = e.d();
+            let d = [
+                d[0] * plan.unscale * inv_scale,
+                d[1] * plan.unscale * inv_scale,
+            ];
             let c = [a[0] + d[0], a[1] + d[1]];
             let len = (d[0] * d[0] + d[1] * d[1]).sqrt().max(0.25);
             // Border ramp on the continuation (distance from the pixel-centre rectangle).
@@ -854,7 +857,7 @@ mod tests {
             let plan = Plan::new(&level, growth);
             let lists: Vec<&[Earlier]> = plan.by_rank().collect();
             let (pos, frames) = (&level.geometry.pos, &level.frames);
-            let inv_step = (1.0 / level.step) as f32;
+            let ex = (-level.step.log2()).round() as i32;
             let mut done = vec![false; level.len()];
             for (k, &t) in order.iter().enumerate() {
                 let t = t as usize;
@@ -866,8 +869,8 @@ mod tests {
                     if done[s] {
                         let d = offset(pos, frames, s, t, 1.0);
                         reach = reach.max(d[0].abs()).max(d[1].abs());
-                        // Stored in pixels at the level's step, as half floats.
-                        let px = [d[0] * inv_step, d[1] * inv_step]
+                        // Stored × 2^e, as half floats.
+                        let px = [d[0] * 2f32.powi(ex), d[1] * 2f32.powi(ex)]
                             .map(|x| half::f16::from_f32(x).to_f32());
                         want.push((order.iter().position(|&o| o as usize == s).unwrap(), px));
                     } else {
