@@ -462,8 +462,9 @@ impl Plan {
             let k = rank[t];
             let mut slot = first[k as usize] as usize;
             let mut r = 0.0f32;
-            let graph_edges = edges.of(t).len();
-            for (i, &s) in edges.of(t).iter().chain(near(t)).enumerate() {
+            let own = edges.of(t);
+            let graph_edges = own.len();
+            for (i, &s) in own.iter().chain(near(t)).enumerate() {
                 let (s, rs) = (s as usize, rank[s as usize]);
                 if rs < k {
                     let d = offset(pos, frames, s, t, 1.0);
@@ -543,8 +544,8 @@ fn cross_neighbours(layout: &TexelLayout, pos: &[Vec3], edges: &EdgeGraph) -> (V
         .par_iter()
         .map(|&t| {
             let t = t as usize;
-            let reach = edges
-                .of(t)
+            let own = edges.of(t);
+            let reach = own
                 .iter()
                 .map(|&s| pos[s as usize].distance(pos[t]))
                 .fold(0.0f32, f32::max)
@@ -557,7 +558,7 @@ fn cross_neighbours(layout: &TexelLayout, pos: &[Vec3], edges: &EdgeGraph) -> (V
                 .execute()
                 .iter()
                 .map(|r| list[r.item as usize])
-                .filter(|&s| layout.domain_of(s as usize) != d && !edges.of(t).contains(&s))
+                .filter(|&s| layout.domain_of(s as usize) != d && !own.contains(&s))
                 .collect();
             near.sort_unstable();
             near
@@ -618,13 +619,11 @@ pub fn run(
         // The chord to a texel not yet synthesized bounds both components of its projected
         // offset (validity box).
         let margin = plan.reach[k] * inv_scale;
+        // unscale is a power of two: (d × unscale) × inv_scale and d × to_px round alike.
+        let to_px = plan.unscale * inv_scale;
         for e in earlier {
             let a = src[e.rank()];
-            let d = e.d();
-            let d = [
-                d[0] * plan.unscale * inv_scale,
-                d[1] * plan.unscale * inv_scale,
-            ];
+            let d = e.d().map(|x| x * to_px);
             let c = [a[0] + d[0], a[1] + d[1]];
             let len = (d[0] * d[0] + d[1] * d[1]).sqrt().max(0.25);
             // Border ramp on the continuation (distance from the pixel-centre rectangle).
