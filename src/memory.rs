@@ -107,16 +107,22 @@ const SYNTH_TEXEL: u64 = 64;
 /// `synth --method patches`, per texel on top of [`SYNTH_TEXEL`]: footprints (texel lists
 /// and their example positions), the min-cut graphs in flight, the assembled sources.
 /// Measured on Spot (2026-12-03): peak 264 MiB at N = 64, 882 at N = 128 (209 B per
-/// texel between them).
-const PATCHES_TEXEL: u64 = 120;
+/// texel between them). Since the footprint floods keep their state in a small table per
+/// thread instead of a node per texel per thread (2026-12-06): 191 and 720 MiB (179 B per
+/// texel between them; estimate / peak 1.13 and 1.06 at 80).
+const PATCHES_TEXEL: u64 = 80;
 /// `synth --method optimise`, per texel on top of [`SYNTH_TEXEL`]: the footprints of
 /// every level, the per-texel accumulators of the M-step, the optimised sources and
 /// colours, and the patch sampling that starts the coarsest level. Measured on Spot
 /// (2026-12-03): peak 155 MiB at N = 32, 448 at N = 64 (~400 B per texel between them).
 /// The source orientations (a 2-byte turn per footprint membership and per texel,
 /// 2026-12-04) added ~30 B per texel: peak 1657 → 1778 MiB at N = 128 (estimate / peak
-/// 0.98 → 0.91 at 300; 0.98 at 330).
-const OPTIMISE_TEXEL: u64 = 330;
+/// 0.98 → 0.91 at 300; 0.98 at 330). 2026-12-06: the M-step updates in place, the
+/// previous patch size's footprints and texture are freed before the next size builds
+/// its own, and the floods' state is a small table per thread (not a node per texel per
+/// thread): peak 98 / 302 / 1051 MiB at N = 32 / 64 / 128 (from 134 / 443 / 1715; 254 B
+/// per texel between N = 64 and 128, from 431), estimate / peak 1.01–1.06 at 170.
+const OPTIMISE_TEXEL: u64 = 170;
 /// `synth --method jump`, per example pixel: the jump map (4 targets, 4 weights, their
 /// sum: 36 B) and, while it is built (a cache miss), the 3x3-lattice vectors (72 floats),
 /// their tree projections and the kd-tree. Measured: a 512² example peaked 82 MB higher

@@ -524,19 +524,27 @@ impl PartialOrd for Entry {
     }
 }
 
-/// Per-thread flood state, indexed by texel, reset lazily by generation stamps.
+/// Per-thread flood state: the texels one flood has reached, in a small hash table.
+///
+/// It was one node per texel of the level, per thread (36 B per texel and thread: 74 MB
+/// at 1 M texels on two threads, and eight times that on sixteen), while a flood reaches
+/// a few hundred to a few thousand texels. The table holds only those, is reused by every
+/// flood of the thread and stays in the caches; peak memory no longer grows with the
+/// number of threads or with the level's size.
 pub struct Flood {
-    nodes: Vec<Node>,
-    gen: u32,
+    nodes: NodeTable,
     heap: BinaryHeap<Entry>,
     reached: Vec<u32>,
 }
 
 /// One texel's flood state, kept together: a flood step reads all of it for the texel
-/// and each of its neighbours, one cache line each (five arrays were five lines).
+/// and each of its neighbours, one cache line each.
 #[derive(Clone, Copy)]
 struct Node {
+    /// The flood (generation) that wrote this slot; other slots are empty.
     stamp: u32,
+    /// The texel it belongs to.
+    key: u32,
     dist: f32,
     parent: u32,
     done: bool,
@@ -545,30 +553,134 @@ struct Node {
     e1: Vec3,
 }
 
-impl Flood {
-    fn new(n: usize) -> Self {
+const EMPTY: Node = Node {
+    stamp: 0,
+    key: 0,
+    dist: 0.0,
+    parent: 0,
+    done: false,
+    coord: [0.0; 2],
+    e1: Vec3::ZERO,
+};
+
+/// Open addressing with linear probing, keyed by texel, emptied lazily by generation
+/// stamps (a new flood bumps the generation; nothing is ever removed within one).
+struct NodeTable {
+    slots: Vec<Node>,
+    gen: u32,
+    len: usize,
+}
+
+impl NodeTable {
+    fn new() -> Self {
         Self {
-            nodes: vec![
-                Node {
-                    stamp: 0,
-                    dist: 0.0,
-                    parent: 0,
-                    done: false,
-                    coord: [0.0; 2],
-                    e1: Vec3::ZERO,
+            slots: vec![EMPTY; 1 << 12],
+            gen: 1,
+            len: 0,
+        }
+    }
+
+    /// Empties the table for the next flood.
+    fn clear(&mut self) {
+        self.gen = self.gen.wrapping_add(1);
+        if self.gen == 0 {
+            self.slots.iter_mut().for_each(|n| n.stamp = 0);
+            self.gen = 1;
+        }
+        self.len = 0;
+    }
+
+    #[inline]
+    fn home(&self, t: u32) -> usize {
+        // Fibonacci hashing: texels of a patch are runs of nearby indices, which the
+        // multiplication spreads over the table.
+        (t.wrapping_mul(0x9E37_79B1) as usize >> 8) & (self.slots.len() - 1)
+    }
+
+    /// The state of texel `t` if this flood has reached it.
+    #[inline]
+    fn get(&self, t: u32) -> Option<&Node> {
+        let mask = self.slots.len() - 1;
+        let mut i = self.home(t);
+        loop {
+            let n = &self.slots[i];
+            if n.stamp != self.gen {
+                return None;
+            }
+            if n.key == t {
+                return Some(n);
+            }
+            i = (i + 1) & mask;
+        }
+    }
+
+    /// Texel `t`'s state, which it must have.
+    #[inline]
+    fn at(&mut self, t: u32) -> &mut Node {
+        let mask = self.slots.len() - 1;
+        let mut i = self.home(t);
+        while self.slots[i].key != t || self.slots[i].stamp != self.gen {
+            debug_assert_eq!(self.slots[i].stamp, self.gen, "texel {t} not reached");
+            i = (i + 1) & mask;
+        }
+        &mut self.slots[i]
+    }
+
+    /// Texel `t`'s state, added (not done, at an infinite distance) if new; the flag
+    /// says it was.
+    #[inline]
+    fn entry(&mut self, t: u32) -> (&mut Node, bool) {
+        if 2 * (self.len + 1) > self.slots.len() {
+            self.grow();
+        }
+        let mask = self.slots.len() - 1;
+        let mut i = self.home(t);
+        loop {
+            if self.slots[i].stamp != self.gen {
+                self.len += 1;
+                self.slots[i] = Node {
+                    stamp: self.gen,
+                    key: t,
+                    dist: f32::INFINITY,
+                    ..EMPTY
                 };
-                n
-            ],
-            gen: 0,
+                return (&mut self.slots[i], true);
+            }
+            if self.slots[i].key == t {
+                return (&mut self.slots[i], false);
+            }
+            i = (i + 1) & mask;
+        }
+    }
+
+    /// Doubles the table, keeping this flood's entries.
+    fn grow(&mut self) {
+        let bigger = vec![EMPTY; 2 * self.slots.len()];
+        let old = std::mem::replace(&mut self.slots, bigger);
+        let gen = self.gen;
+        let mask = self.slots.len() - 1;
+        for n in old.into_iter().filter(|n| n.stamp == gen) {
+            let mut i = self.home(n.key);
+            while self.slots[i].stamp == gen {
+                i = (i + 1) & mask;
+            }
+            self.slots[i] = n;
+        }
+    }
+}
+
+impl Flood {
+    fn new() -> Self {
+        Self {
+            nodes: NodeTable::new(),
             heap: BinaryHeap::new(),
             reached: Vec::new(),
         }
     }
 }
 
-/// Per-thread flood state for [`Footprints::build_with`], kept between the builds on one
-/// level (each thread's state is one node per texel: 115 MB at 3.2 M texels, written and
-/// faulted in afresh by every build without it).
+/// Per-thread flood state for [`Footprints::build_with`], kept between builds so that
+/// each thread's table and heap are allocated once.
 #[derive(Default)]
 pub struct FloodScratch(super::per_thread::PerThread<Flood>);
 
@@ -585,7 +697,6 @@ impl Footprints {
         half: f32,
         scratch: &FloodScratch,
     ) -> Self {
-        let n = level.len();
         // Flooded in the order of the centres' texels, where neighbouring patches (which
         // overlap) follow one another and find their texels' state still in the caches
         // (the centres come in a hashed order: each flood started cold). Stored in the
@@ -595,16 +706,9 @@ impl Footprints {
             .par_iter()
             .map(|&i| centres[i as usize])
             .map(|c| {
-                scratch.0.with(
-                    || Flood::new(n),
-                    |fl| {
-                        // A state of another level's size is made anew.
-                        if fl.nodes.len() != n {
-                            *fl = Flood::new(n);
-                        }
-                        flood(level, fl, c as usize, half)
-                    },
-                )
+                scratch
+                    .0
+                    .with(Flood::new, |fl| flood(level, fl, c as usize, half))
             })
             .collect();
         let mut rank = vec![0u32; order.len()];
@@ -802,12 +906,7 @@ struct Flooded {
 
 /// One footprint (see the module docs).
 fn flood(level: &LevelTexels, fl: &mut Flood, c: usize, half: f32) -> Flooded {
-    fl.gen = fl.gen.wrapping_add(1);
-    if fl.gen == 0 {
-        fl.nodes.iter_mut().for_each(|s| s.stamp = 0);
-        fl.gen = 1;
-    }
-    let gen = fl.gen;
+    fl.nodes.clear();
     let pos = &level.geometry.pos;
     let normal = &level.geometry.normal;
     // Paths run over the edge graph (the 4-neighbourhood), so a path to a texel is at most
@@ -818,40 +917,45 @@ fn flood(level: &LevelTexels, fl: &mut Flood, c: usize, half: f32) -> Flooded {
     let keep = half + 1.0;
     fl.heap.clear();
     fl.reached.clear();
-    let nc = &mut fl.nodes[c];
-    nc.stamp = gen;
+    let (nc, _) = fl.nodes.entry(c as u32);
     nc.dist = 0.0;
-    nc.done = false;
     nc.parent = c as u32;
     fl.heap.push(Entry(0.0, c as u32));
-    while let Some(Entry(d, s)) = fl.heap.pop() {
-        let s = s as usize;
-        if fl.nodes[s].done || d > fl.nodes[s].dist {
+    // A finalised neighbour's coordinates and transported axis, if it has usable ones.
+    let placed = |nodes: &NodeTable, q: u32| {
+        nodes
+            .get(q)
+            .filter(|n| n.done && n.coord[0].is_finite())
+            .map(|n| (n.coord, n.e1))
+    };
+    while let Some(Entry(d, s32)) = fl.heap.pop() {
+        let s = s32 as usize;
+        let ns = *fl.nodes.at(s32);
+        if ns.done || d > ns.dist {
             continue;
         }
         // Finalise s: frame transported from its parent, coordinates averaged over the
         // continuations from its finalised neighbours ("upwind averaging").
-        if s == c {
-            fl.nodes[s].e1 = level.frames[c][0];
-            fl.nodes[s].coord = [0.0, 0.0];
+        let (e1, coord) = if s == c {
+            (level.frames[c][0], [0.0, 0.0])
         } else {
-            let p = fl.nodes[s].parent as usize;
+            let p = ns.parent as usize;
+            let np = *fl.nodes.at(ns.parent);
             // Steps into s are measured at s's local step (the scale map's factor there):
             // the coordinates are then the integral of the surface length over the local
             // step along the paths, so the example is laid at each texel's own scale.
             let inv_step = level.inv_step_at(s);
-            fl.nodes[s].e1 = transport(fl.nodes[p].e1, normal[p], normal[s]);
+            let e1 = transport(np.e1, normal[p], normal[s]);
             let nb = edges.of(s);
             // The step lengths to the placed neighbours, for the stretch test below (the
             // same values it computed again; NaN where a neighbour is not placed).
             let mut lens = [f32::NAN; 8];
             let (mut sx, mut sy, mut sw) = (0.0f32, 0.0f32, 0.0f32);
             for (k, &q) in nb.iter().enumerate() {
-                let q = q as usize;
-                let nq = &fl.nodes[q];
-                if nq.stamp != gen || !nq.done || !nq.coord[0].is_finite() {
+                let Some((lq, qe1)) = placed(&fl.nodes, q) else {
                     continue;
-                }
+                };
+                let q = q as usize;
                 let dp = unfolded(pos[s] - pos[q], normal[q], normal[s]);
                 let len = dp.length();
                 if let Some(l) = lens.get_mut(k) {
@@ -860,38 +964,35 @@ fn flood(level: &LevelTexels, fl: &mut Flood, c: usize, half: f32) -> Flooded {
                 if len <= 0.0 {
                     continue;
                 }
-                let (e1, e2) = (nq.e1, normal[q].cross(nq.e1));
+                let (e1, e2) = (qe1, normal[q].cross(qe1));
                 let w = 1.0 / len;
-                let lq = nq.coord;
                 let cx = lq[0] + dp.dot(e1) * inv_step;
                 let cy = lq[1] - dp.dot(e2) * inv_step;
                 sx += w * cx;
                 sy += w * cy;
                 sw += w;
             }
-            fl.nodes[s].coord = if sw > 0.0 {
+            let l = if sw > 0.0 {
                 [sx / sw, sy / sw]
             } else {
-                fl.nodes[p].coord
+                np.coord
             };
             // Where paths around a strongly curved part (a thin fin, an ear, a saddle) meet
             // from two sides, their continuations disagree, and the averaged coordinates
             // are squeezed or stretched against the surface: the patch would fold or smear
             // there. Such texels end the patch (smaller patches cover them later).
-            let l = fl.nodes[s].coord;
             let mut bad = false;
             for (k, &q) in nb.iter().enumerate() {
-                let q = q as usize;
-                let nq = &fl.nodes[q];
-                if nq.stamp != gen || !nq.done || !nq.coord[0].is_finite() {
+                let Some((lq, _)) = placed(&fl.nodes, q) else {
                     continue;
-                }
+                };
                 let len = match lens.get(k) {
                     Some(&l) => l,
-                    None => unfolded(pos[s] - pos[q], normal[q], normal[s]).length(),
+                    None => {
+                        unfolded(pos[s] - pos[q as usize], normal[q as usize], normal[s]).length()
+                    }
                 };
                 let dp = len * inv_step;
-                let lq = nq.coord;
                 let dl = (l[0] - lq[0]).hypot(l[1] - lq[1]);
                 if dp > 0.0 && !(STRETCH_MIN..=STRETCH_MAX).contains(&(dl / dp)) {
                     bad = true;
@@ -899,40 +1000,39 @@ fn flood(level: &LevelTexels, fl: &mut Flood, c: usize, half: f32) -> Flooded {
                 }
             }
             if bad {
-                fl.nodes[s].done = true;
-                fl.nodes[s].coord = [f32::INFINITY, f32::INFINITY];
+                let n = fl.nodes.at(s32);
+                n.e1 = e1;
+                n.done = true;
+                n.coord = [f32::INFINITY, f32::INFINITY];
                 continue;
             }
-        }
-        fl.nodes[s].done = true;
-        fl.reached.push(s as u32);
-        let ls = fl.nodes[s].coord;
-        if ls[0].abs().max(ls[1].abs()) > keep {
+            (e1, l)
+        };
+        let n = fl.nodes.at(s32);
+        n.e1 = e1;
+        n.coord = coord;
+        n.done = true;
+        fl.reached.push(s32);
+        if coord[0].abs().max(coord[1].abs()) > keep {
             continue; // outside the patch: not expanded further
         }
         for t in edges.of(s) {
-            let t = t as usize;
-            let nd = d + pos[s].distance(pos[t]);
+            let nd = d + pos[s].distance(pos[t as usize]);
             if nd > limit || !nd.is_finite() {
                 continue;
             }
-            let nt = &mut fl.nodes[t];
-            let fresh = nt.stamp != gen;
-            if fresh || (!nt.done && nd < nt.dist) {
-                if fresh {
-                    nt.stamp = gen;
-                    nt.done = false;
-                }
+            let (nt, _) = fl.nodes.entry(t);
+            if !nt.done && nd < nt.dist {
                 nt.dist = nd;
-                nt.parent = s as u32;
-                fl.heap.push(Entry(nd, t as u32));
+                nt.parent = s32;
+                fl.heap.push(Entry(nd, t));
             }
         }
     }
     let order = std::mem::take(&mut fl.reached);
     let mut out = Flooded::default();
     for &t in &order {
-        let node = &fl.nodes[t as usize];
+        let node = fl.nodes.get(t).expect("reached texels are in the table");
         let l = node.coord;
         if l[0].abs() <= half && l[1].abs() <= half {
             out.texels.push(t);

@@ -347,6 +347,9 @@ pub fn run<const K: usize>(
         for (si, &size) in params.sizes.iter().enumerate() {
             let size = size.min(ex.width().min(ex.height()) / 2).max(4);
             let key = hash(target.seed, &[0x0971, li as u64, si as u64]);
+            // Only the last size's footprints and texture serve the final assembly: the
+            // previous size's are not held while this one builds its own.
+            drop(last.take());
             let res = optimise_size(
                 &ex,
                 level,
@@ -569,33 +572,34 @@ fn optimise_size<const K: usize>(
         // M-step: per texel, the votes of the patches covering it (`vote`: the level's).
         let expo = (params.r - 2.0) / 2.0;
         let omega: Vec<f32> = err.iter().map(|&e| (e + 1e-6).powf(expo)).collect();
-        let upd: Vec<([f32; K], [f32; 2], Turn)> = (0..n)
-            .into_par_iter()
-            .map_init(Vec::new, |votes: &mut Vec<Ballot<K>>, t| {
-                let (a, b) = (mstart[t] as usize, mstart[t + 1] as usize);
-                if a == b {
-                    return (x[t], source[t], turn[t]);
-                }
-                votes.clear();
-                votes.extend((a..b).map(|k| {
-                    let p = mlist[k] as usize;
-                    let l = mcoord[k];
-                    let s = [z[p][0] + l[0], z[p][1] + l[1]];
-                    Ballot {
-                        weight: omega[p] * falloff(l),
-                        source: s,
-                        turn: mturn[k],
-                        value: f.sample(s[0], s[1]),
+        // In place: a texel's new value reads only its own state and the patches'
+        // positions, so no per-texel copy of the state is held beside it.
+        x.par_iter_mut()
+            .zip(source.par_iter_mut())
+            .zip(turn.par_iter_mut())
+            .enumerate()
+            .for_each_init(
+                Vec::new,
+                |votes: &mut Vec<Ballot<K>>, (t, ((xt, st), ot))| {
+                    let (a, b) = (mstart[t] as usize, mstart[t + 1] as usize);
+                    if a == b {
+                        return;
                     }
-                }));
-                vote.count(votes)
-            })
-            .collect();
-        for (t, (v, s, o)) in upd.into_iter().enumerate() {
-            x[t] = v;
-            source[t] = s;
-            turn[t] = o;
-        }
+                    votes.clear();
+                    votes.extend((a..b).map(|k| {
+                        let p = mlist[k] as usize;
+                        let l = mcoord[k];
+                        let s = [z[p][0] + l[0], z[p][1] + l[1]];
+                        Ballot {
+                            weight: omega[p] * falloff(l),
+                            source: s,
+                            turn: mturn[k],
+                            value: f.sample(s[0], s[1]),
+                        }
+                    }));
+                    (*xt, *st, *ot) = vote.count(votes);
+                },
+            );
         tick();
     }
     let energy = err.iter().map(|&e| e as f64).sum::<f64>() / np.max(1) as f64;
