@@ -109,8 +109,9 @@ const SYNTH_TEXEL: u64 = 64;
 /// Measured on Spot (2026-12-03): peak 264 MiB at N = 64, 882 at N = 128 (209 B per
 /// texel between them). Since the footprint floods keep their state in a small table per
 /// thread instead of a node per texel per thread (2026-12-06): 191 and 720 MiB (179 B per
-/// texel between them; estimate / peak 1.13 and 1.06 at 80).
-const PATCHES_TEXEL: u64 = 80;
+/// texel between them); and the cuts' texel index too: 178 and 618 MiB (149 B per texel;
+/// estimate / peak 1.05 and 1.04 at 50).
+const PATCHES_TEXEL: u64 = 50;
 /// `synth --method optimise`, per texel on top of [`SYNTH_TEXEL`]: the footprints of
 /// every level, the per-texel accumulators of the M-step, the optimised sources and
 /// colours, and the patch sampling that starts the coarsest level. Measured on Spot

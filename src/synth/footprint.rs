@@ -32,6 +32,7 @@
 //!
 //! Footprints are computed once per level and reused by every iteration.
 
+use super::texel_table::TexelTable;
 use crate::field::OrientationField;
 use crate::layout::TexelLayout;
 use crate::texels::{EdgeGraph, TexelGeometry, TexelGraph};
@@ -524,27 +525,18 @@ impl PartialOrd for Entry {
     }
 }
 
-/// Per-thread flood state: the texels one flood has reached, in a small hash table.
-///
-/// It was one node per texel of the level, per thread (36 B per texel and thread: 74 MB
-/// at 1 M texels on two threads, and eight times that on sixteen), while a flood reaches
-/// a few hundred to a few thousand texels. The table holds only those, is reused by every
-/// flood of the thread and stays in the caches; peak memory no longer grows with the
-/// number of threads or with the level's size.
+/// Per-thread flood state: the texels one flood has reached ([`TexelTable`]: a few
+/// hundred to a few thousand, not a node per texel of the level per thread).
 pub struct Flood {
-    nodes: NodeTable,
+    nodes: TexelTable<Node>,
     heap: BinaryHeap<Entry>,
     reached: Vec<u32>,
 }
 
 /// One texel's flood state, kept together: a flood step reads all of it for the texel
-/// and each of its neighbours, one cache line each.
+/// and each of its neighbours.
 #[derive(Clone, Copy)]
 struct Node {
-    /// The flood (generation) that wrote this slot; other slots are empty.
-    stamp: u32,
-    /// The texel it belongs to.
-    key: u32,
     dist: f32,
     parent: u32,
     done: bool,
@@ -553,118 +545,15 @@ struct Node {
     e1: Vec3,
 }
 
-const EMPTY: Node = Node {
-    stamp: 0,
-    key: 0,
-    dist: 0.0,
-    parent: 0,
-    done: false,
-    coord: [0.0; 2],
-    e1: Vec3::ZERO,
-};
-
-/// Open addressing with linear probing, keyed by texel, emptied lazily by generation
-/// stamps (a new flood bumps the generation; nothing is ever removed within one).
-struct NodeTable {
-    slots: Vec<Node>,
-    gen: u32,
-    len: usize,
-}
-
-impl NodeTable {
-    fn new() -> Self {
+impl Default for Node {
+    /// Not reached yet: not done, at an infinite distance.
+    fn default() -> Self {
         Self {
-            slots: vec![EMPTY; 1 << 12],
-            gen: 1,
-            len: 0,
-        }
-    }
-
-    /// Empties the table for the next flood.
-    fn clear(&mut self) {
-        self.gen = self.gen.wrapping_add(1);
-        if self.gen == 0 {
-            self.slots.iter_mut().for_each(|n| n.stamp = 0);
-            self.gen = 1;
-        }
-        self.len = 0;
-    }
-
-    #[inline]
-    fn home(&self, t: u32) -> usize {
-        // Fibonacci hashing: texels of a patch are runs of nearby indices, which the
-        // multiplication spreads over the table.
-        (t.wrapping_mul(0x9E37_79B1) as usize >> 8) & (self.slots.len() - 1)
-    }
-
-    /// The state of texel `t` if this flood has reached it.
-    #[inline]
-    fn get(&self, t: u32) -> Option<&Node> {
-        let mask = self.slots.len() - 1;
-        let mut i = self.home(t);
-        loop {
-            let n = &self.slots[i];
-            if n.stamp != self.gen {
-                return None;
-            }
-            if n.key == t {
-                return Some(n);
-            }
-            i = (i + 1) & mask;
-        }
-    }
-
-    /// Texel `t`'s state, which it must have.
-    #[inline]
-    fn at(&mut self, t: u32) -> &mut Node {
-        let mask = self.slots.len() - 1;
-        let mut i = self.home(t);
-        while self.slots[i].key != t || self.slots[i].stamp != self.gen {
-            debug_assert_eq!(self.slots[i].stamp, self.gen, "texel {t} not reached");
-            i = (i + 1) & mask;
-        }
-        &mut self.slots[i]
-    }
-
-    /// Texel `t`'s state, added (not done, at an infinite distance) if new; the flag
-    /// says it was.
-    #[inline]
-    fn entry(&mut self, t: u32) -> (&mut Node, bool) {
-        if 2 * (self.len + 1) > self.slots.len() {
-            self.grow();
-        }
-        let mask = self.slots.len() - 1;
-        let mut i = self.home(t);
-        loop {
-            if self.slots[i].stamp != self.gen {
-                self.len += 1;
-                self.slots[i] = Node {
-                    stamp: self.gen,
-                    key: t,
-                    dist: f32::INFINITY,
-                    ..EMPTY
-                };
-                return (&mut self.slots[i], true);
-            }
-            if self.slots[i].key == t {
-                return (&mut self.slots[i], false);
-            }
-            i = (i + 1) & mask;
-        }
-    }
-
-    /// Doubles the table, keeping this flood's entries.
-    fn grow(&mut self) {
-        let bigger = vec![EMPTY; 2 * self.slots.len()];
-        let old = std::mem::replace(&mut self.slots, bigger);
-        let gen = self.gen;
-        let mask = self.slots.len() - 1;
-        for n in old.into_iter().filter(|n| n.stamp == gen) {
-            let mut i = self.home(n.key);
-            while self.slots[i].stamp == gen {
-                i = (i + 1) & mask;
-            }
-            self.slots[i] = n;
+            dist: f32::INFINITY,
+            parent: 0,
+            done: false,
+            coord: [0.0; 2],
+            e1: Vec3::ZERO,
         }
     }
 }
@@ -672,7 +561,7 @@ impl NodeTable {
 impl Flood {
     fn new() -> Self {
         Self {
-            nodes: NodeTable::new(),
+            nodes: TexelTable::new(),
             heap: BinaryHeap::new(),
             reached: Vec::new(),
         }
@@ -922,7 +811,7 @@ fn flood(level: &LevelTexels, fl: &mut Flood, c: usize, half: f32) -> Flooded {
     nc.parent = c as u32;
     fl.heap.push(Entry(0.0, c as u32));
     // A finalised neighbour's coordinates and transported axis, if it has usable ones.
-    let placed = |nodes: &NodeTable, q: u32| {
+    let placed = |nodes: &TexelTable<Node>, q: u32| {
         nodes
             .get(q)
             .filter(|n| n.done && n.coord[0].is_finite())

@@ -43,6 +43,7 @@ pub mod patches;
 pub mod per_thread;
 pub mod schedule;
 pub mod synth2d;
+pub mod texel_table;
 pub mod textons;
 
 pub use analysis::Analyses;

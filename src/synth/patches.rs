@@ -45,6 +45,7 @@ use super::matching::features::dist2;
 use super::matching::pixel_grid;
 use super::matching::search::hash;
 use super::mincut::CutGraph;
+use super::texel_table::TexelTable;
 use rayon::prelude::*;
 
 use serde::Serialize;
@@ -174,9 +175,9 @@ struct Ctx<'a, const K: usize> {
 
 /// Per-thread scratch.
 struct Scratch {
-    node: Vec<u32>,
-    stamp: Vec<u32>,
-    gen: u32,
+    /// Each footprint texel's index in the footprint (only this patch's texels: a
+    /// [`TexelTable`], not an entry per texel of the level per thread).
+    local: TexelTable<u32>,
     cands: Vec<[f32; 2]>,
     errs: Vec<(f32, u32)>,
     graph: CutGraph,
@@ -187,11 +188,9 @@ struct Scratch {
 }
 
 impl Scratch {
-    fn new(texels: usize) -> Self {
+    fn new() -> Self {
         Self {
-            node: vec![0; texels],
-            stamp: vec![0; texels],
-            gen: 0,
+            local: TexelTable::new(),
             cands: Vec::new(),
             errs: Vec::new(),
             graph: CutGraph::default(),
@@ -320,17 +319,15 @@ fn paste_waves<const K: usize>(
     mut positions: Option<&mut [[f32; 2]]>,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) {
-    let n = state.src.len();
     let total: usize = waves.iter().map(|w| w.len()).sum();
     let mut done = 0;
     for wave in waves {
         let pastes: Vec<Paste> = wave
             .par_iter()
             .map(|&p| {
-                scratch.with(
-                    || Scratch::new(n),
-                    |s| paste(ctx, p as usize, &state.src, &state.set, &state.app, s),
-                )
+                scratch.with(Scratch::new, |s| {
+                    paste(ctx, p as usize, &state.src, &state.set, &state.app, s)
+                })
             })
             .collect();
         for (&p, r) in wave.iter().zip(pastes) {
@@ -864,14 +861,9 @@ fn join<const K: usize>(
     let m = texels.len();
     let f = &c.ex.features;
     // Minimum-error cut over the footprint.
-    s.gen = s.gen.wrapping_add(1);
-    if s.gen == 0 {
-        s.stamp.iter_mut().for_each(|x| *x = 0);
-        s.gen = 1;
-    }
+    s.local.clear();
     for (i, &t) in texels.iter().enumerate() {
-        s.stamp[t as usize] = s.gen;
-        s.node[t as usize] = i as u32;
+        s.local.insert(t, i as u32);
     }
     s.diff.clear();
     for (&t, &l) in texels.iter().zip(coords) {
@@ -899,7 +891,7 @@ fn join<const K: usize>(
         let l = coords[i];
         let class = if !set[t] || (l[0].abs() <= core && l[1].abs() <= core) {
             NEW
-        } else if edges.of(t).iter().any(|&u| s.stamp[u as usize] != s.gen) {
+        } else if edges.of(t).iter().any(|&u| !s.local.contains(u)) {
             OLD
         } else {
             FREE
@@ -915,12 +907,14 @@ fn join<const K: usize>(
         let ci = s.class[i];
         let t = t as usize;
         for u in edges.of(t) {
-            let u = u as usize;
             // Each edge once (from its lower texel), inside the footprint.
-            if u < t || s.stamp[u] != s.gen {
+            if (u as usize) < t {
                 continue;
             }
-            let j = s.node[u] as usize;
+            let Some(&j) = s.local.get(u) else {
+                continue;
+            };
+            let j = j as usize;
             let cj = s.class[j];
             if ci != FREE && cj != FREE {
                 continue; // within one terminal, or a constant cost between the two

@@ -1,10 +1,10 @@
 //! Scratch buffers that live as long as a run, one per worker thread.
 //!
-//! The patch methods index per-texel scratch arrays (a generation stamp per texel, so that
-//! clearing is free); allocating and zeroing those per rayon task would cost more than the
-//! work itself (a 250k-texel map is megabytes per task, and `map_init` creates one per
-//! split). Each worker thread instead borrows its own slot. Results never depend on which
-//! slot a task got: scratch contents are reset (by stamp) before use.
+//! The patch methods keep per-patch scratch state (a [`super::texel_table::TexelTable`]
+//! of the patch's texels, heaps, cut graphs); allocating it per rayon task would cost
+//! more than the work itself (`map_init` creates one per split). Each worker thread
+//! instead borrows its own slot. Results never depend on which slot a task got: scratch
+//! contents are reset before use.
 
 use std::sync::Mutex;
 
