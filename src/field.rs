@@ -1412,6 +1412,20 @@ fn two_colour(start: &[u32], nbr: &[u32]) -> Option<Vec<Vec<u32>>> {
 /// their seed-to-seed spread.
 pub const TEXELS_PER_FACE: u64 = 64;
 
+/// Finest level of the smoothest field (`auto`) when it is sized by a texel count
+/// ([`FieldOptions::texels`]): 64 faces per base quad. Without targets the field is the
+/// smoothest one the surface allows — it turns only as the surface's shape makes it, at the
+/// scale of the control mesh, not of the texels — and is blended bilinearly inside faces, so
+/// a finer level than this only costs time once texels outnumber its faces. Measured on
+/// Spot at N = 128 (level 4 instead of 5; docs/field.md, "Level"): the field moves by a
+/// median 0.36° (p99 4.4°, near singularities), turns as little between adjacent texels
+/// (0.1333° against 0.1331°), coherent's pf4/pf8/seams stay within the seeds' spread, and
+/// the field stage takes about a third of its time. Fields with targets (`up`, axes,
+/// constraints) follow the surface's normal and put singularities where it is level: on
+/// level 4 texture optimisation with `up` lost 6% of pf8 on bricks, so they keep the
+/// texel-count level.
+pub const SMOOTH_MAX_LEVEL: u32 = 4;
+
 /// The level the field lives on: [`FieldOptions::level`], or the automatic one.
 fn final_level(surface: &Surface, opts: &FieldOptions) -> u32 {
     match opts.level {
@@ -1501,6 +1515,15 @@ impl OrientationField {
             field.label = orientation.label();
             field.choice = Some(choice);
             return Ok(field);
+        }
+        if *orientation == Orientation::Auto && opts.level.is_none() && opts.texels.is_some() {
+            // The smoothest field has no detail finer than the surface's own shape: level
+            // [`SMOOTH_MAX_LEVEL`] at most, whatever the texel count.
+            let capped = FieldOptions {
+                max_level: opts.max_level.min(SMOOTH_MAX_LEVEL),
+                ..opts.clone()
+            };
+            return Self::compute_fixed(surface, orientation, &capped);
         }
         if *orientation != Orientation::Straight {
             return Self::compute_fixed(surface, orientation, opts);

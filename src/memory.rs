@@ -44,10 +44,15 @@ use subdiv::{ControlMesh, FaceId, Surface};
 /// so once a per-texel array of a few MiB is freed, later blocks below that size come
 /// from heaps that are trimmed only at their top: freed memory stays resident. Measured on
 /// Spot N = 128 (jump), the write stage held ~80 MiB more resident than the process had
-/// allocated (peak RSS 508 MiB against 428 MiB with this). Fixed thresholds of 1 MiB
-/// (blocks from 1 MiB up are mapped on their own and unmapped when freed; heaps are trimmed
-/// above 1 MiB free) keep RSS near what is allocated; the run's time is unchanged
-/// (docs/benchmarks.md). Skipped when `GLIBC_TUNABLES` sets malloc's own, and on other
+/// allocated (peak RSS 508 MiB against 428 MiB with this). Fixed thresholds (blocks from
+/// the threshold up are mapped on their own and unmapped when freed; heaps are trimmed
+/// above that much free) keep RSS near what is allocated; the run's time is unchanged
+/// (docs/benchmarks.md). 128 KiB, was 1 MiB: the end of a run allocates many blocks of a
+/// few hundred KiB (a domain's EXR tile or Ptex face, an atlas tile: 0.2–0.6 MiB at
+/// N = 128) on several threads; below 1 MiB they came from per-thread heaps and stayed
+/// resident once freed — coherent Spot N = 128 peaked at ~456 MiB of RSS for ~390 MiB
+/// allocated, 400 MiB with 128 KiB (marginal 109 → 90 B per texel; docs/benchmarks.md,
+/// "Spot at N = 128"). Skipped when `GLIBC_TUNABLES` sets malloc's own, and on other
 /// platforms (whose allocators are not glibc's). Allocation only: results do not change.
 pub fn tune_allocator() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
@@ -61,7 +66,7 @@ pub fn tune_allocator() {
         // <malloc.h>
         const M_TRIM_THRESHOLD: i32 = -1;
         const M_MMAP_THRESHOLD: i32 = -3;
-        const THRESHOLD: i32 = 1 << 20;
+        const THRESHOLD: i32 = 128 << 10;
         // SAFETY: mallopt only sets allocator parameters; called before other threads
         // exist, and both values are within glibc's documented ranges.
         unsafe {

@@ -164,7 +164,7 @@ impl<'a> TexelPoints<'a> {
 /// The texel point cloud of one result.
 ///
 /// Per texel it holds only the lazily computed cover spacing (4 B) and its share of the
-/// neighbour index ([`TexelBvh`]: two tree nodes of 56 B per 4x4 block of texels, ~8 B
+/// neighbour index ([`TexelBvh`]: two tree nodes of 32 B per 4x4 block of texels, ~4 B
 /// per texel);
 /// positions, normals and colours are read where they already are (the maps or the texel
 /// geometry) and converted on use (exactly: f32 to f64, the normal normalised as before).

@@ -45,10 +45,15 @@ struct Block {
 
 /// A tree node: the box of its blocks; a leaf holds one block, an inner node's left child
 /// is the next node and its right child `right`.
+///
+/// The box is kept in f32 (32 B a node instead of 56: 3 B per texel less at the end of a
+/// `synth` run, where this index is part of the peak): its corners are minima and maxima
+/// of f32 texel positions, so f32 holds them exactly and every distance and split is the
+/// one computed from f64 corners.
 #[derive(Clone, Copy, Debug)]
 struct Node {
-    lo: [f64; 3],
-    hi: [f64; 3],
+    lo: [f32; 3],
+    hi: [f32; 3],
     right: u32,
     /// The block of a leaf, [`INNER`] for an inner node.
     block: u32,
@@ -56,9 +61,12 @@ struct Node {
 
 const INNER: u32 = u32::MAX;
 
+/// A block's box: lowest and highest corner.
+type Corners = ([f32; 3], [f32; 3]);
+
 const EMPTY: Node = Node {
-    lo: [f64::INFINITY; 3],
-    hi: [f64::NEG_INFINITY; 3],
+    lo: [f32::INFINITY; 3],
+    hi: [f32::NEG_INFINITY; 3],
     right: 0,
     block: INNER,
 };
@@ -86,6 +94,7 @@ fn dist2(p: &[f64; 3], q: DVec3) -> f64 {
 fn box_dist2(p: &[f64; 3], n: &Node) -> f64 {
     let mut acc = 0.0;
     for ((&x, &lo), &hi) in p.iter().zip(&n.lo).zip(&n.hi) {
+        let (lo, hi) = (lo as f64, hi as f64);
         let d = if x < lo {
             lo - x
         } else if x > hi {
@@ -141,8 +150,9 @@ impl<'a> TexelBvh<'a> {
             nodes: Vec::new(),
             valid,
         };
-        // Leaf boxes (empty boxes for blocks without a valid texel: left out).
-        let boxes: Vec<([f64; 3], [f64; 3])> = s
+        // Leaf boxes (empty boxes for blocks without a valid texel: left out), in f32:
+        // exact, the corners are f32 positions (`Node`).
+        let boxes: Vec<Corners> = s
             .blocks
             .par_iter()
             .map(|b| {
@@ -153,7 +163,7 @@ impl<'a> TexelBvh<'a> {
                         hi[k] = hi[k].max(q[k]);
                     }
                 });
-                (lo, hi)
+                (lo.map(|v| v as f32), hi.map(|v| v as f32))
             })
             .collect();
         let mut items: Vec<u32> = (0..s.blocks.len() as u32)
@@ -290,7 +300,7 @@ impl<'a> TexelBvh<'a> {
 /// them, this subtree's root first, the right child's offset from its parent in `right`):
 /// split at the median of the block centres along the longest side of their bounds, ties
 /// by block index, so the tree depends on nothing but the boxes.
-fn build_tree(nodes: &mut [Node], items: &mut [u32], boxes: &[([f64; 3], [f64; 3])]) {
+fn build_tree(nodes: &mut [Node], items: &mut [u32], boxes: &[Corners]) {
     debug_assert_eq!(nodes.len(), 2 * items.len() - 1);
     if items.len() == 1 {
         let (lo, hi) = boxes[items[0] as usize];
@@ -304,7 +314,7 @@ fn build_tree(nodes: &mut [Node], items: &mut [u32], boxes: &[([f64; 3], [f64; 3
     }
     let centre = |b: u32, k: usize| {
         let (lo, hi) = &boxes[b as usize];
-        0.5 * (lo[k] + hi[k])
+        0.5 * (lo[k] as f64 + hi[k] as f64)
     };
     let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
     for &b in items.iter() {

@@ -366,13 +366,22 @@ pub fn check_finite_by(
     )))
 }
 
+/// Bytes of tiles per batch of [`write_tiles`]. Two batches per file are in flight (one
+/// written while the next is filled), each held twice for a moment (the filled tile and its
+/// interleaved block), and `synth` writes facemaps.exr and geometry.exr at once, beside the
+/// pf summary and the atlas: at the end of a run these buffers add to the maps and the texel
+/// geometry. 8 MiB (was 32) still gives every thread a dozen tiles at N = 128 and keeps
+/// the end-of-run peak ~100 MiB lower when both files are being written (docs/benchmarks.md,
+/// "Spot at N = 128").
+pub const BATCH_BYTES: usize = 8 << 20;
+
 /// Streams a face-map file: `fill(f, tile)` is called once per domain f (in parallel on
 /// the current rayon pool) and must write the domain's nu·nv texels of every channel into
 /// `tile` (zeroed, length `names.len()·nu·nv`, channel-major in the order of `names`, each
 /// channel row-major, nu wide). The writer places them at the top-left of the domain's
 /// tile and zero-fills the rest of it. `progress(done)` gets the number of domains written so far.
 ///
-/// Memory stays bounded by two batches of tiles (about 32 MiB each, at least one tile per
+/// Memory stays bounded by two batches of tiles (about [`BATCH_BYTES`] each, at least one tile per
 /// thread), and output bytes do not depend on the number of threads: tiles are filled
 /// independently and written in file order.
 pub fn write_tiles<F>(
@@ -493,8 +502,8 @@ where
 
     let tile_bytes = names.len() * tw * th * 4;
     let threads = rayon::current_num_threads().max(1);
-    // Two batches are in flight (one being written, one being computed): ~32 MiB each.
-    let batch = ((32usize << 20) / tile_bytes.max(1))
+    // Two batches are in flight (one being written, one being computed).
+    let batch = (BATCH_BYTES / tile_bytes.max(1))
         .clamp(threads, 4096)
         .max(1);
     let total = layout.tile_count();

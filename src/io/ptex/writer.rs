@@ -311,6 +311,13 @@ fn check(img: &PtexImage) -> Result<()> {
     Ok(())
 }
 
+/// Texel bytes per batch of levels 0 and 1 in [`write_ptex`]. Two batches are in flight
+/// (one written while the next is encoded), and at the end of `synth` they add to the maps,
+/// the texel geometry, both EXR writers and the pf summary: 8 MiB (was 32) keeps a dozen
+/// faces per thread at N = 128 and ~48 MiB off the end-of-run peak (docs/benchmarks.md,
+/// "Spot at N = 128"). The file's bytes do not depend on it.
+const BATCH_BYTES: usize = 8 << 20;
+
 /// Writes `img` to `path` atomically; `fill(f, buf)` must put face f's texels into `buf`
 /// (zeroed, `channels × u × v` values: channel-major, each channel row-major with u
 /// fastest, row 0 at v = 0). `fill` is called from several threads, two or three times per
@@ -509,8 +516,8 @@ where
             }
             continue;
         }
-        // Levels 0 and 1: encode again, batch by batch (~32 MiB of texels each), while
-        // the previous batch is written.
+        // Levels 0 and 1: encode again, batch by batch (~BATCH_BYTES of texels each),
+        // while the previous batch is written.
         let units: Vec<usize> = order
             .iter()
             .copied()
@@ -521,7 +528,7 @@ where
         while start < units.len() {
             let mut bytes = 0usize;
             let mut end = start;
-            while end < units.len() && (end == start || bytes < 32 << 20) {
+            while end < units.len() && (end == start || bytes < BATCH_BYTES) {
                 bytes += (img.faces[units[end]].res.size() * nch * 4) >> (2 * i);
                 end += 1;
             }
