@@ -20,7 +20,10 @@
 
 use crate::error::Result;
 use crate::example::MapKind;
-use crate::io::atlas::{build_atlas, build_atlas_of, encode_png, encode_png16, Atlas, AtlasLayout};
+use crate::io::atlas::{
+    build_atlas_8bit, build_atlas_8bit_of, build_atlas_of, encode_png, encode_png16, Atlas,
+    AtlasLayout,
+};
 use crate::io::exr::FaceMaps;
 use crate::io::gltf::Orm;
 use rayon::prelude::*;
@@ -150,8 +153,8 @@ pub fn material_images(
         || {
             rayon::join(
                 || -> Result<(Vec<u8>, bool)> {
-                    let a = build_atlas(surface, maps, gutter)?;
-                    Ok((png(a.to_8bit(), a.channels)?, a.channels == 4))
+                    let (pixels, channels) = build_atlas_8bit(surface, maps, gutter)?;
+                    Ok((png(pixels, channels)?, channels == 4))
                 },
                 || {
                     rayon::join(
@@ -162,8 +165,8 @@ pub fn material_images(
                             if let Some(a) = normal_uv {
                                 return png(a.to_8bit_with(0), 3).map(Some);
                             }
-                            let a = build_atlas_of(surface, chans, maps, gutter)?;
-                            png(a.to_8bit_with(0), 3).map(Some)
+                            let (_, pixels) = build_atlas_8bit_of(surface, chans, maps, gutter, 0)?;
+                            png(pixels, 3).map(Some)
                         },
                         || -> Result<Option<Vec<u8>>> {
                             if orm == Orm::default() {
@@ -175,8 +178,9 @@ pub fn material_images(
                                 rough.unwrap_or(&ones),
                                 metal.unwrap_or(&zeros),
                             ];
-                            let a = build_atlas_of(surface, &chans, maps, gutter)?;
-                            png(a.to_8bit_with(0), 3).map(Some)
+                            let (_, pixels) =
+                                build_atlas_8bit_of(surface, &chans, maps, gutter, 0)?;
+                            png(pixels, 3).map(Some)
                         },
                     )
                 },
