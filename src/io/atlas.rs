@@ -457,12 +457,18 @@ pub fn build_atlas_8bit_of(
 ) -> Result<(AtlasLayout, Vec<u8>)> {
     let k = chans.len();
     fill_atlas(surface, chans, maps, gutter, |tile, out| {
-        for (o, px) in out.chunks_exact_mut(k).zip(tile.chunks_exact(k)) {
-            for (c, (b, &v)) in o.iter_mut().zip(px).enumerate() {
-                *b = to_8bit_value(v, c < srgb);
-            }
-        }
+        to_8bit_pixels(tile, out, k, srgb)
     })
+}
+
+/// Pixels of `k` channels to 8 bits, the first `srgb` channels sRGB-encoded
+/// ([`to_8bit_value`]).
+fn to_8bit_pixels(px: &[f32], out: &mut [u8], k: usize, srgb: usize) {
+    for (o, px) in out.chunks_exact_mut(k).zip(px.chunks_exact(k)) {
+        for (c, (b, &v)) in o.iter_mut().zip(px).enumerate() {
+            *b = to_8bit_value(v, c < srgb);
+        }
+    }
 }
 
 /// One channel value of [`Atlas::to_8bit_with`]: sRGB-encoded or linear, NaN as 0.
@@ -649,13 +655,7 @@ impl Atlas {
         let mut out = vec![0u8; self.pixels.len()];
         out.par_chunks_mut(k * 4096)
             .zip(self.pixels.par_chunks(k * 4096))
-            .for_each(|(o, px)| {
-                for (o, px) in o.chunks_exact_mut(k).zip(px.chunks_exact(k)) {
-                    for (c, (b, &v)) in o.iter_mut().zip(px).enumerate() {
-                        *b = to_8bit_value(v, c < srgb);
-                    }
-                }
-            });
+            .for_each(|(o, px)| to_8bit_pixels(px, o, k, srgb));
         out
     }
 

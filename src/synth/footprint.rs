@@ -531,6 +531,8 @@ pub struct Flood {
     nodes: TexelTable<Node>,
     heap: BinaryHeap<Entry>,
     reached: Vec<u32>,
+    /// The finalised neighbours of the texel being placed: step length, coordinates.
+    near: Vec<(f32, [f32; 2])>,
 }
 
 /// One texel's flood state, kept together: a flood step reads all of it for the texel
@@ -564,6 +566,7 @@ impl Flood {
             nodes: TexelTable::new(),
             heap: BinaryHeap::new(),
             reached: Vec::new(),
+            near: Vec::new(),
         }
     }
 }
@@ -836,20 +839,18 @@ fn flood(level: &LevelTexels, fl: &mut Flood, c: usize, half: f32) -> Flooded {
             let inv_step = level.inv_step_at(s);
             let e1 = transport(np.e1, normal[p], normal[s]);
             let nb = edges.of(s);
-            // The step lengths to the placed neighbours, for the stretch test below (the
-            // same values it computed again; NaN where a neighbour is not placed).
-            let mut lens = [f32::NAN; 8];
+            // The placed neighbours' step lengths and coordinates, for the stretch test
+            // below (one table look-up per neighbour).
+            fl.near.clear();
             let (mut sx, mut sy, mut sw) = (0.0f32, 0.0f32, 0.0f32);
-            for (k, &q) in nb.iter().enumerate() {
+            for &q in nb.iter() {
                 let Some((lq, qe1)) = placed(&fl.nodes, q) else {
                     continue;
                 };
                 let q = q as usize;
                 let dp = unfolded(pos[s] - pos[q], normal[q], normal[s]);
                 let len = dp.length();
-                if let Some(l) = lens.get_mut(k) {
-                    *l = len;
-                }
+                fl.near.push((len, lq));
                 if len <= 0.0 {
                     continue;
                 }
@@ -870,24 +871,11 @@ fn flood(level: &LevelTexels, fl: &mut Flood, c: usize, half: f32) -> Flooded {
             // from two sides, their continuations disagree, and the averaged coordinates
             // are squeezed or stretched against the surface: the patch would fold or smear
             // there. Such texels end the patch (smaller patches cover them later).
-            let mut bad = false;
-            for (k, &q) in nb.iter().enumerate() {
-                let Some((lq, _)) = placed(&fl.nodes, q) else {
-                    continue;
-                };
-                let len = match lens.get(k) {
-                    Some(&l) => l,
-                    None => {
-                        unfolded(pos[s] - pos[q as usize], normal[q as usize], normal[s]).length()
-                    }
-                };
+            let bad = fl.near.iter().any(|&(len, lq)| {
                 let dp = len * inv_step;
                 let dl = (l[0] - lq[0]).hypot(l[1] - lq[1]);
-                if dp > 0.0 && !(STRETCH_MIN..=STRETCH_MAX).contains(&(dl / dp)) {
-                    bad = true;
-                    break;
-                }
-            }
+                dp > 0.0 && !(STRETCH_MIN..=STRETCH_MAX).contains(&(dl / dp))
+            });
             if bad {
                 let n = fl.nodes.at(s32);
                 n.e1 = e1;
