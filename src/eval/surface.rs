@@ -346,10 +346,28 @@ impl<'a> Cloud<'a> {
         }
     }
 
+    /// The texel nearest to `p`; `near` and its in-face 3x3 neighbours seed the search
+    /// ([`TexelBvh::nearest_seeded`]: the same answer, found sooner).
     #[inline]
     fn nearest(&self, p: DVec3, near: usize) -> usize {
+        let mut seeds = [near; 9];
+        let mut k = 1;
+        if near < self.layout.len() {
+            let (d, x, y) = self.layout.coords(near);
+            let (nu, nv) = self.layout.dims(d);
+            let row0 = near - x;
+            for yy in y.saturating_sub(1)..(y + 2).min(nv) {
+                let row = row0 + yy * nu - y * nu;
+                for xx in x.saturating_sub(1)..(x + 2).min(nu) {
+                    if (xx, yy) != (x, y) {
+                        seeds[k] = row + xx;
+                        k += 1;
+                    }
+                }
+            }
+        }
         // A cloud has a valid texel (`build`); a NaN point finds none: the first texel.
-        self.index.nearest(p, Some(near)).unwrap_or(0)
+        self.index.nearest_seeded(p, &seeds[..k]).unwrap_or(0)
     }
 
     /// Texels within `radius` of `p`, in texel order.
@@ -568,28 +586,38 @@ impl<'a> Cloud<'a> {
             return self.col(k);
         }
         let sheet = 0.5 * radius + 0.5 * self.h;
-        let mut acc = [0f64; 3];
-        let mut cnt = 0usize;
-        for j in self.within(st.p, radius) {
-            let d = self.pos(j) - st.p;
+        // The texels of the disc, summed in texel order. The tests are pure, so their
+        // order is free: the normal (a normalisation per texel) only for texels in the disc.
+        let mut inside: Vec<usize> = Vec::with_capacity(64);
+        self.index.for_within(st.p, radius * radius, |j, pj| {
+            let d = pj - st.p;
             let dn = d.dot(st.n);
-            if dn.abs() > sheet || self.nrm(j).dot(st.n) < 0.5 {
-                continue;
+            if dn.abs() > sheet {
+                return;
             }
             let dt = d - st.n * dn;
             let (ra, rb) = (dt.dot(st.a), dt.dot(st.b));
             let alpha = (g22 * ra - g12 * rb) / det;
             let beta = (g11 * rb - g12 * ra) / det;
             if alpha * alpha + beta * beta <= r * r + 1e-3 {
-                for (a, c) in acc.iter_mut().zip(self.col(j)) {
-                    *a += c as f64;
+                // Another sheet (a NaN normal product is not one, as before).
+                let turned = self.nrm(j).dot(st.n) < 0.5;
+                if !turned {
+                    inside.push(j);
                 }
-                cnt += 1;
             }
-        }
-        if cnt == 0 {
+        });
+        if inside.is_empty() {
             return self.col(k);
         }
+        inside.sort_unstable();
+        let mut acc = [0f64; 3];
+        for &j in &inside {
+            for (a, c) in acc.iter_mut().zip(self.col(j)) {
+                *a += c as f64;
+            }
+        }
+        let cnt = inside.len();
         let inv = 1.0 / cnt as f64;
         [
             (acc[0] * inv) as f32,
