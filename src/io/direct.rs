@@ -10,7 +10,8 @@
 //! whole run, third round"). The bytes of the file are the same either way.
 //!
 //! Where direct writes are not available (another OS, a file system that refuses
-//! `O_DIRECT` on open or on the first write), everything goes the ordinary way.
+//! `O_DIRECT` on open or on the first write), everything goes the ordinary way. Unix only:
+//! writes and read-backs are positioned (`pwrite`, `pread`).
 
 use std::fs::File;
 use std::io::{self, Seek, SeekFrom, Write};
