@@ -12,8 +12,9 @@
 //! atomic within one file system.
 
 use crate::error::{Error, Result};
+use crate::io::direct::DirectWriter;
 use std::fs::{self, File};
-use std::io::{BufWriter, Write};
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 use std::thread::JoinHandle;
@@ -86,7 +87,7 @@ fn sync_later(dir: &Path, target: &Path, file: File) -> Option<File> {
 pub struct AtomicFile {
     target: PathBuf,
     temp: PathBuf,
-    writer: Option<BufWriter<File>>,
+    writer: Option<DirectWriter>,
     /// Removes the temporary if the process is interrupted (SIGINT, SIGTERM) meanwhile.
     _interrupt: Option<crate::io::interrupt::Registered>,
 }
@@ -103,11 +104,19 @@ impl AtomicFile {
         temp_name.push(format!(".tmp-{}", std::process::id()));
         let temp = target.with_file_name(temp_name);
         let reg = crate::io::interrupt::register_file(&temp);
-        let file = File::create(&temp).map_err(|e| Error::io(&target, "cannot create", e))?;
+        // Readable too: the writer reads back the head of a block it rewrites after a seek.
+        let file = fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(true)
+            .open(&temp)
+            .map_err(|e| Error::io(&target, "cannot create", e))?;
+        let writer = DirectWriter::new(file, &temp);
         Ok(Self {
             target,
             temp,
-            writer: Some(BufWriter::with_capacity(1 << 20, file)),
+            writer: Some(writer),
             _interrupt: Some(reg),
         })
     }
@@ -122,8 +131,9 @@ impl AtomicFile {
         &self.temp
     }
 
-    /// The buffered writer (it is also `Seek`, which the EXR writer needs).
-    pub fn writer(&mut self) -> &mut BufWriter<File> {
+    /// The buffered writer (it is also `Seek`, which the EXR writer needs; whole blocks go
+    /// around the page cache, [`DirectWriter`]).
+    pub fn writer(&mut self) -> &mut DirectWriter {
         self.writer
             .as_mut()
             .expect("writer is present until commit")
@@ -134,8 +144,8 @@ impl AtomicFile {
     pub fn commit(mut self) -> Result<()> {
         let writer = self.writer.take().expect("writer is present until commit");
         let file = writer
-            .into_inner()
-            .map_err(|e| Error::io(&self.target, "cannot write", e.into_error()))?;
+            .into_file()
+            .map_err(|e| Error::io(&self.target, "cannot write", e))?;
         let dir = match self.target.parent() {
             Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
             _ => PathBuf::from("."),
@@ -181,7 +191,7 @@ impl Drop for AtomicFile {
 /// Errors from `write` or from committing leave no file behind.
 pub fn write_atomic<T>(
     target: impl AsRef<Path>,
-    write: impl FnOnce(&mut BufWriter<File>) -> Result<T>,
+    write: impl FnOnce(&mut DirectWriter) -> Result<T>,
 ) -> Result<T> {
     let mut f = AtomicFile::create(target)?;
     let value = write(f.writer())?;
