@@ -10,12 +10,12 @@
 //! whole run, third round"). The bytes of the file are the same either way.
 //!
 //! Where direct writes are not available (another OS, a file system that refuses
-//! `O_DIRECT` on open or on the first write), everything goes the ordinary way. Unix only:
-//! writes and read-backs are positioned (`pwrite`, `pread`).
+//! `O_DIRECT` on open or on the first write), everything goes the ordinary way. Writes and
+//! read-backs are positioned (`pwrite`, `pread` on Unix; a seek and an ordinary write or
+//! read elsewhere, so the crate still builds off Unix).
 
 use std::fs::File;
 use std::io::{self, Seek, SeekFrom, Write};
-use std::os::unix::fs::FileExt;
 use std::path::Path;
 
 /// Alignment of direct writes: offsets, lengths and the memory they come from (the
@@ -96,7 +96,7 @@ impl DirectWriter {
                 0
             };
             if whole > 0 {
-                match d.write_all_at(&bytes[..whole], self.at) {
+                match write_all_at(d, &bytes[..whole], self.at) {
                     Ok(()) => done = whole,
                     // Refused (alignment or the file system): ordinary writes from now
                     // on, this block included.
@@ -105,8 +105,7 @@ impl DirectWriter {
                 }
             }
         }
-        self.plain
-            .write_all_at(&bytes[done..], self.at + done as u64)?;
+        write_all_at(&self.plain, &bytes[done..], self.at + done as u64)?;
         self.at += self.held as u64;
         self.held = 0;
         Ok(())
@@ -124,7 +123,7 @@ impl DirectWriter {
         let buf = &mut self.storage[self.start..self.start + head];
         let mut got = 0;
         while got < head {
-            match self.plain.read_at(&mut buf[got..], from + got as u64) {
+            match read_at(&self.plain, &mut buf[got..], from + got as u64) {
                 Ok(0) => break,
                 Ok(n) => got += n,
                 Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
@@ -194,6 +193,31 @@ impl Seek for DirectWriter {
 const EINVAL: i32 = libc::EINVAL;
 #[cfg(not(target_os = "linux"))]
 const EINVAL: i32 = 22;
+
+/// Positioned writes and reads: `pwrite`/`pread` on Unix; elsewhere a seek of the plain
+/// handle, which only this writer uses, then an ordinary write or read.
+#[cfg(unix)]
+fn write_all_at(f: &File, buf: &[u8], at: u64) -> io::Result<()> {
+    std::os::unix::fs::FileExt::write_all_at(f, buf, at)
+}
+
+#[cfg(unix)]
+fn read_at(f: &File, buf: &mut [u8], at: u64) -> io::Result<usize> {
+    std::os::unix::fs::FileExt::read_at(f, buf, at)
+}
+
+#[cfg(not(unix))]
+fn write_all_at(mut f: &File, buf: &[u8], at: u64) -> io::Result<()> {
+    f.seek(SeekFrom::Start(at))?;
+    f.write_all(buf)
+}
+
+#[cfg(not(unix))]
+fn read_at(mut f: &File, buf: &mut [u8], at: u64) -> io::Result<usize> {
+    use std::io::Read;
+    f.seek(SeekFrom::Start(at))?;
+    f.read(buf)
+}
 
 /// `path` opened for direct writes, if the OS and the file system allow it.
 #[cfg(target_os = "linux")]
