@@ -1202,26 +1202,8 @@ mod tests {
 
     #[test]
     fn eight_bit_atlas_is_the_f32_atlas_converted() {
-        use glam::DVec3;
-        use subdiv::ControlMesh;
         // Quads, a triangle and a pentagon (sub-faces, corners of every valence).
-        let p: Vec<DVec3> = [
-            (0.0, 0.0),
-            (1.0, 0.0),
-            (2.0, 0.0),
-            (0.0, 1.0),
-            (1.0, 1.0),
-            (2.0, 1.0),
-            (1.0, 2.0),
-            (2.5, 0.5),
-            (3.0, 1.5),
-            (2.0, 2.0),
-        ]
-        .iter()
-        .map(|&(x, y)| DVec3::new(x, y, 0.1 * x * y))
-        .collect();
-        let faces: [&[u32]; 4] = [&[0, 1, 4, 3], &[1, 2, 5, 4], &[3, 4, 6], &[2, 7, 8, 9, 5]];
-        let s = Surface::new(ControlMesh::from_faces(p, &faces).unwrap());
+        let s = crate::io::mixed_test_surface(|x, y| 0.1 * x * y);
         for names in [&["R", "G", "B"][..], &["R", "G", "B", "A"][..]] {
             let mut maps = FaceMaps::new(s.num_domains(), 5, names);
             for (c, (_, v)) in maps.channels.iter_mut().enumerate() {

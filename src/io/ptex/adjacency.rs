@@ -91,8 +91,6 @@ pub fn face_infos(surface: &Surface, res: impl Fn(usize) -> Res) -> Vec<FaceInfo
 #[cfg(test)]
 mod tests {
     use super::*;
-    use glam::DVec3;
-    use subdiv::ControlMesh;
 
     /// The rules `ptxinfo -c` checks: the neighbour across e points back across
     /// adj_edges[e], or (sub-face beside a quad) at this face's next neighbour.
@@ -115,23 +113,7 @@ mod tests {
     #[test]
     fn quads_triangles_and_pentagons_follow_ptex_rules() {
         // A quad strip with a triangle and a pentagon attached, one open boundary.
-        let p: Vec<DVec3> = [
-            (0.0, 0.0),
-            (1.0, 0.0),
-            (2.0, 0.0),
-            (0.0, 1.0),
-            (1.0, 1.0),
-            (2.0, 1.0),
-            (1.0, 2.0),
-            (2.5, 0.5),
-            (3.0, 1.5),
-            (2.0, 2.0),
-        ]
-        .iter()
-        .map(|&(x, y)| DVec3::new(x, y, 0.0))
-        .collect();
-        let faces: [&[u32]; 4] = [&[0, 1, 4, 3], &[1, 2, 5, 4], &[3, 4, 6], &[2, 7, 8, 9, 5]];
-        let s = Surface::new(ControlMesh::from_faces(p, &faces).unwrap());
+        let s = crate::io::mixed_test_surface(|_, _| 0.0);
         let infos = face_infos(&s, |_| Res::square(3));
         assert_eq!(infos.len(), 1 + 1 + 3 + 5);
         consistent(&infos);
