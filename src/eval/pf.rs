@@ -8,21 +8,21 @@
 //!
 //! Why the search is built this way: the brute-force nearest window costs
 //! 147 multiply-adds × ~60,000 example windows per output window (9 GFLOP for 1024 windows
-//! at three scales). Every example window is PCA-projected onto [`PCA_DIMS`] orthonormal
+//! at three scales). Every example window is PCA-projected onto [`TREE_PCA`] orthonormal
 //! directions plus one more coordinate, the norm of its residual outside them. For any
 //! query q and window y, |q − y|² = |P(q − y)|² + |R(q − y)|² ≥ |Pq − Py|² + (|Rq| − |Ry|)²,
-//! which is exactly the squared distance of the two 9-D points: a true lower bound. A k-d
-//! tree over the 9-D points gives candidates in increasing bound; the exact distance of
-//! every candidate is computed, and the search stops once the best exact distance is no
-//! more than the bound of the last candidate (no window left out can beat it). The
-//! residual coordinate is what keeps this fast for windows far from every example window
-//! (noise): their bound is dominated by the residual norm, which the tree sees.
+//! which is exactly the squared distance of the two 9-D points: a true lower bound (and
+//! the same with 16 and 32 directions). The windows are stored in an order where
+//! neighbours are alike, in groups of 64 with a box over their 9-D points; a query visits
+//! the groups in increasing box bound, prunes window by window with the three bounds and
+//! computes exact distances only for what survives, and stops once the next group's bound
+//! reaches the best exact distance (no window left out can beat it). The residual
+//! coordinate is what keeps this fast for windows far from every example window (noise):
+//! their bound is dominated by the residual norm.
 
 use crate::example::Example;
-use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use std::num::NonZeroUsize;
 
 /// The sample spacings S of BRIEF's pfS, in example pixels.
 pub const PF_SCALES: [usize; 3] = [1, 4, 8];
@@ -42,11 +42,10 @@ pub const PF_PAIRS: usize = 4096;
 pub const PF_SEED: u64 = 0x9F5E_ED00_2026_0001;
 /// Principal directions stored per example window for the scan's second bound.
 pub const SCAN_DIMS: usize = 32;
-/// Principal directions of the k-d tree (plus the residual norm: a 9-D tree).
+/// Principal directions of the first bound and of the group boxes (plus the residual
+/// norm: 9-D points).
 pub const TREE_PCA: usize = 8;
 const TREE_DIMS: usize = TREE_PCA + 1;
-/// Candidates taken from the tree before falling back to the pruned scan.
-const TREE_CANDIDATES: NonZeroUsize = NonZeroUsize::new(32).unwrap();
 /// Example windows used to fit the PCA (evenly strided).
 const PCA_WINDOWS: usize = 2048;
 /// Block power iterations of the PCA.
@@ -391,10 +390,15 @@ pub(crate) struct Bank {
     /// principal directions first.
     basis: Vec<f32>,
     /// The windows' [`ROWS`] values in blocks of [`LANES`] windows, row-major inside a
-    /// block (one row = one value of 8 windows), rows in [`row_order`] order. Padding
-    /// windows of the last block hold huge values, so no bound lets them through.
+    /// block (one row = one value of 8 windows), rows in [`row_order`] order, the windows
+    /// in [`coherent_order`]. Padding windows of the last block hold huge values, so no
+    /// bound lets them through.
     blocks: Vec<[f32; LANES]>,
-    tree: ImmutableKdTree<f32, TREE_DIMS>,
+    /// The window in each lane of `blocks` (`u32::MAX` for padding).
+    slots: Vec<u32>,
+    /// Per group of [`GROUP_BLOCKS`] consecutive blocks, the box of its windows' first
+    /// stage ([`TREE_DIMS`] rows): the lower bound of a whole group ([`group_bound`]).
+    groups: Vec<GroupBox>,
     /// Mean squared distance between random pairs of windows.
     pub pairs_mean_sq: f64,
 }
@@ -406,8 +410,19 @@ const LANES: usize = 8;
 const ROWS: usize = SCAN_DIMS + STAGES.len();
 /// The scan's stages: coordinates up to this many, then the residual norm outside them.
 const STAGES: [usize; 3] = [TREE_PCA, 16, SCAN_DIMS];
-/// Queries scanned together, so each block of the bank is read once per batch.
-const BATCH: usize = 16;
+/// Blocks per group of the scan. Why groups: the per-lane bounds of a block cost about as
+/// much as one box bound, so a bound per block would save nothing; a box over 8 blocks
+/// of similar windows ([`coherent_order`]) skips 64 windows for the price of 8 lanes.
+const GROUP_BLOCKS: usize = 8;
+/// Windows per group.
+const GROUP_WINDOWS: usize = GROUP_BLOCKS * LANES;
+
+/// Lowest and highest value of each first-stage row ([`TREE_DIMS`]) over a group's windows.
+#[derive(Clone, Copy, Debug)]
+struct GroupBox {
+    lo: [f32; TREE_DIMS],
+    hi: [f32; TREE_DIMS],
+}
 /// [`DIMS`] rounded up to a multiple of 8 (vectorisable dot products).
 const DIMS_PAD: usize = DIMS.div_ceil(8) * 8;
 /// A bound only prunes when it exceeds the best distance by this relative margin, so
@@ -475,8 +490,8 @@ impl Bank {
         })
     }
 
-    /// The bank from its windows and computed part: the tree over the blocks' leading
-    /// coordinates.
+    /// The bank from its windows and computed part: the windows moved to
+    /// [`coherent_order`] and the boxes of their groups.
     fn assemble(win: Windows, core: BankCore) -> Option<Self> {
         let BankCore {
             mean,
@@ -499,16 +514,117 @@ impl Bank {
                 p
             })
             .collect();
-        let tree = ImmutableKdTree::new_from_slice(&points).ok()?;
+        let slots = coherent_order(&points);
+        let blocks = reorder_blocks(&blocks, &slots);
+        let groups = group_boxes(&blocks, &slots);
         Some(Self {
             win,
             mean,
             basis,
             blocks,
-            tree,
+            slots,
+            groups,
             pairs_mean_sq,
         })
     }
+}
+
+/// The windows in an order where consecutive ones are alike, so that the boxes of
+/// [`GroupBox`] are small: median splits of their first-stage values along the widest
+/// side, at multiples of [`GROUP_WINDOWS`] (then of [`LANES`] inside a group), down to
+/// blocks. Padded with `u32::MAX` to whole blocks. Any order gives the same distances (the
+/// search takes a minimum); this one only makes the bounds prune sooner.
+fn coherent_order(points: &[[f32; TREE_DIMS]]) -> Vec<u32> {
+    let mut order: Vec<u32> = (0..points.len() as u32).collect();
+    split_coherent(&mut order, points);
+    order.resize(points.len().div_ceil(LANES) * LANES, u32::MAX);
+    order
+}
+
+fn split_coherent(items: &mut [u32], points: &[[f32; TREE_DIMS]]) {
+    if items.len() <= LANES {
+        return;
+    }
+    let unit = if items.len() > GROUP_WINDOWS {
+        GROUP_WINDOWS
+    } else {
+        LANES
+    };
+    let (mut lo, mut hi) = ([f32::MAX; TREE_DIMS], [f32::MIN; TREE_DIMS]);
+    for &i in items.iter() {
+        for (k, &v) in points[i as usize].iter().enumerate() {
+            lo[k] = lo[k].min(v);
+            hi[k] = hi[k].max(v);
+        }
+    }
+    let axis = (0..TREE_DIMS)
+        .max_by(|&a, &b| (hi[a] - lo[a]).total_cmp(&(hi[b] - lo[b])))
+        .unwrap_or(0);
+    let mid = (items.len() / 2).div_ceil(unit) * unit;
+    items.select_nth_unstable_by(mid, |&a, &b| {
+        points[a as usize][axis]
+            .total_cmp(&points[b as usize][axis])
+            .then(a.cmp(&b))
+    });
+    let (left, right) = items.split_at_mut(mid);
+    split_coherent(left, points);
+    split_coherent(right, points);
+}
+
+/// `blocks` (windows in their natural order) with the windows moved to `slots`' order.
+fn reorder_blocks(blocks: &[[f32; LANES]], slots: &[u32]) -> Vec<[f32; LANES]> {
+    let mut out = vec![[1e30f32; LANES]; blocks.len()];
+    for (p, &j) in slots.iter().enumerate() {
+        if j == u32::MAX {
+            continue;
+        }
+        let (j, dst) = (j as usize, (p / LANES) * ROWS);
+        let src = (j / LANES) * ROWS;
+        for r in 0..ROWS {
+            out[dst + r][p % LANES] = blocks[src + r][j % LANES];
+        }
+    }
+    out
+}
+
+/// The [`GroupBox`] of every [`GROUP_BLOCKS`] consecutive blocks (padding lanes left out).
+fn group_boxes(blocks: &[[f32; LANES]], slots: &[u32]) -> Vec<GroupBox> {
+    blocks
+        .chunks(GROUP_BLOCKS * ROWS)
+        .zip(slots.chunks(GROUP_WINDOWS))
+        .map(|(grp, sl)| {
+            let mut g = GroupBox {
+                lo: [f32::INFINITY; TREE_DIMS],
+                hi: [f32::NEG_INFINITY; TREE_DIMS],
+            };
+            for (blk, bs) in grp.chunks_exact(ROWS).zip(sl.chunks_exact(LANES)) {
+                for (l, _) in bs.iter().enumerate().filter(|(_, &j)| j != u32::MAX) {
+                    for ((lo, hi), row) in g.lo.iter_mut().zip(&mut g.hi).zip(blk) {
+                        *lo = lo.min(row[l]);
+                        *hi = hi.max(row[l]);
+                    }
+                }
+            }
+            g
+        })
+        .collect()
+}
+
+/// Lower bound of the first-stage bound of every window of a group: per row the gap from
+/// the query's value to the box, summed as the lanes sum theirs ([`Bank::scan_block`]).
+/// Each gap is at most the lane's |difference| in f32 too (subtraction and rounding are
+/// monotonic), so the sums and the products keep the order: a group whose bound reaches
+/// the best distance holds no window that the lanes would have let through.
+#[inline]
+fn group_bound(g: &GroupBox, qr: &[f32; ROWS]) -> f32 {
+    let gap = |r: usize| (g.lo[r] - qr[r]).max(qr[r] - g.hi[r]).max(0.0);
+    let mut coord = 0f32;
+    for r in 0..TREE_PCA {
+        let d = gap(r);
+        coord += d * d;
+    }
+    let d = gap(TREE_PCA);
+    (coord + d * d) * SAFETY
 }
 
 /// What [`Bank::build`] computes from the example windows (the PCA, every window's
@@ -656,112 +772,98 @@ impl Bank {
         rows
     }
 
-    /// Phase 1: the tree's nearest candidates. Returns the best exact distance among them
-    /// and whether it is provably the nearest (no other window's bound is below it).
-    fn tree_phase(&self, q: &[f32], rows: &[f32; ROWS]) -> (f32, bool) {
-        let mut qt = [0f32; TREE_DIMS];
-        qt.copy_from_slice(&rows[..TREE_DIMS]);
-        let res = self
-            .tree
-            .query(&qt)
-            .nearest_n::<SquaredEuclidean<f32>>(TREE_CANDIDATES)
-            .execute();
+    /// The squared distance of one query to its nearest window: the groups in increasing
+    /// order of their box bound ([`group_bound`]), each group's blocks scanned
+    /// ([`Bank::scan_block`]), until the next group's bound reaches the best distance —
+    /// then no window left can be nearer. Visiting the nearest groups first is what makes
+    /// the best distance small early, so that most groups are never opened.
+    fn search(&self, q: &[f32], qr: &[f32; ROWS]) -> f32 {
+        let mut order: Vec<(f32, u32)> = self
+            .groups
+            .iter()
+            .enumerate()
+            .map(|(g, gb)| (group_bound(gb, qr), g as u32))
+            .collect();
+        order.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let group_rows = GROUP_BLOCKS * ROWS;
         let mut best = f32::INFINITY;
-        let mut kth = 0f32;
-        for r in res.iter() {
-            kth = kth.max(r.distance);
-            if r.distance * SAFETY < best {
-                let d = self.win.exact(q, r.item as usize, best);
-                if d < best {
-                    best = d;
-                }
+        for &(bound, g) in &order {
+            if bound >= best {
+                break;
+            }
+            let g = g as usize;
+            let end = ((g + 1) * group_rows).min(self.blocks.len());
+            let blocks = &self.blocks[g * group_rows..end];
+            for (k, blk) in blocks.chunks_exact(ROWS).enumerate() {
+                self.scan_block(g * GROUP_BLOCKS + k, blk, q, qr, &mut best);
             }
         }
-        (best, res.len() >= self.win.count || best <= kth * SAFETY)
+        best
     }
 
-    /// Phase 2 for a batch of queries: every block of the bank once, each query pruning
-    /// with its stages' bounds and computing exact distances only for what survives.
-    fn scan(&self, qs: &[&[f32]], rows: &[[f32; ROWS]], best: &mut [f32]) {
-        for (b, blk) in self.blocks.chunks_exact(ROWS).enumerate() {
-            for (qi, qr) in rows.iter().enumerate() {
-                let bound = best[qi];
-                let mut coord = [0f32; LANES];
-                let mut alive = [0f32; LANES];
-                let mut r0 = 0;
-                let mut start = 0;
-                let mut any = false;
-                for &end in &STAGES {
-                    let n = end - start;
-                    for (row, &qv) in blk[r0..r0 + n].iter().zip(&qr[r0..r0 + n]) {
-                        for l in 0..LANES {
-                            let d = row[l] - qv;
-                            coord[l] += d * d;
-                        }
-                    }
-                    let (row, qv) = (&blk[r0 + n], qr[r0 + n]);
-                    let mut lb = [0f32; LANES];
-                    for l in 0..LANES {
-                        let d = row[l] - qv;
-                        lb[l] = (coord[l] + d * d) * SAFETY;
-                    }
-                    // alive: the smallest bound over the stages so far (pruned ≥ bound).
-                    any = false;
-                    for l in 0..LANES {
-                        alive[l] = if start == 0 {
-                            lb[l]
-                        } else {
-                            alive[l].max(lb[l])
-                        };
-                        any |= alive[l] < bound;
-                    }
-                    if !any {
-                        break;
-                    }
-                    r0 += n + 1;
-                    start = end;
+    /// One query against block `b`: each window pruned by the first of its stages' bounds
+    /// that reaches the best distance; exact distances for what survives.
+    #[inline]
+    fn scan_block(
+        &self,
+        b: usize,
+        blk: &[[f32; LANES]],
+        q: &[f32],
+        qr: &[f32; ROWS],
+        best: &mut f32,
+    ) {
+        let bound = *best;
+        let mut coord = [0f32; LANES];
+        let mut alive = [0f32; LANES];
+        let mut r0 = 0;
+        let mut start = 0;
+        for &end in &STAGES {
+            let n = end - start;
+            for (row, &qv) in blk[r0..r0 + n].iter().zip(&qr[r0..r0 + n]) {
+                for l in 0..LANES {
+                    let d = row[l] - qv;
+                    coord[l] += d * d;
                 }
-                if !any {
-                    continue;
-                }
-                for (l, &a) in alive.iter().enumerate() {
-                    let j = b * LANES + l;
-                    if a < best[qi] && j < self.win.count {
-                        let d = self.win.exact(qs[qi], j, best[qi]);
-                        if d < best[qi] {
-                            best[qi] = d;
-                        }
-                    }
+            }
+            let (row, qv) = (&blk[r0 + n], qr[r0 + n]);
+            let mut lb = [0f32; LANES];
+            for l in 0..LANES {
+                let d = row[l] - qv;
+                lb[l] = (coord[l] + d * d) * SAFETY;
+            }
+            // alive: the smallest bound over the stages so far (pruned ≥ bound).
+            let mut any = false;
+            for l in 0..LANES {
+                alive[l] = if start == 0 {
+                    lb[l]
+                } else {
+                    alive[l].max(lb[l])
+                };
+                any |= alive[l] < bound;
+            }
+            if !any {
+                return;
+            }
+            r0 += n + 1;
+            start = end;
+        }
+        let slots = &self.slots[b * LANES..(b + 1) * LANES];
+        for (&a, &j) in alive.iter().zip(slots) {
+            if a < *best && j != u32::MAX {
+                let d = self.win.exact(q, j as usize, *best);
+                if d < *best {
+                    *best = d;
                 }
             }
         }
     }
 
     /// Squared distance of each query to its nearest example window, exact up to f32
-    /// rounding: the tree phase, then the batched scan for the queries it cannot settle.
+    /// rounding ([`Bank::search`]).
     pub fn nearest_all(&self, qs: &[&[f32]]) -> Vec<f32> {
-        let rows: Vec<[f32; ROWS]> = qs.par_iter().map(|q| self.query_rows(q)).collect();
-        let first: Vec<(f32, bool)> = qs
-            .par_iter()
-            .zip(rows.par_iter())
-            .map(|(q, r)| self.tree_phase(q, r))
-            .collect();
-        let mut best: Vec<f32> = first.iter().map(|f| f.0).collect();
-        let open: Vec<usize> = (0..qs.len()).filter(|&i| !first[i].1).collect();
-        let results: Vec<(usize, f32)> = open
-            .par_chunks(BATCH)
-            .flat_map_iter(|batch| {
-                let bq: Vec<&[f32]> = batch.iter().map(|&i| qs[i]).collect();
-                let br: Vec<[f32; ROWS]> = batch.iter().map(|&i| rows[i]).collect();
-                let mut bb: Vec<f32> = batch.iter().map(|&i| best[i]).collect();
-                self.scan(&bq, &br, &mut bb);
-                batch.iter().copied().zip(bb).collect::<Vec<_>>()
-            })
-            .collect();
-        for (i, d) in results {
-            best[i] = d;
-        }
-        best
+        qs.par_iter()
+            .map(|q| self.search(q, &self.query_rows(q)))
+            .collect()
     }
 
     /// One query ([`Bank::nearest_all`] of one).
@@ -1067,6 +1169,87 @@ mod tests {
                     (fast - brute).abs() <= 1e-5 * brute.max(1.0),
                     "s {s} t {t}: {fast} vs {brute}"
                 );
+            }
+        }
+    }
+
+    /// The smallest of `exact` over every window: what the search must return, bit for bit.
+    fn brute_force(bank: &Bank, q: &[f32]) -> f32 {
+        (0..bank.len())
+            .map(|j| bank.win.exact(q, j, f32::INFINITY))
+            .fold(f32::INFINITY, f32::min)
+    }
+
+    /// The pruned search returns exactly (bit for bit) the brute-force minimum, on random
+    /// examples with and without repeated content (many windows at the same distance from a
+    /// query, copies at distance 0) and on queries near, on and far from the windows.
+    #[test]
+    fn search_is_the_brute_force_minimum() {
+        let tiled = {
+            let tile = noise(5, 3, 11);
+            let px = (0..44 * 38)
+                .map(|i| tile.px[(i / 44 % 3) * 5 + i % 44 % 5])
+                .collect();
+            Rgb {
+                width: 44,
+                height: 38,
+                px,
+            }
+        };
+        for (ex, s) in [(noise(50, 41, 2), 1), (noise(50, 41, 2), 4), (tiled, 1)] {
+            let bank = Bank::build(&ex, s, 64, 3).unwrap();
+            let mut st = 7u64;
+            let mut qs: Vec<Vec<f32>> = Vec::new();
+            for t in 0..60 {
+                let mut q = vec![0f32; DIMS];
+                let j = (splitmix(&mut st) % bank.len() as u64) as usize;
+                bank.win.window(j, &mut q);
+                // On a window, near one, far from all; a third quantised (exact ties).
+                let amp = [0.0, 0.05, 0.6][t % 3];
+                for v in q.iter_mut() {
+                    let e = (splitmix(&mut st) >> 40) as f32 / (1u64 << 24) as f32 - 0.5;
+                    *v += e * amp;
+                    if t % 2 == 0 {
+                        *v = (*v * 4.0).round() / 4.0;
+                    }
+                }
+                qs.push(q);
+            }
+            qs.push(vec![0.5; DIMS]);
+            let refs: Vec<&[f32]> = qs.iter().map(|q| q.as_slice()).collect();
+            for (q, got) in refs.iter().zip(bank.nearest_all(&refs)) {
+                assert_eq!(got.to_bits(), brute_force(&bank, q).to_bits(), "s {s}");
+            }
+        }
+    }
+
+    /// A group's bound is at most the first-stage bound of each of its windows, as the
+    /// lanes compute it (so skipping a group skips only windows the lanes would prune).
+    #[test]
+    fn group_bound_is_below_its_lanes() {
+        let ex = noise(60, 50, 4);
+        let bank = Bank::build(&ex, 1, 64, 3).unwrap();
+        let mut st = 5u64;
+        for _ in 0..50 {
+            let q: Vec<f32> = (0..DIMS)
+                .map(|_| (splitmix(&mut st) >> 40) as f32 / (1u64 << 24) as f32)
+                .collect();
+            let qr = bank.query_rows(&q);
+            for (g, gb) in bank.groups.iter().enumerate() {
+                let bound = group_bound(gb, &qr);
+                let blocks = bank.blocks.chunks(ROWS).skip(g * GROUP_BLOCKS);
+                for (b, blk) in blocks.take(GROUP_BLOCKS).enumerate() {
+                    let slots = &bank.slots[(g * GROUP_BLOCKS + b) * LANES..][..LANES];
+                    for l in (0..LANES).filter(|&l| slots[l] != u32::MAX) {
+                        let mut coord = 0f32;
+                        for r in 0..TREE_PCA {
+                            let d = blk[r][l] - qr[r];
+                            coord += d * d;
+                        }
+                        let d = blk[TREE_PCA][l] - qr[TREE_PCA];
+                        assert!(bound <= (coord + d * d) * SAFETY);
+                    }
+                }
             }
         }
     }
