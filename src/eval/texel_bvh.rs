@@ -22,6 +22,7 @@ use super::surface::Xyz;
 use crate::layout::TexelLayout;
 use glam::DVec3;
 use rayon::prelude::*;
+use std::sync::OnceLock;
 
 /// Side of a block of texels (the last block of a face row or column may be narrower).
 pub const BLOCK: usize = 4;
@@ -79,7 +80,27 @@ pub(crate) struct TexelBvh<'a> {
     nodes: Vec<Node>,
     /// Which texels count, one bit each; `None`: all of them (the usual case, no lookups).
     valid: Option<Vec<u64>>,
+    /// Per face: its first texel, first block, texels and blocks per row
+    /// ([`TexelBvh::block_of`]).
+    faces: Vec<FaceBlocks>,
+    /// The leaf node of each block (`u32::MAX`: no counted texel, not in the tree).
+    leaf: Vec<u32>,
+    /// Per block, once asked for: the blocks near it ([`TexelBvh::near_blocks`]).
+    near: Vec<OnceLock<Box<[u32]>>>,
 }
+
+/// Where a face's texels and blocks start, and their rows.
+#[derive(Clone, Copy, Debug)]
+struct FaceBlocks {
+    texel: u32,
+    block: u32,
+    nu: u32,
+    blocks_per_row: u32,
+}
+
+/// Relative margin of the local search's test ([`TexelBvh::nearest_local`]), far above
+/// the rounding of a few f64 operations.
+const LOCAL_MARGIN: f64 = 1.0 - 1e-6;
 
 /// Squared distance of `q` from `p`, summed in the k-d tree's order.
 #[inline(always)]
@@ -100,6 +121,30 @@ fn box_dist2(p: &[f64; 3], n: &Node) -> f64 {
     for ((&x, &lo), &hi) in p.iter().zip(&n.lo).zip(&n.hi) {
         let (lo, hi) = (lo as f64, hi as f64);
         let d = (lo - x).max(x - hi).max(0.0);
+        acc += d * d;
+    }
+    acc
+}
+
+/// How far from its box a block's near blocks reach ([`TexelBvh::near_blocks`]): its
+/// box's longest side, about three texel spacings for 4 x 4 texels, where a walk point's
+/// nearest texel is rarely more than one spacing away.
+#[inline]
+fn reach(n: &Node) -> f64 {
+    (0..3)
+        .map(|k| n.hi[k] as f64 - n.lo[k] as f64)
+        .fold(0.0, f64::max)
+}
+
+/// Squared distance between two boxes: a lower bound of the distance of any point of one
+/// from any point of the other.
+#[inline]
+fn box_box_dist2(a: &Node, b: &Node) -> f64 {
+    let mut acc = 0.0;
+    for k in 0..3 {
+        let d = (a.lo[k] as f64 - b.hi[k] as f64)
+            .max(b.lo[k] as f64 - a.hi[k] as f64)
+            .max(0.0);
         acc += d * d;
     }
     acc
@@ -142,11 +187,28 @@ impl<'a> TexelBvh<'a> {
                 })
                 .collect()
         });
+        let mut first_block = 0;
+        let faces = (0..layout.faces())
+            .map(|f| {
+                let (nu, nv) = layout.dims(f);
+                let fb = FaceBlocks {
+                    texel: layout.start(f) as u32,
+                    block: first_block,
+                    nu: nu as u32,
+                    blocks_per_row: nu.div_ceil(BLOCK) as u32,
+                };
+                first_block += (nu.div_ceil(BLOCK) * nv.div_ceil(BLOCK)) as u32;
+                fb
+            })
+            .collect();
         let mut s = Self {
             pos,
+            near: (0..blocks.len()).map(|_| OnceLock::new()).collect(),
+            leaf: vec![u32::MAX; blocks.len()],
             blocks,
             nodes: Vec::new(),
             valid,
+            faces,
         };
         // Leaf boxes (empty boxes for blocks without a valid texel: left out), in f32:
         // exact, the corners are f32 positions (`Node`).
@@ -170,6 +232,9 @@ impl<'a> TexelBvh<'a> {
         if !items.is_empty() {
             let mut nodes = vec![EMPTY; 2 * items.len() - 1];
             build_tree(&mut nodes, &mut items, &boxes);
+            for (k, n) in nodes.iter().enumerate().filter(|(_, n)| n.block != INNER) {
+                s.leaf[n.block as usize] = k as u32;
+            }
             s.nodes = nodes;
         }
         s
@@ -235,6 +300,11 @@ impl<'a> TexelBvh<'a> {
                 (best, best_i) = (d2, h);
             }
         }
+        if best_i != usize::MAX {
+            if let Some(i) = self.nearest_local(&q, best, best_i) {
+                return Some(i);
+            }
+        }
         // Depth-first, nearer child first: at most one pending sibling per level of a
         // balanced tree (median splits), so a fixed stack, no allocation per query.
         let mut stack = [(0usize, 0f64); STACK];
@@ -275,6 +345,76 @@ impl<'a> TexelBvh<'a> {
             }
         }
         (best_i != usize::MAX).then_some(best_i)
+    }
+
+    /// [`TexelBvh::nearest_seeded`] without the descent from the root, when it can be
+    /// decided near the seed: `best` is the squared distance of counted texel `seed` from
+    /// `q`. Every texel at most that far from `q` is within reach of the seed's block B
+    /// (its box's distance from `q` plus √best, by the triangle inequality), so when that
+    /// is no more than B's reach, the blocks near B ([`TexelBvh::near_blocks`]) hold every
+    /// candidate, ties included. Why: a walk step's nearest texel is next to the previous
+    /// one, yet the descent from the root tested ~50 boxes to prove it (the walks'
+    /// nearest-texel queries were the pf summary's largest cost). `None`: not decidable
+    /// here (then the caller descends).
+    fn nearest_local(&self, q: &[f64; 3], best: f64, seed: usize) -> Option<usize> {
+        let b = self.block_of(seed);
+        let own = self.nodes.get(*self.leaf.get(b)? as usize)?;
+        let gap = box_dist2(q, own).sqrt() + best.sqrt();
+        // A NaN point fails the test.
+        if gap.is_nan() || gap > reach(own) * LOCAL_MARGIN {
+            return None;
+        }
+        let (mut best, mut best_i) = (best, seed);
+        for &c in self.near_blocks(b) {
+            if box_dist2(q, &self.nodes[self.leaf[c as usize] as usize]) > best {
+                continue;
+            }
+            self.each(&self.blocks[c as usize], |i, x| {
+                let d2 = dist2(q, x);
+                if d2 < best || (d2 == best && i < best_i) {
+                    (best, best_i) = (d2, i);
+                }
+            });
+        }
+        Some(best_i)
+    }
+
+    /// The block holding texel `i` (a texel of the layout the index was built on).
+    fn block_of(&self, i: usize) -> usize {
+        let f = self.faces.partition_point(|f| f.texel as usize <= i) - 1;
+        let fb = &self.faces[f];
+        let r = i - fb.texel as usize;
+        let (x, y) = (r % fb.nu as usize, r / fb.nu as usize);
+        fb.block as usize + (y / BLOCK) * fb.blocks_per_row as usize + x / BLOCK
+    }
+
+    /// The blocks in the tree whose box is within [`reach`] of block `b`'s box (`b`
+    /// included), computed the first time they are asked for: a run's walks touch a small
+    /// part of the surface.
+    fn near_blocks(&self, b: usize) -> &[u32] {
+        self.near[b].get_or_init(|| {
+            let own = &self.nodes[self.leaf[b] as usize];
+            let r = reach(own);
+            let mut out = Vec::new();
+            let mut stack = [0usize; STACK];
+            let mut top = 1;
+            while top > 0 {
+                top -= 1;
+                let k = stack[top];
+                let n = &self.nodes[k];
+                if box_box_dist2(own, n) > r * r {
+                    continue;
+                }
+                if n.block != INNER {
+                    out.push(n.block);
+                    continue;
+                }
+                stack[top] = k + n.right as usize;
+                stack[top + 1] = k + 1;
+                top += 2;
+            }
+            out.into_boxed_slice()
+        })
     }
 
     /// The counted texels whose squared distance from `p` is at most `r2`, in texel order.
@@ -469,6 +609,52 @@ mod tests {
                     .find(|&i| dist2(&pt.to_array(), p[i].as_dvec3()) == k.distance)
                     .unwrap();
                 assert_eq!(got, lowest);
+            }
+        }
+    }
+
+    /// Walk-like queries (a texel moved up to a spacing, texel midpoints: exact ties),
+    /// seeded with a texel and its grid neighbours as the walks seed them, get the least
+    /// (distance, index) over all texels, as brute force: the local search near the seed
+    /// never misses a nearer texel of its own or another face.
+    #[test]
+    fn seeded_near_the_answer_as_brute_force() {
+        for (faces, n, flat) in [(7, 16, false), (5, 9, true), (40, 5, false), (6, 2, true)] {
+            let (l, p) = sheet(faces, n, flat);
+            let bvh = TexelBvh::build(&l, Xyz::Packed(&p), true, |_| true);
+            let mut rng = 99u64;
+            let mut next = || {
+                rng = rng
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                (rng >> 11) as f64 / (1u64 << 53) as f64
+            };
+            for t in (0..p.len()).step_by(3) {
+                let (f, x, y) = l.coords(t);
+                let nb = |dx: isize, dy: isize| {
+                    let (xx, yy) = (x as isize + dx, y as isize + dy);
+                    (xx >= 0 && yy >= 0 && (xx as usize) < n && (yy as usize) < n)
+                        .then(|| l.index(f, xx as usize, yy as usize))
+                };
+                let seeds: Vec<usize> = (-1..=1)
+                    .flat_map(|dy| (-1..=1).map(move |dx| (dx, dy)))
+                    .filter_map(|(dx, dy)| nb(dx, dy))
+                    .collect();
+                let other = nb(1, 0).or(nb(0, 1)).unwrap_or(t);
+                let (a, b) = (p[t].as_dvec3(), p[other].as_dvec3());
+                let step = 0.125 * (next() - 0.5) * DVec3::new(2.0, 2.0, 1.0);
+                for q in [a, (a + b) * 0.5, a + step, b + step * 1.5] {
+                    let want = (0..p.len())
+                        .min_by(|&i, &j| {
+                            let (di, dj) = (
+                                dist2(&q.to_array(), p[i].as_dvec3()),
+                                dist2(&q.to_array(), p[j].as_dvec3()),
+                            );
+                            di.total_cmp(&dj).then(i.cmp(&j))
+                        })
+                        .unwrap();
+                    assert_eq!(bvh.nearest_seeded(q, &seeds), Some(want), "{q}");
+                }
             }
         }
     }
