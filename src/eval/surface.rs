@@ -308,18 +308,22 @@ impl<'a> Cloud<'a> {
         // Nearest texel of each other domain: (domain, distance, texel).
         let mut per: Vec<(usize, f64, usize)> = Vec::new();
         let pi = self.pos(i);
-        for j in self.within(pi, 4.0 * own_i) {
+        let r = 4.0 * own_i;
+        // In the order of the visit, not listed and sorted: per domain the least
+        // (distance, texel) is kept, and what follows takes a maximum or the least
+        // (distance, domain), so the order does not matter.
+        self.index.for_within(pi, r * r, |j, pj| {
             let dj = l.domain_of(j);
             if dj == d {
-                continue;
+                return;
             }
-            let dist = (self.pos(j) - pi).length();
+            let dist = (pj - pi).length();
             match per.iter_mut().find(|e| e.0 == dj) {
-                Some(e) if dist < e.1 => *e = (dj, dist, j),
+                Some(e) if dist < e.1 || (dist == e.1 && j < e.2) => *e = (dj, dist, j),
                 Some(_) => {}
                 None => per.push((dj, dist, j)),
             }
-        }
+        });
         let take = |e: &(usize, f64, usize)| e.1.max(self.local_spacing(e.2));
         let c = if bx && by {
             per.iter().map(take).fold(own_i, f64::max)
