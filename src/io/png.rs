@@ -344,7 +344,7 @@ mod tests {
             for n in [0usize, 1, bpp.saturating_sub(1), bpp, bpp + 1, 97, 1000] {
                 for (pi, p) in patterns.iter().enumerate() {
                     for (qi, q) in patterns.iter().enumerate() {
-                        let cur: Vec<u8> = (0..n).map(|i| p(i)).collect();
+                        let cur: Vec<u8> = (0..n).map(p).collect();
                         let prev: Vec<u8> = (0..n).map(|i| q(i + 11)).collect();
                         for f in 1..=4u8 {
                             let mut out = vec![0u8; n];
