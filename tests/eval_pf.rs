@@ -13,7 +13,7 @@ use image::GenericImageView;
 use std::path::Path;
 use subdiv::{ControlMesh, DomainId, Surface};
 use surfsynth::eval::{
-    evaluate_image, patch_fidelities_with, PatchFidelity, PfMethod, PfOptions, Quality,
+    evaluate_image, patch_fidelities_with, windows_csv, PatchFidelity, PfMethod, PfOptions, Quality,
 };
 use surfsynth::example::Example;
 use surfsynth::io::exr::{write_face_maps, FaceMaps};
@@ -209,6 +209,67 @@ fn a_copy_scores_zero_and_shuffled_blocks_score_far_worse_at_large_s() {
         let [p1, p4, p8] = all(&sh);
         assert!(p8 > floor, "{name}: pf8 {p8}");
         assert!(p4 > 1.5 * p1 && p8 > 1.5 * p1, "{name}: {p1} {p4} {p8}");
+    }
+}
+
+/// `eval --windows`: each drawn centre's own score. Their mean must be the pfS reported
+/// (for the lattice, whose centres are pixels mapped back to texels, and for the surface
+/// walk), and they must say *where* structure is lost: left half a copy, right half its
+/// 8x8 blocks shuffled.
+#[test]
+fn per_window_scores_average_to_pf_and_find_the_damaged_half() {
+    let ex = scales();
+    let flat = Flat::new(5, 32);
+    let shuffled = shuffled_blocks(160);
+    let maps = flat.maps(&ex, |x, y| {
+        if x < 80 {
+            copy_at(x, y)
+        } else {
+            shuffled(x, y)
+        }
+    });
+    let s = Some(flat.scale());
+    for force_surface in [false, true] {
+        let pf = patch_fidelities_with(&maps, &flat.geo, &ex, s, &opts(force_surface));
+        let d = &pf.detail;
+        assert_eq!(d.centres.len(), d.drawn);
+        let csv = windows_csv(d, Some(&flat.geo), 0);
+        let mut lines = csv.lines();
+        assert_eq!(lines.next(), Some("face,u,v,x,y,z,pf1,pf4,pf8"));
+        let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+        assert_eq!(rows.len(), d.drawn);
+        for (col, reported) in [(6, pf.pf1), (7, pf.pf4), (8, pf.pf8)] {
+            let v: Vec<f64> = rows
+                .iter()
+                .filter(|r| !r[col].is_empty())
+                .map(|r| r[col].parse().unwrap())
+                .collect();
+            let mean = v.iter().sum::<f64>() / v.len() as f64;
+            let reported = reported.unwrap();
+            assert!(
+                (mean - reported).abs() <= 1e-9 * reported.max(1e-12),
+                "{:?} column {col}: mean {mean} against {reported}",
+                d.method
+            );
+        }
+        // pf8 by the centre's x (the grid spans x in [0, 5]; the halves meet at 2.5,
+        // a window reaches ~0.9 either side): clear of the join, the copy scores ~0.
+        let side = |lo: f64, hi: f64| {
+            let v: Vec<f64> = rows
+                .iter()
+                .filter(|r| !r[8].is_empty())
+                .filter(|r| (lo..hi).contains(&r[3].parse::<f64>().unwrap()))
+                .map(|r| r[8].parse().unwrap())
+                .collect();
+            assert!(v.len() > 20, "{lo}..{hi}: {} windows", v.len());
+            v.iter().sum::<f64>() / v.len() as f64
+        };
+        let (copy, broken) = (side(0.0, 1.5), side(3.5, 5.0));
+        println!(
+            "{:?}: pf8 copy half {copy:.4}, shuffled half {broken:.4}",
+            d.method
+        );
+        assert!(copy < 0.01 && broken > 0.2, "{copy} {broken}");
     }
 }
 
@@ -540,6 +601,40 @@ fn command_line_finds_the_example_in_the_report_and_measures_images() {
     assert!(out.status.success());
     let q: Quality = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!((q.pf1, q.example), (None, None));
+    // ... and `--windows` there is a one-line error that writes nothing.
+    let csv = tmp.path().join("windows.csv");
+    let out = std::process::Command::new(exe)
+        .arg("eval")
+        .arg(tmp.path())
+        .arg("--windows")
+        .arg(&csv)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(err.contains("windows.csv") && !csv.exists(), "{err}");
+    // With the example given, one row per drawn window.
+    let out = std::process::Command::new(exe)
+        .arg("eval")
+        .arg(tmp.path())
+        .arg("--example")
+        .arg(&ex_path)
+        .arg("--windows")
+        .arg(&csv)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = std::fs::read_to_string(&csv).unwrap();
+    assert!(
+        text.starts_with("face,u,v,x,y,z,pf1,pf4,pf8\n"),
+        "{text:.80}"
+    );
+    assert_eq!(text.lines().count(), 1 + 1024);
 
     // --image: the example itself scores 0.
     let out = std::process::Command::new(exe)

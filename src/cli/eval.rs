@@ -28,15 +28,21 @@ pub struct EvalArgs {
     /// Measure a 2D image instead of a result directory (needs --example).
     #[arg(long, value_name = "OUT.png", requires = "example")]
     pub image: Option<PathBuf>,
+    /// Also write every pf window as CSV (its centre's face, u, v and position, or pixel
+    /// with --image, and its own pf1/pf4/pf8): where structure is lost (docs/eval.md).
+    #[arg(long, value_name = "FILE.csv")]
+    pub windows: Option<PathBuf>,
 }
 
 pub fn run(a: EvalArgs) -> anyhow::Result<()> {
     match (&a.image, &a.dir) {
         (Some(img), _) => match &a.example {
-            Some(e) => surfsynth::eval::run_image_cli(img, e),
+            Some(e) => surfsynth::eval::run_image_cli(img, e, a.windows.as_deref()),
             None => bail!("--image needs --example E.png"),
         },
-        (None, Some(dir)) => surfsynth::eval::run_cli(dir, a.scale, a.example),
+        (None, Some(dir)) => {
+            surfsynth::eval::run_cli(dir, a.scale, a.example, a.windows.as_deref())
+        }
         (None, None) => bail!("give a result directory DIR or --image OUT.png"),
     }
 }

@@ -296,6 +296,11 @@ pub fn evaluate(dir: &Path, scale: Option<f64>) -> anyhow::Result<Quality> {
 
 /// Evaluates the result in `dir` with all options.
 pub fn evaluate_with(dir: &Path, opts: &EvalOptions) -> Result<Quality> {
+    evaluate_loaded(dir, opts).map(|(q, _)| q)
+}
+
+/// [`evaluate_with`], keeping the geometry maps it read (for [`windows_csv`]).
+fn evaluate_loaded(dir: &Path, opts: &EvalOptions) -> Result<(Quality, FaceMaps)> {
     if let Some(s) = opts.scale {
         check_scale(s)?;
     }
@@ -364,7 +369,55 @@ pub fn evaluate_with(dir: &Path, opts: &EvalOptions) -> Result<Quality> {
         .map_err(|e| Error::file(&colour_path, e))?;
     q.scale = scale;
     q.example = example_path.map(|p| p.display().to_string());
-    Ok(q)
+    Ok((q, geometry))
+}
+
+/// Every pf window of `detail` as CSV, one row per drawn centre in drawing order, so that
+/// what pfS averages can be seen where it is (docs/eval.md, "Per window"): with the
+/// result's `geometry`, `face,u,v,x,y,z,pf1,pf4,pf8` (the centre texel's domain, its
+/// (u, v) in the domain and its limit position); without (an image), `x,y,pf1,pf4,pf8` in
+/// pixels of an image `width` wide. Each pfS cell is that window's own score, empty where
+/// no window was laid; the mean of a column is the pfS `eval` reports.
+pub fn windows_csv(detail: &PfDetail, geometry: Option<&FaceMaps>, width: usize) -> String {
+    use std::fmt::Write;
+    let score = |s: usize, k: usize| -> String {
+        detail
+            .scales
+            .iter()
+            .find(|x| x.s == s)
+            .and_then(|x| x.per_window.get(k).copied().flatten())
+            .map(|v| format!("{v}"))
+            .unwrap_or_default()
+    };
+    let pos =
+        geometry.and_then(|g| Some((g.channel("P.X")?, g.channel("P.Y")?, g.channel("P.Z")?)));
+    let mut out = String::new();
+    out.push_str(match geometry {
+        Some(_) => "face,u,v,x,y,z,pf1,pf4,pf8\n",
+        None => "x,y,pf1,pf4,pf8\n",
+    });
+    for (k, &c) in detail.centres.iter().enumerate() {
+        match (geometry, pos) {
+            (Some(g), Some((px, py, pz))) => {
+                let l = g.layout.location(c);
+                let _ = write!(
+                    out,
+                    "{},{},{},{},{},{},",
+                    l.domain.idx(),
+                    l.u,
+                    l.v,
+                    px[c],
+                    py[c],
+                    pz[c]
+                );
+            }
+            _ => {
+                let _ = write!(out, "{},{},", c % width.max(1), c / width.max(1));
+            }
+        }
+        let _ = writeln!(out, "{},{},{}", score(1, k), score(4, k), score(8, k));
+    }
+    out
 }
 
 /// The example named by DIR/report.json (`inputs.example`), when that file exists: as
@@ -998,21 +1051,51 @@ pub fn evaluate_image(image: &Path, example: &Path) -> Result<ImageQuality> {
     })
 }
 
-/// `surfsynth eval`: evaluates `dir` and prints the measures as pretty JSON on stdout.
-pub fn run_cli(dir: &Path, scale: Option<f64>, example: Option<PathBuf>) -> anyhow::Result<()> {
-    let q = evaluate_with(dir, &EvalOptions { scale, example })?;
+/// `surfsynth eval`: evaluates `dir` and prints the measures as pretty JSON on stdout;
+/// with `windows`, also writes every pf window's score there ([`windows_csv`]).
+pub fn run_cli(
+    dir: &Path,
+    scale: Option<f64>,
+    example: Option<PathBuf>,
+    windows: Option<&Path>,
+) -> anyhow::Result<()> {
+    let (q, geometry) = evaluate_loaded(dir, &EvalOptions { scale, example })?;
+    if let Some(path) = windows {
+        write_windows(path, q.pf_detail.as_ref(), Some(&geometry), 0)?;
+    }
     println!("{}", to_json(&q));
     Ok(())
 }
 
-/// `surfsynth eval --image OUT.png --example E.png`: prints [`ImageQuality`] as JSON.
-pub fn run_image_cli(image: &Path, example: &Path) -> anyhow::Result<()> {
+/// `surfsynth eval --image OUT.png --example E.png`: prints [`ImageQuality`] as JSON;
+/// with `windows`, also writes every pf window's score there ([`windows_csv`]).
+pub fn run_image_cli(image: &Path, example: &Path, windows: Option<&Path>) -> anyhow::Result<()> {
     let q = evaluate_image(image, example)?;
+    if let Some(path) = windows {
+        write_windows(path, q.pf_detail.as_ref(), None, q.width)?;
+    }
     println!(
         "{}",
         serde_json::to_string_pretty(&q).expect("ImageQuality serialises")
     );
     Ok(())
+}
+
+/// Writes [`windows_csv`] to `path` (a temporary name, then renamed); an error when no pf
+/// was measured (no example), since an empty table would read as a result.
+fn write_windows(
+    path: &Path,
+    detail: Option<&PfDetail>,
+    geometry: Option<&FaceMaps>,
+    width: usize,
+) -> Result<()> {
+    let detail = detail.filter(|d| !d.centres.is_empty()).ok_or_else(|| {
+        Error::file(
+            path,
+            "no pf windows to write: pf1/pf4/pf8 were not measured (no example: pass --example E.png)",
+        )
+    })?;
+    crate::io::atomic::write_bytes_atomic(path, windows_csv(detail, geometry, width).as_bytes())
 }
 
 /// The JSON text `eval` prints (pretty, stable key order; undefined values are `null`).

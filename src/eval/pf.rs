@@ -83,6 +83,12 @@ pub struct PfScale {
     pub nearest_mean_sq: Option<f64>,
     /// Mean squared l2 distance between random pairs of example windows.
     pub pairs_mean_sq: Option<f64>,
+    /// Each drawn centre's own score, in [`PfDetail::centres`] order: its window's squared
+    /// distance to the nearest example window over `pairs_mean_sq`, so that `value` is
+    /// their mean; `None` where no window was laid (or nothing is measurable at this S).
+    /// *Why*: pfS says how much structure is lost, this says where (`eval --windows`).
+    #[serde(skip)]
+    pub per_window: Vec<Option<f64>>,
 }
 
 /// How the pfS figures were obtained (the `pf_detail` object of `eval`'s JSON).
@@ -97,6 +103,10 @@ pub struct PfDetail {
     pub fallbacks: usize,
     /// Per S (1, 4, 8).
     pub scales: Vec<PfScale>,
+    /// The drawn window centres: texel indices of the maps (`surface` and `lattice`) or
+    /// pixel indices of the image (`image`), in the order of [`PfScale::per_window`].
+    #[serde(skip)]
+    pub centres: Vec<usize>,
 }
 
 /// pf1, pf4, pf8 of one result and how they were obtained.
@@ -112,7 +122,7 @@ impl PatchFidelity {
     /// Assembles the result from per-scale figures (in [`PF_SCALES`] order).
     pub(crate) fn from_scales(
         method: PfMethod,
-        drawn: usize,
+        centres: Vec<usize>,
         fallbacks: usize,
         scales: Vec<PfScale>,
     ) -> Self {
@@ -123,9 +133,10 @@ impl PatchFidelity {
             pf8: get(8),
             detail: PfDetail {
                 method,
-                drawn,
+                drawn: centres.len(),
                 fallbacks,
                 scales,
+                centres,
             },
         }
     }
@@ -142,9 +153,10 @@ impl PatchFidelity {
                 example_windows: 0,
                 nearest_mean_sq: None,
                 pairs_mean_sq: None,
+                per_window: Vec::new(),
             })
             .collect();
-        Self::from_scales(method, 0, 0, scales)
+        Self::from_scales(method, Vec::new(), 0, scales)
     }
 }
 
@@ -1054,11 +1066,13 @@ pub(crate) fn score_scale(
     opts: &PfOptions,
     banks: Option<&crate::synth::Analyses>,
 ) -> PfScale {
-    let laid: Vec<&Vec<f32>> = windows
+    // The windows laid, with their places among the drawn centres.
+    let (at, laid): (Vec<usize>, Vec<&Vec<f32>>) = windows
         .iter()
-        .flatten()
-        .filter(|w| w.iter().all(|v| v.is_finite()))
-        .collect();
+        .enumerate()
+        .filter_map(|(k, w)| w.as_ref().map(|w| (k, w)))
+        .filter(|(_, w)| w.iter().all(|v| v.is_finite()))
+        .unzip();
     let skipped = windows.len() - laid.len();
     let mut out = PfScale {
         s,
@@ -1068,6 +1082,7 @@ pub(crate) fn score_scale(
         example_windows: 0,
         nearest_mean_sq: None,
         pairs_mean_sq: None,
+        per_window: vec![None; windows.len()],
     };
     let bank = match banks {
         Some(a) => Bank::build_in(example, s, opts.pairs, opts.seed, a),
@@ -1087,6 +1102,9 @@ pub(crate) fn score_scale(
     out.nearest_mean_sq = Some(num);
     if bank.pairs_mean_sq > 0.0 {
         out.value = Some(num / bank.pairs_mean_sq);
+        for (&k, &d) in at.iter().zip(&nearest) {
+            out.per_window[k] = Some(d.max(0.0) as f64 / bank.pairs_mean_sq);
+        }
     }
     out
 }
@@ -1129,7 +1147,7 @@ pub(crate) fn image_patch_fidelities_as(
             score_scale(s, &windows, example, opts, banks)
         })
         .collect();
-    PatchFidelity::from_scales(method, drawn.len(), 0, scales)
+    PatchFidelity::from_scales(method, drawn, 0, scales)
 }
 
 #[cfg(test)]

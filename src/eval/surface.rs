@@ -808,12 +808,12 @@ const SPACING_SAMPLE: usize = 61;
 /// The maps as one image when their texel centres form a square lattice, tile by tile,
 /// and the source positions step one pixel per texel along it (or, without sources, the
 /// scale equals the lattice spacing): then "the window is the pixel grid". `None`
-/// otherwise (docs/eval.md, "Lattice").
+/// otherwise (docs/eval.md, "Lattice"). With the image, the texel of each pixel.
 pub(crate) fn lattice_image(
     colour: &FaceMaps,
     geometry: TexelPoints,
     scale: Option<f64>,
-) -> Option<Rgb> {
+) -> Option<(Rgb, Vec<u32>)> {
     // The lattice is one resolution's pixel grid: per-face resolutions have none.
     let n = colour.uniform_n()?;
     let f = colour.faces();
@@ -897,20 +897,25 @@ pub(crate) fn lattice_image(
     }
     let (w, h) = (cols * n, rows * n);
     let mut img = vec![[f32::NAN; 3]; w * h];
+    let mut texel = vec![0u32; w * h];
     for (d, t) in tiles.iter().enumerate() {
         let (ox, oy) = ((t.0 - minx) as usize * n, (t.1 - miny) as usize * n);
         for y in 0..n {
             for x in 0..n {
                 let i = idx(d, x, y);
                 img[(oy + y) * w + ox + x] = [r[i], g[i], b[i]];
+                texel[(oy + y) * w + ox + x] = i as u32;
             }
         }
     }
-    Some(Rgb {
-        width: w,
-        height: h,
-        px: img,
-    })
+    Some((
+        Rgb {
+            width: w,
+            height: h,
+            px: img,
+        },
+        texel,
+    ))
 }
 
 /// Medians of (Δu, Δv) over coherent x-adjacent and y-adjacent texel pairs of one face:
@@ -986,8 +991,12 @@ pub(crate) fn patch_fidelities_in(
 ) -> PatchFidelity {
     let ex = Rgb::from_example(example);
     if !opts.force_surface {
-        if let Some(img) = lattice_image(colour, geometry, scale) {
-            return image_patch_fidelities_as(&img, &ex, opts, PfMethod::Lattice, banks);
+        if let Some((img, texel)) = lattice_image(colour, geometry, scale) {
+            let mut pf = image_patch_fidelities_as(&img, &ex, opts, PfMethod::Lattice, banks);
+            for c in &mut pf.detail.centres {
+                *c = texel[*c] as usize;
+            }
+            return pf;
         }
     }
     let Some(cloud) = Cloud::build(colour, geometry, scale) else {
@@ -1009,5 +1018,5 @@ pub(crate) fn patch_fidelities_in(
             score_scale(s, &windows, &ex, opts, banks)
         })
         .collect();
-    PatchFidelity::from_scales(PfMethod::Surface, drawn.len(), fallbacks, scales)
+    PatchFidelity::from_scales(PfMethod::Surface, drawn, fallbacks, scales)
 }
