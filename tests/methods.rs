@@ -457,3 +457,40 @@ fn the_default_lays_bricks_flat_on_level_ground() {
     assert_eq!(md.q.coverage, 1.0, "{what}");
     assert_unstretched(&what, &md.q);
 }
+
+/// Texture optimisation's progress covers its final assembly too (per wave of patches),
+/// not only the EM iterations: on a big mesh the assembly runs for seconds after the last
+/// iteration. The synthesis stage's counts only grow, end at the total, and take more
+/// distinct values than the iterations alone could give (Spot at N = 8: 3 levels x 2 patch
+/// sizes x 3 iterations = 18).
+#[test]
+fn optimise_progress_reaches_the_end_through_the_final_assembly() {
+    use std::sync::{Arc, Mutex};
+    use surfsynth::synthesizer::Stage;
+    let seen = Arc::new(Mutex::new(Vec::new()));
+    let log = seen.clone();
+    Synthesizer::new(
+        data("meshes/spot_control_mesh.obj"),
+        data("textures/etr_gravel.png"),
+    )
+    .method(Method::Optimise)
+    .resolution(8)
+    .on_progress(move |s, d, t| {
+        if s == Stage::Synthesis {
+            log.lock().unwrap().push((d, t));
+        }
+    })
+    .run()
+    .unwrap();
+    let seen = seen.lock().unwrap();
+    let total = seen.last().unwrap().1;
+    assert!(seen.windows(2).all(|w| w[0].0 <= w[1].0), "{seen:?}");
+    assert_eq!(seen.last().unwrap().0, total, "{seen:?}");
+    let mut distinct: Vec<usize> = seen.iter().map(|p| p.0).collect();
+    distinct.dedup();
+    assert!(
+        distinct.len() > 18 + 2,
+        "{} distinct: {distinct:?}",
+        distinct.len()
+    );
+}

@@ -238,11 +238,17 @@ pub struct Output {
 
 /// Smallest example side at the coarsest level, and smallest face-map side.
 const MIN_EXAMPLE_SIDE: usize = 24;
+/// Progress units per EM iteration (so that the final assembly can report fractions).
+const PROGRESS_STEP: usize = 100;
+/// The final assembly's share of the progress, in EM iterations (measured on the hand at
+/// N = 32: ~2.5 iterations of the output level).
+const ASSEMBLY_ITERATIONS: usize = 3;
 const MIN_RESOLUTION: usize = 2;
 
 /// Runs texture optimisation of `weighted` (the example's channels premultiplied by the
 /// square roots of their weights) over `target`. `K` is the matching dimension of
-/// `mode`. `progress(done, total)` counts EM iterations.
+/// `mode`. `progress(done, total)` counts EM iterations and the final assembly in
+/// [`PROGRESS_STEP`]ths of an iteration.
 pub fn run<const K: usize>(
     weighted: &Image,
     mode: super::matching::appearance::AppearanceMode,
@@ -293,6 +299,11 @@ pub fn run<const K: usize>(
     }
     let total_iters = plan.len() * params.sizes.len().max(1) * params.iterations;
     let mut done_iters = 0;
+    // The final assembly weighs as much as [`ASSEMBLY_ITERATIONS`] iterations of the
+    // output level, and reports per wave of patches: on a big mesh it runs for several
+    // seconds after the last iteration (the hand at N = 32: ~12 s), which a bar counting
+    // iterations alone would show as a stall.
+    let total = (total_iters + ASSEMBLY_ITERATIONS) * PROGRESS_STEP;
     let mut stats = Stats::default();
     let mut info = None;
     let mut prev: Option<(LevelTexels, Vec<[f32; 2]>, Vec<Turn>)> = None;
@@ -365,7 +376,7 @@ pub fn run<const K: usize>(
                 &scratch,
                 &mut || {
                     done_iters += 1;
-                    progress(done_iters, total_iters);
+                    progress(done_iters * PROGRESS_STEP, total);
                 },
             );
             src = res.source;
@@ -390,6 +401,10 @@ pub fn run<const K: usize>(
                     guide,
                     params.join_blend,
                     target.seed,
+                    &|d, t| {
+                        let part = ASSEMBLY_ITERATIONS * PROGRESS_STEP * d / t.max(1);
+                        progress(total_iters * PROGRESS_STEP + part, total);
+                    },
                 );
             }
             // Sources in level-j pixels, to level-0 example pixels.

@@ -355,7 +355,8 @@ fn paste_waves<const K: usize>(
 /// and cut into what is already there, so patches meet along seams of least error
 /// instead of along the boundaries of whichever patch weighs most. Texels no footprint
 /// covers keep `fallback`'s source. With `blend`, joins between patches that nearly
-/// continue each other are smoothed ([`blend_joins`]).
+/// continue each other are smoothed ([`blend_joins`]). `progress(done, total)` counts
+/// patches pasted, once per wave.
 #[allow(clippy::too_many_arguments)]
 pub fn assemble<const K: usize>(
     ex: &Exemplar<K>,
@@ -366,6 +367,7 @@ pub fn assemble<const K: usize>(
     guide: Option<&[[f32; K]]>,
     blend: Option<f32>,
     seed: u64,
+    progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Vec<[f32; 2]> {
     let n = level.len();
     let params = PatchParams::default();
@@ -396,7 +398,7 @@ pub fn assemble<const K: usize>(
         &scratch,
         &mut stats,
         pasted.as_deref_mut(),
-        &|_, _| {},
+        progress,
     );
     for ((src, &set), &fb) in state.src.iter_mut().zip(&state.set).zip(fallback) {
         if !set {
