@@ -396,23 +396,7 @@ impl<'a> TexelBvh<'a> {
             let own = &self.nodes[self.leaf[b] as usize];
             let r = reach(own);
             let mut out = Vec::new();
-            let mut stack = [0usize; STACK];
-            let mut top = 1;
-            while top > 0 {
-                top -= 1;
-                let k = stack[top];
-                let n = &self.nodes[k];
-                if box_box_dist2(own, n) > r * r {
-                    continue;
-                }
-                if n.block != INNER {
-                    out.push(n.block);
-                    continue;
-                }
-                stack[top] = k + n.right as usize;
-                stack[top + 1] = k + 1;
-                top += 2;
-            }
+            self.visit_blocks(|n| box_box_dist2(own, n) > r * r, |b| out.push(b));
             out.into_boxed_slice()
         })
     }
@@ -430,6 +414,22 @@ impl<'a> TexelBvh<'a> {
     /// those (pf's disc samples), instead of listing and sorting all.
     pub fn for_within(&self, p: DVec3, r2: f64, mut f: impl FnMut(usize, DVec3)) {
         let q = p.to_array();
+        self.visit_blocks(
+            |n| box_dist2(&q, n) > r2,
+            |b| {
+                self.each(&self.blocks[b as usize], |i, x| {
+                    if dist2(&q, x) <= r2 {
+                        f(i, x);
+                    }
+                })
+            },
+        );
+    }
+
+    /// Depth first, left child first: every block under the nodes that `prune` does not
+    /// cut off, handed to `block`. The one pruned walk of the radius searches
+    /// ([`Self::for_within`], [`Self::near_blocks`]), which differ only in what prunes.
+    fn visit_blocks(&self, mut prune: impl FnMut(&Node) -> bool, mut block: impl FnMut(u32)) {
         if self.nodes.is_empty() {
             return;
         }
@@ -439,15 +439,11 @@ impl<'a> TexelBvh<'a> {
             top -= 1;
             let k = stack[top];
             let n = &self.nodes[k];
-            if box_dist2(&q, n) > r2 {
+            if prune(n) {
                 continue;
             }
             if n.block != INNER {
-                self.each(&self.blocks[n.block as usize], |i, x| {
-                    if dist2(&q, x) <= r2 {
-                        f(i, x);
-                    }
-                });
+                block(n.block);
                 continue;
             }
             stack[top] = k + n.right as usize;
