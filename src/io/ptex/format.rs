@@ -11,8 +11,6 @@
 //! `z_stream` after each block), so any deflate level — including stored blocks — is
 //! read the same way.
 
-use std::io::Write;
-
 /// `'P' | 't' << 8 | 'e' << 16 | 'x' << 24`.
 pub const MAGIC: u32 = u32::from_le_bytes(*b"Ptex");
 /// File format version the reference reader accepts (it refuses anything else).
@@ -262,11 +260,55 @@ pub fn zip_into(data: &[u8], level: u32, out: &mut Vec<u8>) -> usize {
         stored_into(data, out);
         return out.len() - start;
     }
-    let mut e = flate2::write::ZlibEncoder::new(out, flate2::Compression::new(level));
-    // Writing into a Vec cannot fail.
-    e.write_all(data).expect("in-memory compression");
-    let out = e.finish().expect("in-memory compression");
+    DEFLATE.with_borrow_mut(|slot| {
+        let c = match slot {
+            Some((l, c)) if *l == level => {
+                c.reset();
+                c
+            }
+            _ => {
+                &mut slot
+                    .insert((
+                        level,
+                        flate2::Compress::new(flate2::Compression::new(level), true),
+                    ))
+                    .1
+            }
+        };
+        // The calls a `ZlibEncoder` makes: all input without flushing, then the finish
+        // with none (finishing in the same call as the input marks the last data block
+        // final instead of ending with an empty one: other bytes). compress_vec writes
+        // only into spare capacity.
+        let mut input = data;
+        while !input.is_empty() {
+            out.reserve(input.len() / 2 + 64);
+            let before = c.total_in();
+            c.compress_vec(input, out, flate2::FlushCompress::None)
+                .expect("in-memory compression");
+            input = &input[(c.total_in() - before) as usize..];
+        }
+        loop {
+            out.reserve(64);
+            let status = c
+                .compress_vec(&[], out, flate2::FlushCompress::Finish)
+                .expect("in-memory compression");
+            if status == flate2::Status::StreamEnd {
+                break;
+            }
+        }
+    });
     out.len() - start
+}
+
+thread_local! {
+    /// One zlib compressor per thread, reset for each stream instead of made anew: the
+    /// writer compresses a small stream per face (its tiles' headers), and a new
+    /// compressor's state (~0.3 MiB: window and hash tables) was a fresh mapping to fault in
+    /// and give back every time (docs/benchmarks.md, "Ptex writing without fresh
+    /// buffers"). The same stream bytes: deflate's output does not depend on whether its
+    /// state was new or reset.
+    static DEFLATE: std::cell::RefCell<Option<(u32, flate2::Compress)>> =
+        const { std::cell::RefCell::new(None) };
 }
 
 /// `data` as one zlib stream.
@@ -347,6 +389,39 @@ mod tests {
         assert_eq!(tile_res(Res::new(7, 6), 8), None);
         assert_eq!(floor_log2(0), 0);
         assert_eq!(floor_log2(7), 2);
+    }
+
+    /// The per-thread compressor, reset between streams and switched between levels,
+    /// writes the bytes a fresh encoder writes (so files do not depend on which streams a
+    /// thread compressed before).
+    #[test]
+    fn a_reused_compressor_writes_what_a_fresh_one_writes() {
+        use std::io::Write;
+        let data: Vec<u8> = (0..300_000u32).map(|i| (i * i % 253) as u8).collect();
+        let fresh = |d: &[u8], level: u32| {
+            let mut e =
+                flate2::write::ZlibEncoder::new(Vec::new(), flate2::Compression::new(level));
+            e.write_all(d).unwrap();
+            e.finish().unwrap()
+        };
+        for (level, len) in [
+            (6, 300_000),
+            (6, 10),
+            (6, 0),
+            (1, 70_000),
+            (6, 40_000),
+            (9, 5),
+        ] {
+            let mut out = vec![7u8; 3];
+            let n = zip_into(&data[..len], level, &mut out);
+            assert_eq!(&out[..3], &[7, 7, 7]);
+            assert_eq!(
+                &out[3..],
+                &fresh(&data[..len], level)[..],
+                "level {level}, {len} bytes"
+            );
+            assert_eq!(n, out.len() - 3);
+        }
     }
 
     #[test]

@@ -82,6 +82,18 @@ pub fn pixel(data: &[f32], npix: usize, i: usize) -> Vec<f32> {
 }
 
 /// Little-endian bytes of f32 values.
+/// The little-endian bytes of `data` without a copy where the machine is little-endian
+/// (the file's order): a face's texels at N = 128 are ~0.3 MiB, and a copy of that size
+/// per face was a fresh mapping to fault in and give back (docs/benchmarks.md, "Ptex
+/// writing without fresh buffers").
+pub fn le_bytes(data: &[f32]) -> std::borrow::Cow<'_, [u8]> {
+    if cfg!(target_endian = "little") {
+        std::borrow::Cow::Borrowed(bytemuck::cast_slice(data))
+    } else {
+        std::borrow::Cow::Owned(bytes(data))
+    }
+}
+
 pub fn bytes(data: &[f32]) -> Vec<u8> {
     let mut out = vec![0u8; data.len() * 4];
     for (o, v) in out.chunks_exact_mut(4).zip(data) {

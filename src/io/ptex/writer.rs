@@ -107,6 +107,14 @@ struct Plan {
     small: Vec<Vec<u8>>,
 }
 
+thread_local! {
+    /// The tiled encoding's scratch for a face's tile bytes, reused by each thread from
+    /// face to face: at N = 128 it grows to ~0.3 MiB, above the allocator's mapping
+    /// threshold (`memory::tune_allocator`), so a fresh vector per face was mapped, faulted
+    /// in page by page and unmapped again every time.
+    static BODY: std::cell::Cell<Vec<u8>> = const { std::cell::Cell::new(Vec::new()) };
+}
+
 /// Encodes one face (or reduction) of planar data as the reference's `writeFaceData`
 /// does: one zipped block, or tiles when it is large. Returns the data header. With
 /// `out = None` only the size is wanted: at level 0 (stored blocks) it follows from the
@@ -128,13 +136,15 @@ fn encode(
     let start = out.len();
     let enc = match format::tile_res(res, nch * 4) {
         None => {
-            zip_into(&texels::bytes(data), level, out);
+            zip_into(&texels::le_bytes(data), level, out);
             Encoding::Zipped
         }
         Some(t) => {
             let (nu, nv) = (res.u() / t.u(), res.v() / t.v());
             let mut headers = Vec::with_capacity(nu * nv * 4);
-            let mut body = Vec::new();
+            // The tiles' bytes, kept per thread between faces (see `BODY`).
+            let mut body = BODY.take();
+            body.clear();
             for tv in 0..nv {
                 for tu in 0..nu {
                     let tile = texels::tile(data, res, t, tu, tv);
@@ -144,7 +154,7 @@ fn encode(
                     } else if measure_only && level == 0 {
                         data_header(format::stored_len(tile.len() * 4) as u32, Encoding::Zipped)
                     } else {
-                        let n = zip_into(&texels::bytes(&tile), level, &mut body);
+                        let n = zip_into(&texels::le_bytes(&tile), level, &mut body);
                         data_header(n as u32, Encoding::Zipped)
                     };
                     headers.extend_from_slice(&fdh.to_le_bytes());
@@ -167,9 +177,11 @@ fn encode(
                         "a Ptex face block of {size} bytes exceeds the format's {MAX_BLOCK}"
                     )));
                 }
+                BODY.set(body);
                 return Ok(data_header(size as u32, Encoding::Tiled));
             }
             out.extend_from_slice(&body);
+            BODY.set(body);
             Encoding::Tiled
         }
     };
@@ -198,28 +210,28 @@ fn plan_face(
     opts: &PtexOptions,
     f: usize,
     fill: &(impl Fn(usize, &mut [f32]) + Sync),
+    scratch: &mut Vec<f32>,
 ) -> Result<Plan> {
     let res = img.faces[f].res;
     let (nch, npix) = (img.channels, res.size());
-    let mut data = vec![0f32; nch * npix];
-    fill(f, &mut data);
-    if texels::is_constant(&data, npix) {
+    let data = filled(scratch, nch * npix, f, fill);
+    if texels::is_constant(data, npix) {
         return Ok(Plan {
             constant: true,
-            value: texels::pixel(&data, npix, 0),
+            value: texels::pixel(data, npix, 0),
             fdh: vec![0],
             small: Vec::new(),
         });
     }
-    let mut fdh = vec![encode(&data, res, nch, opts.zlib_level, None)?];
+    let mut fdh = vec![encode(data, res, nch, opts.zlib_level, None)?];
     if let Some(a) = img.alpha {
-        texels::premultiply(&mut data, npix, nch, a);
+        texels::premultiply(data, npix, nch, a);
     }
     let mut small = Vec::new();
-    let mut cur = data;
+    let mut cur: std::borrow::Cow<[f32]> = std::borrow::Cow::Borrowed(data);
     let mut cur_res = res;
     for level in 1..face_levels(res, opts.mipmaps) {
-        cur = texels::reduce(&cur, cur_res, nch);
+        cur = texels::reduce(&cur, cur_res, nch).into();
         cur_res = cur_res.reduced(1);
         if level >= 2 {
             let mut block = Vec::new();
@@ -247,26 +259,42 @@ fn plan_face(
     })
 }
 
-/// Level 0 or 1 block of face `f` again (pass 2).
+/// Face `f`'s texels from `fill`, in `scratch` (a thread's buffer, reused from face to
+/// face: zeroed to `len` values as `fill` expects, without a fresh allocation — at N = 128
+/// one face is ~0.3 MiB, which the allocator maps and unmaps anew every time).
+fn filled<'s>(
+    scratch: &'s mut Vec<f32>,
+    len: usize,
+    f: usize,
+    fill: &(impl Fn(usize, &mut [f32]) + Sync),
+) -> &'s mut [f32] {
+    scratch.clear();
+    scratch.resize(len, 0.0);
+    fill(f, scratch);
+    scratch
+}
+
+/// Level 0 or 1 block of face `f` again (pass 2): `size` bytes.
 fn block(
     img: &PtexImage,
     opts: &PtexOptions,
     level: usize,
     f: usize,
     fill: &(impl Fn(usize, &mut [f32]) + Sync),
+    scratch: &mut Vec<f32>,
+    size: usize,
 ) -> Result<Vec<u8>> {
     let res = img.faces[f].res;
     let (nch, npix) = (img.channels, res.size());
-    let mut data = vec![0f32; nch * npix];
-    fill(f, &mut data);
-    let mut out = Vec::new();
+    let data = filled(scratch, nch * npix, f, fill);
+    let mut out = Vec::with_capacity(size);
     if level == 0 {
-        encode(&data, res, nch, opts.zlib_level, Some(&mut out))?;
+        encode(data, res, nch, opts.zlib_level, Some(&mut out))?;
     } else {
         if let Some(a) = img.alpha {
-            texels::premultiply(&mut data, npix, nch, a);
+            texels::premultiply(data, npix, nch, a);
         }
-        let r = texels::reduce(&data, res, nch);
+        let r = texels::reduce(data, res, nch);
         encode(&r, res.reduced(1), nch, opts.zlib_level, Some(&mut out))?;
     }
     Ok(out)
@@ -339,7 +367,9 @@ where
     // Pass 1.
     let plans: Vec<Plan> = (0..nfaces)
         .into_par_iter()
-        .map(|f| plan_face(img, opts, f, &fill))
+        .map_init(Vec::new, |scratch, f| {
+            plan_face(img, opts, f, &fill, scratch)
+        })
         .collect::<Result<_>>()?;
 
     // Flags, including the constant neighbourhoods.
@@ -537,7 +567,10 @@ where
         }
         let compute = |b: &[usize]| -> Result<Vec<Vec<u8>>> {
             b.par_iter()
-                .map(|&f| block(img, opts, i, f, &fill))
+                .map_init(Vec::new, |scratch, &f| {
+                    let size = block_size(plans[f].fdh[i]) as usize;
+                    block(img, opts, i, f, &fill, scratch, size)
+                })
                 .collect()
         };
         let mut pending = batches.first().map(|b| (*b, compute(b)));
