@@ -578,16 +578,19 @@ impl<'a> Cloud<'a> {
 
     /// One sample's colour at spacing `s` (module docs, step 3).
     fn sample(&self, st: &State, s: usize) -> [f32; 3] {
-        let k = self.nearest(st.p, st.near);
+        // The nearest texel's colour: S = 1's sample, and for a disc only the fallback (an
+        // empty disc or degenerate directions), so searched for only then (it was a ninth
+        // of the nearest-texel queries).
+        let nearest = || self.col(self.nearest(st.p, st.near));
         if s <= 1 {
-            return self.col(k);
+            return nearest();
         }
         let r = s as f64 / 2.0;
         let radius = r * (st.a.length_squared() + st.b.length_squared()).sqrt() * 1.001;
         let (g11, g12, g22) = (st.a.dot(st.a), st.a.dot(st.b), st.b.dot(st.b));
         let det = g11 * g22 - g12 * g12;
         if det.is_nan() || det <= 0.0 {
-            return self.col(k);
+            return nearest();
         }
         let sheet = 0.5 * radius + 0.5 * self.h;
         // The texels of the disc, summed in texel order. The tests are pure, so their
@@ -612,7 +615,7 @@ impl<'a> Cloud<'a> {
             }
         });
         if inside.is_empty() {
-            return self.col(k);
+            return nearest();
         }
         inside.sort_unstable();
         let mut acc = [0f64; 3];

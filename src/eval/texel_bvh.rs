@@ -22,6 +22,7 @@ use super::surface::Xyz;
 use crate::layout::TexelLayout;
 use glam::DVec3;
 use rayon::prelude::*;
+use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::OnceLock;
 
 /// Side of a block of texels (the last block of a face row or column may be narrower).
@@ -86,7 +87,21 @@ pub(crate) struct TexelBvh<'a> {
     /// The leaf node of each block (`u32::MAX`: no counted texel, not in the tree).
     leaf: Vec<u32>,
     /// Per block, once asked for: the blocks near it ([`TexelBvh::near_blocks`]).
-    near: Vec<OnceLock<Box<[u32]>>>,
+    near: Vec<OnceLock<Box<[Near]>>>,
+    /// Per block, once its near list is known: its clearance ([`TexelBvh::clearance`]),
+    /// as f32 bits, [`UNKNOWN`] before.
+    clear: Vec<AtomicU32>,
+}
+
+/// [`TexelBvh::clearance`] not computed yet (a NaN pattern).
+const UNKNOWN: u32 = u32::MAX;
+
+/// A block near another ([`TexelBvh::near_blocks`]): its leaf node and the distance
+/// between the two blocks' boxes (rounded to f32, which the scan's margin allows for).
+#[derive(Clone, Copy, Debug)]
+struct Near {
+    node: u32,
+    gap: f32,
 }
 
 /// Where a face's texels and blocks start, and their rows.
@@ -205,6 +220,7 @@ impl<'a> TexelBvh<'a> {
             pos,
             near: (0..blocks.len()).map(|_| OnceLock::new()).collect(),
             leaf: vec![u32::MAX; blocks.len()],
+            clear: (0..blocks.len()).map(|_| AtomicU32::new(UNKNOWN)).collect(),
             blocks,
             nodes: Vec::new(),
             valid,
@@ -359,22 +375,46 @@ impl<'a> TexelBvh<'a> {
     fn nearest_local(&self, q: &[f64; 3], best: f64, seed: usize) -> Option<usize> {
         let b = self.block_of(seed);
         let own = self.nodes.get(*self.leaf.get(b)? as usize)?;
-        let gap = box_dist2(q, own).sqrt() + best.sqrt();
+        let own_gap = box_dist2(q, own).sqrt();
+        let mut gap = own_gap + best.sqrt();
         // A NaN point fails the test.
         if gap.is_nan() || gap > reach(own) * LOCAL_MARGIN {
             return None;
         }
         let (mut best, mut best_i) = (best, seed);
-        for &c in self.near_blocks(b) {
-            if box_dist2(q, &self.nodes[self.leaf[c as usize] as usize]) > best {
+        let mut scan = |c: usize, best: &mut f64| {
+            self.each(&self.blocks[c], |i, x| {
+                let d2 = dist2(q, x);
+                if d2 < *best || (d2 == *best && i < best_i) {
+                    (*best, best_i) = (d2, i);
+                }
+            })
+        };
+        // Only B within reach (the triangle inequality below): its texels alone decide.
+        // Why: the common case (a walk point inside B, its nearest texel half a spacing
+        // away, the blocks beside B a spacing away), which then reads neither B's near
+        // list nor the boxes in it (their memory, not their tests, was most of the query).
+        if gap < self.clearance(b) * LOCAL_MARGIN {
+            scan(b, &mut best);
+            return Some(best_i);
+        }
+        // A texel x within √best of q lies in a block C whose box is within
+        // |q − B| + |q − x| ≤ `gap` of B's box (the triangle inequality through q's nearest
+        // point on B's box): the near blocks come nearest first, so the scan stops at the
+        // first one farther than that, and `gap` shrinks with `best`. Why: the list holds
+        // ~14 blocks (the 3 x 3 of the face and those of faces across), but a walk point
+        // inside B with its nearest texel half a spacing away needs only B and the blocks
+        // touching it; testing every box was most of the query.
+        for e in self.near_blocks(b) {
+            if e.gap as f64 * LOCAL_MARGIN > gap {
+                break;
+            }
+            let n = &self.nodes[e.node as usize];
+            if box_dist2(q, n) > best {
                 continue;
             }
-            self.each(&self.blocks[c as usize], |i, x| {
-                let d2 = dist2(q, x);
-                if d2 < best || (d2 == best && i < best_i) {
-                    (best, best_i) = (d2, i);
-                }
-            });
+            scan(n.block as usize, &mut best);
+            gap = own_gap + best.sqrt();
         }
         Some(best_i)
     }
@@ -389,16 +429,46 @@ impl<'a> TexelBvh<'a> {
     }
 
     /// The blocks in the tree whose box is within [`reach`] of block `b`'s box (`b`
-    /// included), computed the first time they are asked for: a run's walks touch a small
-    /// part of the surface.
-    fn near_blocks(&self, b: usize) -> &[u32] {
+    /// included), nearest first (ties by node), computed the first time they are asked
+    /// for: a run's walks touch a small part of the surface.
+    fn near_blocks(&self, b: usize) -> &[Near] {
         self.near[b].get_or_init(|| {
             let own = &self.nodes[self.leaf[b] as usize];
             let r = reach(own);
             let mut out = Vec::new();
-            self.visit_blocks(|n| box_box_dist2(own, n) > r * r, |b| out.push(b));
+            self.visit_blocks(
+                |n| box_box_dist2(own, n) > r * r,
+                |k, n| {
+                    out.push(Near {
+                        node: k,
+                        gap: box_box_dist2(own, n).sqrt() as f32,
+                    })
+                },
+            );
+            out.sort_unstable_by(|a, b| a.gap.total_cmp(&b.gap).then(a.node.cmp(&b.node)));
             out.into_boxed_slice()
         })
+    }
+
+    /// How far block `b`'s box is from every other block's box: the least distance to a
+    /// box in its near list other than its own, at most its [`reach`] (the blocks not in
+    /// the list are farther). Rounded to f32, which [`LOCAL_MARGIN`] allows for; computed
+    /// with the near list, kept apart from it (4 B per block) so that the common query
+    /// reads only this.
+    fn clearance(&self, b: usize) -> f64 {
+        let known = self.clear[b].load(Ordering::Relaxed);
+        if known != UNKNOWN {
+            return f32::from_bits(known) as f64;
+        }
+        let own = self.leaf[b];
+        let r = reach(&self.nodes[own as usize]) as f32;
+        let c = self
+            .near_blocks(b)
+            .iter()
+            .filter(|e| e.node != own)
+            .fold(r, |m, e| m.min(e.gap));
+        self.clear[b].store(c.to_bits(), Ordering::Relaxed);
+        c as f64
     }
 
     /// The counted texels whose squared distance from `p` is at most `r2`, in texel order.
@@ -416,8 +486,8 @@ impl<'a> TexelBvh<'a> {
         let q = p.to_array();
         self.visit_blocks(
             |n| box_dist2(&q, n) > r2,
-            |b| {
-                self.each(&self.blocks[b as usize], |i, x| {
+            |_, n| {
+                self.each(&self.blocks[n.block as usize], |i, x| {
                     if dist2(&q, x) <= r2 {
                         f(i, x);
                     }
@@ -426,10 +496,15 @@ impl<'a> TexelBvh<'a> {
         );
     }
 
-    /// Depth first, left child first: every block under the nodes that `prune` does not
-    /// cut off, handed to `block`. The one pruned walk of the radius searches
-    /// ([`Self::for_within`], [`Self::near_blocks`]), which differ only in what prunes.
-    fn visit_blocks(&self, mut prune: impl FnMut(&Node) -> bool, mut block: impl FnMut(u32)) {
+    /// Depth first, left child first: every leaf (its node and the node) under the nodes
+    /// that `prune` does not cut off, handed to `block`. The one pruned walk of the radius
+    /// searches ([`Self::for_within`], [`Self::near_blocks`]), which differ only in what
+    /// prunes.
+    fn visit_blocks(
+        &self,
+        mut prune: impl FnMut(&Node) -> bool,
+        mut block: impl FnMut(u32, &Node),
+    ) {
         if self.nodes.is_empty() {
             return;
         }
@@ -443,7 +518,7 @@ impl<'a> TexelBvh<'a> {
                 continue;
             }
             if n.block != INNER {
-                block(n.block);
+                block(k as u32, n);
                 continue;
             }
             stack[top] = k + n.right as usize;
