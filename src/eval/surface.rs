@@ -185,8 +185,9 @@ pub(crate) struct Cloud<'a> {
     /// Per texel, the spacing that decides whether a point nearest to it is on the
     /// surface ([`Cloud::cover`]), computed on first use: [`COVER_UNKNOWN`] while unknown,
     /// else the f32 bits. Only texels walked near are asked (a few per window); at small N
-    /// most texels are border texels, whose cover costs a radius query each, and computing
-    /// all of them took most of pf's time on a 200k-quad torus at N = 4.
+    /// most texels are border texels, whose cover costs a search each (a bounded nearest
+    /// search for an edge texel, a radius query for a corner), and computing all of them
+    /// took most of pf's time on a 200k-quad torus at N = 4.
     cover: Vec<AtomicU32>,
     /// Median adjacent spacing h.
     pub h: f64,
@@ -305,13 +306,23 @@ impl<'a> Cloud<'a> {
         if !(bx || by) || !self.valid(i) {
             return own_i as f32;
         }
-        // Nearest texel of each other domain: (domain, distance, texel).
-        let mut per: Vec<(usize, f64, usize)> = Vec::new();
         let pi = self.pos(i);
         let r = 4.0 * own_i;
+        if !(bx && by) {
+            // An edge texel: the least (distance, domain) over the domains' nearest texels
+            // is the least (distance, texel) over all texels of other domains (a domain's
+            // texels are numbered after the lower domains'), which one bounded search
+            // finds without listing the radius.
+            return match self.index.nearest_outside(pi, r * r, l.range(d)) {
+                Some((j, dist)) => own_i.max(dist.max(self.local_spacing(j))),
+                None => own_i,
+            } as f32;
+        }
+        // A corner texel: the nearest texel of each other domain: (domain, distance, texel).
+        let mut per: Vec<(usize, f64, usize)> = Vec::new();
         // In the order of the visit, not listed and sorted: per domain the least
-        // (distance, texel) is kept, and what follows takes a maximum or the least
-        // (distance, domain), so the order does not matter.
+        // (distance, texel) is kept, and what follows takes a maximum, so the order does
+        // not matter.
         self.index.for_within(pi, r * r, |j, pj| {
             let dj = l.domain_of(j);
             if dj == d {
@@ -325,14 +336,7 @@ impl<'a> Cloud<'a> {
             }
         });
         let take = |e: &(usize, f64, usize)| e.1.max(self.local_spacing(e.2));
-        let c = if bx && by {
-            per.iter().map(take).fold(own_i, f64::max)
-        } else {
-            per.iter()
-                .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)))
-                .map_or(own_i, |e| own_i.max(take(e)))
-        };
-        c as f32
+        per.iter().map(take).fold(own_i, f64::max) as f32
     }
 
     /// Texels that can be window centres.
