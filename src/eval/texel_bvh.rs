@@ -22,6 +22,7 @@ use super::surface::Xyz;
 use crate::layout::TexelLayout;
 use glam::DVec3;
 use rayon::prelude::*;
+use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::OnceLock;
 
 /// Side of a block of texels (the last block of a face row or column may be narrower).
@@ -86,7 +87,21 @@ pub(crate) struct TexelBvh<'a> {
     /// The leaf node of each block (`u32::MAX`: no counted texel, not in the tree).
     leaf: Vec<u32>,
     /// Per block, once asked for: the blocks near it ([`TexelBvh::near_blocks`]).
-    near: Vec<OnceLock<Box<[u32]>>>,
+    near: Vec<OnceLock<Box<[Near]>>>,
+    /// Per block, once its near list is known: its clearance ([`TexelBvh::clearance`]),
+    /// as f32 bits, [`UNKNOWN`] before.
+    clear: Vec<AtomicU32>,
+}
+
+/// [`TexelBvh::clearance`] not computed yet (a NaN pattern).
+const UNKNOWN: u32 = u32::MAX;
+
+/// A block near another ([`TexelBvh::near_blocks`]): its leaf node and the distance
+/// between the two blocks' boxes (rounded to f32, which the scan's margin allows for).
+#[derive(Clone, Copy, Debug)]
+struct Near {
+    node: u32,
+    gap: f32,
 }
 
 /// Where a face's texels and blocks start, and their rows.
@@ -101,6 +116,10 @@ struct FaceBlocks {
 /// Relative margin of the local search's test ([`TexelBvh::nearest_local`]), far above
 /// the rounding of a few f64 operations.
 const LOCAL_MARGIN: f64 = 1.0 - 1e-6;
+
+/// [`TexelBvh::nearest_outside`]'s pruning margin over the best distance squared: far
+/// above the few ulps by which a square whose root rounds to the best may exceed it.
+const TIE_MARGIN: f64 = 1.0 + 1e-9;
 
 /// Squared distance of `q` from `p`, summed in the k-d tree's order.
 #[inline(always)]
@@ -205,6 +224,7 @@ impl<'a> TexelBvh<'a> {
             pos,
             near: (0..blocks.len()).map(|_| OnceLock::new()).collect(),
             leaf: vec![u32::MAX; blocks.len()],
+            clear: (0..blocks.len()).map(|_| AtomicU32::new(UNKNOWN)).collect(),
             blocks,
             nodes: Vec::new(),
             valid,
@@ -359,22 +379,46 @@ impl<'a> TexelBvh<'a> {
     fn nearest_local(&self, q: &[f64; 3], best: f64, seed: usize) -> Option<usize> {
         let b = self.block_of(seed);
         let own = self.nodes.get(*self.leaf.get(b)? as usize)?;
-        let gap = box_dist2(q, own).sqrt() + best.sqrt();
+        let own_gap = box_dist2(q, own).sqrt();
+        let mut gap = own_gap + best.sqrt();
         // A NaN point fails the test.
         if gap.is_nan() || gap > reach(own) * LOCAL_MARGIN {
             return None;
         }
         let (mut best, mut best_i) = (best, seed);
-        for &c in self.near_blocks(b) {
-            if box_dist2(q, &self.nodes[self.leaf[c as usize] as usize]) > best {
+        let mut scan = |c: usize, best: &mut f64| {
+            self.each(&self.blocks[c], |i, x| {
+                let d2 = dist2(q, x);
+                if d2 < *best || (d2 == *best && i < best_i) {
+                    (*best, best_i) = (d2, i);
+                }
+            })
+        };
+        // Only B within reach (the triangle inequality below): its texels alone decide.
+        // Why: the common case (a walk point inside B, its nearest texel half a spacing
+        // away, the blocks beside B a spacing away), which then reads neither B's near
+        // list nor the boxes in it (their memory, not their tests, was most of the query).
+        if gap < self.clearance(b) * LOCAL_MARGIN {
+            scan(b, &mut best);
+            return Some(best_i);
+        }
+        // A texel x within √best of q lies in a block C whose box is within
+        // |q − B| + |q − x| ≤ `gap` of B's box (the triangle inequality through q's nearest
+        // point on B's box): the near blocks come nearest first, so the scan stops at the
+        // first one farther than that, and `gap` shrinks with `best`. Why: the list holds
+        // ~14 blocks (the 3 x 3 of the face and those of faces across), but a walk point
+        // inside B with its nearest texel half a spacing away needs only B and the blocks
+        // touching it; testing every box was most of the query.
+        for e in self.near_blocks(b) {
+            if e.gap as f64 * LOCAL_MARGIN > gap {
+                break;
+            }
+            let n = &self.nodes[e.node as usize];
+            if box_dist2(q, n) > best {
                 continue;
             }
-            self.each(&self.blocks[c as usize], |i, x| {
-                let d2 = dist2(q, x);
-                if d2 < best || (d2 == best && i < best_i) {
-                    (best, best_i) = (d2, i);
-                }
-            });
+            scan(n.block as usize, &mut best);
+            gap = own_gap + best.sqrt();
         }
         Some(best_i)
     }
@@ -389,16 +433,120 @@ impl<'a> TexelBvh<'a> {
     }
 
     /// The blocks in the tree whose box is within [`reach`] of block `b`'s box (`b`
-    /// included), computed the first time they are asked for: a run's walks touch a small
-    /// part of the surface.
-    fn near_blocks(&self, b: usize) -> &[u32] {
+    /// included), nearest first (ties by node), computed the first time they are asked
+    /// for: a run's walks touch a small part of the surface.
+    fn near_blocks(&self, b: usize) -> &[Near] {
         self.near[b].get_or_init(|| {
             let own = &self.nodes[self.leaf[b] as usize];
             let r = reach(own);
             let mut out = Vec::new();
-            self.visit_blocks(|n| box_box_dist2(own, n) > r * r, |b| out.push(b));
+            self.visit_blocks(
+                |n| box_box_dist2(own, n) > r * r,
+                |k, n| {
+                    out.push(Near {
+                        node: k,
+                        gap: box_box_dist2(own, n).sqrt() as f32,
+                    })
+                },
+            );
+            out.sort_unstable_by(|a, b| a.gap.total_cmp(&b.gap).then(a.node.cmp(&b.node)));
             out.into_boxed_slice()
         })
+    }
+
+    /// How far block `b`'s box is from every other block's box: the least distance to a
+    /// box in its near list other than its own, at most its [`reach`] (the blocks not in
+    /// the list are farther). Rounded to f32, which [`LOCAL_MARGIN`] allows for; computed
+    /// with the near list, kept apart from it (4 B per block) so that the common query
+    /// reads only this.
+    fn clearance(&self, b: usize) -> f64 {
+        let known = self.clear[b].load(Ordering::Relaxed);
+        if known != UNKNOWN {
+            return f32::from_bits(known) as f64;
+        }
+        let own = self.leaf[b];
+        let r = reach(&self.nodes[own as usize]) as f32;
+        let c = self
+            .near_blocks(b)
+            .iter()
+            .filter(|e| e.node != own)
+            .fold(r, |m, e| m.min(e.gap));
+        self.clear[b].store(c.to_bits(), Ordering::Relaxed);
+        c as f64
+    }
+
+    /// Among the counted texels that [`TexelBvh::within`] `r2` of `p` lists, those outside
+    /// `skip` (a range of texels: one face's), the one of least (distance, index), with
+    /// that distance: `(x − p).length()`, the square root of the squared distance (so two
+    /// texels whose squared distances differ in the last bit may tie, and then the lower
+    /// index wins, as when every texel within `r2` is listed and compared). `None`: no
+    /// such texel.
+    ///
+    /// Why: a face-border texel's cover ([`super::surface`]) wants the nearest texel of
+    /// another face within 4 spacings; listing all texels within that radius (half of
+    /// them its own face's) and sorting them by face cost ~13% of the pf summary. This
+    /// descent skips the face's blocks whole and prunes by the best distance so far.
+    pub fn nearest_outside(
+        &self,
+        p: DVec3,
+        r2: f64,
+        skip: std::ops::Range<usize>,
+    ) -> Option<(usize, f64)> {
+        if self.nodes.is_empty() {
+            return None;
+        }
+        let q = p.to_array();
+        let (mut best, mut best_i) = (f64::INFINITY, usize::MAX);
+        // Squared distances above this cannot tie with `best` once rooted (a correctly
+        // rounded square root at most `best` comes from a square within a few ulps of
+        // best², far inside the margin); at most `r2` (the radius search's own test).
+        let mut bound = r2;
+        let mut stack = [(0usize, 0f64); STACK];
+        stack[0] = (0, box_dist2(&q, &self.nodes[0]));
+        let mut top = 1;
+        while top > 0 {
+            top -= 1;
+            let (k, d) = stack[top];
+            if d > bound {
+                continue;
+            }
+            let n = &self.nodes[k];
+            if n.block != INNER {
+                let b = &self.blocks[n.block as usize];
+                // A block lies in one face: out of `skip` whole or not at all.
+                if skip.contains(&(b.start as usize)) {
+                    continue;
+                }
+                self.each(b, |i, x| {
+                    let d2 = dist2(&q, x);
+                    if d2 > r2 {
+                        return;
+                    }
+                    let dist = d2.sqrt();
+                    if dist < best || (dist == best && i < best_i) {
+                        (best, best_i) = (dist, i);
+                        bound = r2.min(best * best * TIE_MARGIN);
+                    }
+                });
+                continue;
+            }
+            let (l, r) = (k + 1, k + n.right as usize);
+            let (dl, dr) = (box_dist2(&q, &self.nodes[l]), box_dist2(&q, &self.nodes[r]));
+            let (near, far) = if dl <= dr {
+                ((l, dl), (r, dr))
+            } else {
+                ((r, dr), (l, dl))
+            };
+            if far.1 <= bound {
+                stack[top] = far;
+                top += 1;
+            }
+            if near.1 <= bound {
+                stack[top] = near;
+                top += 1;
+            }
+        }
+        (best_i != usize::MAX).then_some((best_i, best))
     }
 
     /// The counted texels whose squared distance from `p` is at most `r2`, in texel order.
@@ -416,8 +564,8 @@ impl<'a> TexelBvh<'a> {
         let q = p.to_array();
         self.visit_blocks(
             |n| box_dist2(&q, n) > r2,
-            |b| {
-                self.each(&self.blocks[b as usize], |i, x| {
+            |_, n| {
+                self.each(&self.blocks[n.block as usize], |i, x| {
                     if dist2(&q, x) <= r2 {
                         f(i, x);
                     }
@@ -426,10 +574,15 @@ impl<'a> TexelBvh<'a> {
         );
     }
 
-    /// Depth first, left child first: every block under the nodes that `prune` does not
-    /// cut off, handed to `block`. The one pruned walk of the radius searches
-    /// ([`Self::for_within`], [`Self::near_blocks`]), which differ only in what prunes.
-    fn visit_blocks(&self, mut prune: impl FnMut(&Node) -> bool, mut block: impl FnMut(u32)) {
+    /// Depth first, left child first: every leaf (its node and the node) under the nodes
+    /// that `prune` does not cut off, handed to `block`. The one pruned walk of the radius
+    /// searches ([`Self::for_within`], [`Self::near_blocks`]), which differ only in what
+    /// prunes.
+    fn visit_blocks(
+        &self,
+        mut prune: impl FnMut(&Node) -> bool,
+        mut block: impl FnMut(u32, &Node),
+    ) {
         if self.nodes.is_empty() {
             return;
         }
@@ -443,7 +596,7 @@ impl<'a> TexelBvh<'a> {
                 continue;
             }
             if n.block != INNER {
-                block(n.block);
+                block(k as u32, n);
                 continue;
             }
             stack[top] = k + n.right as usize;
@@ -650,6 +803,30 @@ mod tests {
                         })
                         .unwrap();
                     assert_eq!(bvh.nearest_seeded(q, &seeds), Some(want), "{q}");
+                }
+            }
+        }
+    }
+
+    /// The nearest texel outside a face within a radius is the one a listing of the radius
+    /// search finds: least (rooted distance, index) among the listed texels of other faces.
+    #[test]
+    fn nearest_outside_as_the_listing() {
+        for (faces, n, flat) in [(7, 16, false), (5, 9, true), (40, 5, false), (6, 2, true)] {
+            let (l, p) = sheet(faces, n, flat);
+            let bvh = TexelBvh::build(&l, Xyz::Packed(&p), true, |_| true);
+            for t in (0..p.len()).step_by(2) {
+                let f = l.domain_of(t);
+                let (a, b) = (p[t].as_dvec3(), p[(t + 1) % p.len()].as_dvec3());
+                for (q, r) in [(a, 0.5), ((a + b) * 0.5, 0.3), (a, 0.125), (a, 2.0)] {
+                    let want = bvh
+                        .within(q, r * r)
+                        .into_iter()
+                        .filter(|&j| l.domain_of(j) != f)
+                        .map(|j| ((p[j].as_dvec3() - q).length(), j))
+                        .min_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)))
+                        .map(|(d, j)| (j, d));
+                    assert_eq!(bvh.nearest_outside(q, r * r, l.range(f)), want, "{q} {r}");
                 }
             }
         }
