@@ -170,29 +170,31 @@ impl TexelGeometry {
 
     /// All texel centres, per domain in parallel; with `keep_normals`, every exact normal
     /// encoded in a frame slot too ([`FrameSlots::encode`]).
+    ///
+    /// The arrays are written once, uninitialised before: filling them first (`vec![v;
+    /// n]` of a non-primitive is a serial loop) was a serial pass over 24 B a texel (48 B
+    /// keeping the normals) before the parallel one, on the texel side's critical path.
     fn evaluate(
         surface: &Surface,
         layout: Arc<TexelLayout>,
         keep_normals: bool,
     ) -> (Self, Option<Vec<[Vec3; 2]>>) {
+        use std::mem::MaybeUninit;
         assert_eq!(layout.faces(), surface.num_domains());
         let total = layout.len();
-        let mut pos = vec![Vec3::ZERO; total];
-        let mut normal = vec![Vec3::ZERO; total];
-        let mut slots = vec![[Vec3::ZERO; 2]; if keep_normals { total } else { 0 }];
-        let slot_parts: Vec<Option<&mut [[Vec3; 2]]>> = if keep_normals {
-            layout
-                .split_mut(&mut slots, 1)
-                .into_iter()
-                .map(Some)
-                .collect()
+        let mut pos: Vec<Vec3> = Vec::with_capacity(total);
+        let mut normal: Vec<Vec3> = Vec::with_capacity(total);
+        let mut slots: Vec<[Vec3; 2]> = Vec::with_capacity(if keep_normals { total } else { 0 });
+        let slot_parts: Vec<Option<&mut [MaybeUninit<[Vec3; 2]>]>> = if keep_normals {
+            let s = &mut slots.spare_capacity_mut()[..total];
+            layout.split_mut(s, 1).into_iter().map(Some).collect()
         } else {
             (0..layout.faces()).map(|_| None).collect()
         };
         layout
-            .split_mut(&mut pos, 1)
+            .split_mut(&mut pos.spare_capacity_mut()[..total], 1)
             .into_par_iter()
-            .zip(layout.split_mut(&mut normal, 1))
+            .zip(layout.split_mut(&mut normal.spare_capacity_mut()[..total], 1))
             .zip(slot_parts)
             .enumerate()
             .for_each_init(
@@ -200,17 +202,29 @@ impl TexelGeometry {
                 |buf: &mut Vec<LimitSample>, (d, ((p, nrm), slot))| {
                     let (nu, nv) = layout.dims(d);
                     eval_domain_texels(surface, DomainId::from_idx(d), nu, nv, buf);
+                    // Every element of the domain's part is written (the safety of
+                    // `set_len` below).
+                    assert_eq!(buf.len(), p.len());
                     for (i, s) in buf.iter().enumerate() {
-                        p[i] = s.p.as_vec3();
-                        nrm[i] = s.n.as_vec3();
+                        p[i].write(s.p.as_vec3());
+                        nrm[i].write(s.n.as_vec3());
                     }
                     if let Some(slot) = slot {
                         for (o, s) in slot.iter_mut().zip(buf.iter()) {
-                            *o = FrameSlots::encode(s.n);
+                            o.write(FrameSlots::encode(s.n));
                         }
                     }
                 },
             );
+        // SAFETY: the domains' parts cover 0..total (`split_mut`), and every part was
+        // written in full (asserted above), within the capacities; `Vec3` needs no drop.
+        unsafe {
+            pos.set_len(total);
+            normal.set_len(total);
+            if keep_normals {
+                slots.set_len(total);
+            }
+        }
         let geometry = Self {
             layout,
             pos,
