@@ -424,26 +424,19 @@ impl Plan {
         for k in 0..n {
             first[k + 1] += first[k];
         }
-        // The entries are computed in blocks of BLOCK consecutive ranks, each block's
+        // The entries are computed in blocks of 2^BLOCK_SHIFT consecutive ranks, each block's
         // texels in storage order. Walking all texels in storage order wrote each rank's
         // entries, its reach and read its `first` at scattered places of 120 MB (bunny
         // N = 16: three cache and TLB misses a texel, the plan ~14% of a jump run's
         // samples); walking the ranks read each texel's data at a scattered place and cost
         // 2.4x as long (Spot N = 128). Within a block the writes stay in a window of a few
         // hundred KiB, and the reads sweep the growth front's band in storage order.
-        // Texels by block: every block but the last holds exactly BLOCK ranks (ranks are a
-        // permutation), so a block's texels start at b · BLOCK; `count`'s buffer holds them.
+        // Each block sorts its ranks' texels (a slice of `order`) in a scratch vector:
+        // grouping all texels by block beforehand held another 4 B a texel at the plan's
+        // making, the peak of a jump run (bunny N = 16: +15 MiB).
         const BLOCK_SHIFT: u32 = 14;
         let blocks = n.div_ceil(1 << BLOCK_SHIFT);
-        let mut by_block = count;
-        {
-            let mut next: Vec<usize> = (0..blocks).map(|b| b << BLOCK_SHIFT).collect();
-            for (t, &k) in rank.iter().enumerate() {
-                let b = (k >> BLOCK_SHIFT) as usize;
-                by_block[next[b]] = t as u32;
-                next[b] += 1;
-            }
-        }
+        drop(count);
         // Left uninitialised: the blocks write every entry exactly once (checked rank by
         // rank below). Filling it first was a serial pass over ~2 entries a texel (bunny
         // N = 16: 80 MB with its page faults, ~2% of a jump run on one core).
@@ -454,44 +447,47 @@ impl Plan {
         {
             let mut e_rest = &mut earlier.spare_capacity_mut()[..total];
             let mut r_rest = &mut reach[..];
-            let mut t_rest = &by_block[..];
             for b in 0..blocks {
                 let (k0, k1) = (b << BLOCK_SHIFT, ((b + 1) << BLOCK_SHIFT).min(n));
                 let len = (first[k1] - first[k0]) as usize;
                 let (e, er) = std::mem::take(&mut e_rest).split_at_mut(len);
                 let (r, rr) = std::mem::take(&mut r_rest).split_at_mut(k1 - k0);
-                let (texels, tr) = t_rest.split_at(k1 - k0);
-                parts.push((k0, e, r, texels));
-                (e_rest, r_rest, t_rest) = (er, rr, tr);
+                parts.push((k0, e, r));
+                (e_rest, r_rest) = (er, rr);
             }
         }
-        parts.into_par_iter().for_each(|(k0, e, r_out, texels)| {
-            let e0 = first[k0] as usize;
-            for &t in texels {
-                let t = t as usize;
-                let k = rank[t];
-                let mut slot = first[k as usize] as usize - e0;
-                let mut r = 0.0f32;
-                let own = edges.of(t);
-                let graph_edges = own.len();
-                for (i, &s) in own.iter().chain(near(t)).enumerate() {
-                    let (s, rs) = (s as usize, rank[s as usize]);
-                    if rs < k {
-                        let d = offset(pos, frames, s, t, 1.0);
-                        r = r.max(d[0].abs()).max(d[1].abs());
-                        let up = [d[0] * scale_up, d[1] * scale_up];
-                        e[slot].write(Earlier::new(rs, i >= graph_edges, up));
-                        slot += 1;
-                    } else {
-                        r = r.max(pos[s].distance(pos[t]));
+        parts
+            .into_par_iter()
+            .for_each_init(Vec::new, |texels, (k0, e, r_out)| {
+                texels.clear();
+                texels.extend_from_slice(&order[k0..k0 + r_out.len()]);
+                texels.sort_unstable();
+                let e0 = first[k0] as usize;
+                for &t in texels.iter() {
+                    let t = t as usize;
+                    let k = rank[t];
+                    let mut slot = first[k as usize] as usize - e0;
+                    let mut r = 0.0f32;
+                    let own = edges.of(t);
+                    let graph_edges = own.len();
+                    for (i, &s) in own.iter().chain(near(t)).enumerate() {
+                        let (s, rs) = (s as usize, rank[s as usize]);
+                        if rs < k {
+                            let d = offset(pos, frames, s, t, 1.0);
+                            r = r.max(d[0].abs()).max(d[1].abs());
+                            let up = [d[0] * scale_up, d[1] * scale_up];
+                            e[slot].write(Earlier::new(rs, i >= graph_edges, up));
+                            slot += 1;
+                        } else {
+                            r = r.max(pos[s].distance(pos[t]));
+                        }
                     }
+                    // Every entry of rank k written: the count above is of exactly these
+                    // neighbours (the safety of `set_len` below).
+                    assert_eq!(slot, first[k as usize + 1] as usize - e0);
+                    r_out[k as usize - k0] = r;
                 }
-                // Every entry of rank k written: the count above is of exactly these
-                // neighbours (the safety of `set_len` below).
-                assert_eq!(slot, first[k as usize + 1] as usize - e0);
-                r_out[k as usize - k0] = r;
-            }
-        });
+            });
         // SAFETY: each block's part of `earlier` (ranks k0..k1: entries first[k0] ..
         // first[k1]) was written entry by entry, every rank's entries asserted complete
         // above, and the blocks cover 0..total; `Earlier` is `Copy`.
