@@ -43,7 +43,7 @@
 //! of threads.
 
 use crate::layout::TexelLayout;
-use glam::Vec3;
+use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 use std::sync::Arc;
 use subdiv::{BaseQuadId, DomainId, DomainLocation, FaceId, LimitSample, Surface, VertexId};
@@ -59,6 +59,56 @@ pub struct TexelGeometry {
     pub pos: Vec<Vec3>,
     /// Unit limit normal per texel.
     pub normal: Vec<Vec3>,
+}
+
+/// Every texel's exact (f64) unit normal of an `n`×`n` layout, held in the array that
+/// becomes the texel frames ([`crate::synth::frames_from_slots`] overwrites each slot in
+/// place with the frame's (v1, v2) in f32).
+///
+/// Why: the frames need the f64 normal (the f32 one of [`TexelGeometry`] would round
+/// some frames differently), at the very texel centres the geometry pass evaluates, but
+/// the field they also need is computed beside that pass and is ready later. Evaluating
+/// the surface a second time for the frames was ~6% of a bunny run (N = 16, jump); a
+/// separate array of f64 normals would add 24 B a texel to the set-up's memory. A
+/// frame's slot (two f32 vectors) is exactly 24 B: it carries the normal's bits until
+/// the field is there, so keeping them costs only allocating the frames earlier.
+#[derive(Debug)]
+pub struct FrameSlots {
+    slots: Vec<[Vec3; 2]>,
+    n: usize,
+}
+
+impl FrameSlots {
+    /// `n`'s bits in one slot: each f64 as two f32 bit patterns (low half first). Only
+    /// moved, never computed with, so any pattern (NaN ones too) comes back unchanged.
+    #[inline]
+    pub fn encode(n: DVec3) -> [Vec3; 2] {
+        let halves = |x: f64| {
+            let b = x.to_bits();
+            (f32::from_bits(b as u32), f32::from_bits((b >> 32) as u32))
+        };
+        let ((a, b), (c, d), (e, f)) = (halves(n.x), halves(n.y), halves(n.z));
+        [Vec3::new(a, b, c), Vec3::new(d, e, f)]
+    }
+
+    /// The normal [`Self::encode`] stored, bit for bit.
+    #[inline]
+    pub fn decode(slot: &[Vec3; 2]) -> DVec3 {
+        let join =
+            |lo: f32, hi: f32| f64::from_bits(lo.to_bits() as u64 | (hi.to_bits() as u64) << 32);
+        let [a, b] = *slot;
+        DVec3::new(join(a.x, a.y), join(a.z, b.x), join(b.y, b.z))
+    }
+
+    /// Texels per side of the (uniform) layout.
+    pub fn resolution(&self) -> usize {
+        self.n
+    }
+
+    /// The slots, in global texel order, each still holding its encoded normal.
+    pub fn into_inner(self) -> Vec<[Vec3; 2]> {
+        self.slots
+    }
 }
 
 /// The limit samples at the texel centres of domain `id` with `nu` x `nv` texels, row by
@@ -97,28 +147,90 @@ impl TexelGeometry {
 
     /// Evaluates all texel centres of `surface` in `layout` (in parallel, per domain).
     pub fn compute_layout(surface: &Surface, layout: Arc<TexelLayout>) -> Self {
+        Self::evaluate(surface, layout, false).0
+    }
+
+    /// [`Self::compute_layout`] that also keeps every texel's exact normal, for the texel
+    /// frames ([`FrameSlots`]): the same geometry.
+    ///
+    /// `layout` must be uniform (the frames of per-face resolutions are evaluated at
+    /// `(x + 0.5) / n` rather than the geometry's `(x + 0.5) · (1 / n)`: not always the
+    /// same point).
+    pub fn compute_keeping_normals(
+        surface: &Surface,
+        layout: Arc<TexelLayout>,
+    ) -> (Self, FrameSlots) {
+        let n = layout
+            .uniform_n()
+            .expect("normals are kept for uniform layouts only");
+        let (geometry, slots) = Self::evaluate(surface, layout, true);
+        let slots = slots.expect("slots were asked for");
+        (geometry, FrameSlots { slots, n })
+    }
+
+    /// All texel centres, per domain in parallel; with `keep_normals`, every exact normal
+    /// encoded in a frame slot too ([`FrameSlots::encode`]).
+    ///
+    /// The arrays are written once, uninitialised before: filling them first (`vec![v;
+    /// n]` of a non-primitive is a serial loop) was a serial pass over 24 B a texel (48 B
+    /// keeping the normals) before the parallel one, on the texel side's critical path.
+    fn evaluate(
+        surface: &Surface,
+        layout: Arc<TexelLayout>,
+        keep_normals: bool,
+    ) -> (Self, Option<Vec<[Vec3; 2]>>) {
+        use std::mem::MaybeUninit;
         assert_eq!(layout.faces(), surface.num_domains());
         let total = layout.len();
-        let mut pos = vec![Vec3::ZERO; total];
-        let mut normal = vec![Vec3::ZERO; total];
+        let mut pos: Vec<Vec3> = Vec::with_capacity(total);
+        let mut normal: Vec<Vec3> = Vec::with_capacity(total);
+        let mut slots: Vec<[Vec3; 2]> = Vec::with_capacity(if keep_normals { total } else { 0 });
+        let slot_parts: Vec<Option<&mut [MaybeUninit<[Vec3; 2]>]>> = if keep_normals {
+            let s = &mut slots.spare_capacity_mut()[..total];
+            layout.split_mut(s, 1).into_iter().map(Some).collect()
+        } else {
+            (0..layout.faces()).map(|_| None).collect()
+        };
         layout
-            .split_mut(&mut pos, 1)
+            .split_mut(&mut pos.spare_capacity_mut()[..total], 1)
             .into_par_iter()
-            .zip(layout.split_mut(&mut normal, 1))
+            .zip(layout.split_mut(&mut normal.spare_capacity_mut()[..total], 1))
+            .zip(slot_parts)
             .enumerate()
-            .for_each_init(Vec::new, |buf: &mut Vec<LimitSample>, (d, (p, nrm))| {
-                let (nu, nv) = layout.dims(d);
-                eval_domain_texels(surface, DomainId::from_idx(d), nu, nv, buf);
-                for (i, s) in buf.iter().enumerate() {
-                    p[i] = s.p.as_vec3();
-                    nrm[i] = s.n.as_vec3();
-                }
-            });
-        Self {
+            .for_each_init(
+                Vec::new,
+                |buf: &mut Vec<LimitSample>, (d, ((p, nrm), slot))| {
+                    let (nu, nv) = layout.dims(d);
+                    eval_domain_texels(surface, DomainId::from_idx(d), nu, nv, buf);
+                    // Every element of the domain's part is written (the safety of
+                    // `set_len` below).
+                    assert_eq!(buf.len(), p.len());
+                    for (i, s) in buf.iter().enumerate() {
+                        p[i].write(s.p.as_vec3());
+                        nrm[i].write(s.n.as_vec3());
+                    }
+                    if let Some(slot) = slot {
+                        for (o, s) in slot.iter_mut().zip(buf.iter()) {
+                            o.write(FrameSlots::encode(s.n));
+                        }
+                    }
+                },
+            );
+        // SAFETY: the domains' parts cover 0..total (`split_mut`), and every part was
+        // written in full (asserted above), within the capacities; `Vec3` needs no drop.
+        unsafe {
+            pos.set_len(total);
+            normal.set_len(total);
+            if keep_normals {
+                slots.set_len(total);
+            }
+        }
+        let geometry = Self {
             layout,
             pos,
             normal,
-        }
+        };
+        (geometry, keep_normals.then_some(slots))
     }
 
     /// Number of face domains F.
@@ -917,6 +1029,74 @@ mod tests {
             .join("data/meshes")
             .join(path);
         Surface::load_obj(p).unwrap()
+    }
+
+    /// A normal comes out of its frame slot bit for bit, whatever the bits: ordinary
+    /// unit vectors, signed zeros, subnormals, and halves that are f32 NaN patterns
+    /// (signalling ones too), which are only moved, never computed with.
+    #[test]
+    fn frame_slots_keep_every_bit() {
+        let specials = [
+            0.0,
+            -0.0,
+            f64::MIN_POSITIVE / 3.0,
+            f64::from_bits(0x7fa0_0000_7f80_0001),
+            f64::from_bits(0xffc0_0001_ff80_0002),
+            f64::NAN,
+            -1.0,
+            0.577_350_269_189_625_8,
+        ];
+        let mut x = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        let mut vs: Vec<DVec3> = specials
+            .iter()
+            .flat_map(|&a| specials.iter().map(move |&b| DVec3::new(a, b, -a)))
+            .collect();
+        vs.extend((0..1000).map(|_| {
+            DVec3::new(
+                f64::from_bits(next()),
+                f64::from_bits(next()),
+                f64::from_bits(next()),
+            )
+        }));
+        vs.extend((0..1000).map(|i| DVec3::new(i as f64, 1.0, 0.3).normalize()));
+        for v in vs {
+            let slot = FrameSlots::encode(v);
+            let back = FrameSlots::decode(&std::hint::black_box(slot));
+            assert_eq!(
+                back.to_array().map(f64::to_bits),
+                v.to_array().map(f64::to_bits)
+            );
+        }
+    }
+
+    /// The slots hold the normals of the texel evaluation (the f64 ones the f32
+    /// geometry rounds), and the geometry is `compute_layout`'s.
+    #[test]
+    fn kept_normals_are_the_evaluated_ones() {
+        for s in [cube(), grid(2)] {
+            for n in [1, 4] {
+                let layout = Arc::new(TexelLayout::uniform(s.num_domains(), n));
+                let (g, slots) = TexelGeometry::compute_keeping_normals(&s, layout.clone());
+                assert_eq!(g, TexelGeometry::compute_layout(&s, layout));
+                assert_eq!(slots.resolution(), n);
+                let slots = slots.into_inner();
+                let mut buf = vec![LimitSample::default(); n * n];
+                for d in 0..s.num_domains() {
+                    s.eval_texels(DomainId::from_idx(d), n, &mut buf);
+                    for (i, e) in buf.iter().enumerate() {
+                        let t = d * n * n + i;
+                        assert_eq!(FrameSlots::decode(&slots[t]), e.n);
+                        assert_eq!(g.normal[t], e.n.as_vec3());
+                    }
+                }
+            }
+        }
     }
 
     /// The edge graph as it was first built (every edge as two pairs, sorted): the

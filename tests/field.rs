@@ -146,6 +146,69 @@ fn f32_texel_frames_are_the_f64_frames_rounded() {
     }
 }
 
+/// `frame_with_normal` given the surface's normal is `frame`, bit for bit.
+#[test]
+fn frame_with_the_normal_given_is_the_frame() {
+    let s = load("opensubdiv-reference/catmark_nonquads.obj");
+    let f = OrientationField::compute(&s, &Orientation::Auto).unwrap();
+    let bits =
+        |fr: surfsynth::field::Frame| [fr.v1, fr.v2, fr.n].map(|v| v.to_array().map(f64::to_bits));
+    for d in 0..s.num_domains() {
+        let d = DomainId::from_idx(d);
+        for (u, v) in [
+            (0.5, 0.5),
+            (0.01, 0.99),
+            (0.0, 0.0),
+            (1.0, 0.3),
+            (0.37, 0.81),
+        ] {
+            let n = s.eval(d, u, v).n;
+            assert_eq!(
+                bits(f.frame_with_normal(&s, d, u, v, n)),
+                bits(f.frame(&s, d, u, v)),
+                "{d:?} ({u}, {v})"
+            );
+        }
+    }
+}
+
+/// Frames made from the normals the geometry pass kept (no second evaluation of the
+/// surface) are `texel_frames_f32`'s, bit for bit: at extraordinary vertices, on n-gon
+/// sub-faces, at creases and on an open boundary.
+#[test]
+fn frames_from_kept_normals_are_the_evaluated_frames() {
+    use std::sync::Arc;
+    use surfsynth::layout::TexelLayout;
+    use surfsynth::texels::TexelGeometry;
+    let bits = |v: &[[glam::Vec3; 2]]| -> Vec<[u32; 6]> {
+        v.iter()
+            .map(|[a, b]| [a.x, a.y, a.z, b.x, b.y, b.z].map(f32::to_bits))
+            .collect()
+    };
+    for rel in [
+        "opensubdiv-reference/spot_control_mesh.obj",
+        "opensubdiv-reference/catmark_nonquads.obj",
+        "opensubdiv-reference/catmark_pole8.obj",
+        "opensubdiv-reference/catmark_edgecorner.obj",
+        "meshes/cube_no_bottom.obj",
+    ] {
+        let s = load(rel);
+        let f = OrientationField::compute(&s, &Orientation::Auto).unwrap();
+        for n in [1, 3, 8] {
+            let layout = Arc::new(TexelLayout::uniform(s.num_domains(), n));
+            let (g, slots) = TexelGeometry::compute_keeping_normals(&s, layout.clone());
+            assert_eq!(
+                g,
+                TexelGeometry::compute_layout(&s, layout),
+                "{rel} N = {n}"
+            );
+            let got = surfsynth::synth::frames_from_slots(&f, &s, slots);
+            let want = surfsynth::synth::texel_frames_f32(&f, &s, n);
+            assert!(bits(&got) == bits(&want), "{rel} N = {n}");
+        }
+    }
+}
+
 #[test]
 fn frames_are_orthonormal_and_continuous_across_domain_edges() {
     let s = load("opensubdiv-reference/spot_control_mesh.obj");

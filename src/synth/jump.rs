@@ -335,28 +335,6 @@ pub struct Plan {
     unscale: f32,
 }
 
-/// Where [`Plan::new`]'s parallel loop writes (disjoint elements per texel).
-struct Scatter {
-    earlier: *mut Earlier,
-    reach: *mut f32,
-}
-// SAFETY: shared only by `Plan::new`, whose iterations write disjoint elements.
-unsafe impl Sync for Scatter {}
-
-impl Scatter {
-    /// # Safety
-    /// `i` in bounds and written by no other thread.
-    unsafe fn earlier(&self, i: usize, e: Earlier) {
-        unsafe { self.earlier.add(i).write(e) }
-    }
-
-    /// # Safety
-    /// `i` in bounds and written by no other thread.
-    unsafe fn reach(&self, i: usize, r: f32) {
-        unsafe { self.reach.add(i).write(r) }
-    }
-}
-
 /// A neighbour synthesized before the texel: its rank, whether it is a cross neighbour
 /// ([`cross_neighbours`]) rather than an edge of the graph, and the edge offset d(s→t) in
 /// surface units × [`Plan::unscale`]⁻¹ (about example pixels).
@@ -400,7 +378,7 @@ impl Earlier {
 }
 
 impl Plan {
-    /// The plan of `level` in `growth`'s order. Parallel over ranks; the same for any
+    /// The plan of `level` in `growth`'s order. Parallel over blocks of ranks; the same for any
     /// thread count.
     pub fn new(level: &LevelTexels, growth: Growth) -> Self {
         let Growth {
@@ -422,11 +400,6 @@ impl Plan {
         let (scale_up, unscale) = (2f32.powi(e), 2f32.powi(-e));
         let near = |t: usize| &xlist[xstart[t] as usize..xstart[t + 1] as usize];
         const CHUNK: usize = 4096;
-        // Computed texel by texel (positions, frames, edge lists and the neighbours' ranks
-        // are then read in storage order), written by rank: walking the ranks read each
-        // texel's data at a scattered place and cost 2.4x as long (Spot N = 128, one
-        // thread: 0.51 s of 0.67 s). Straight into the final arrays: per-chunk vectors
-        // joined afterwards doubled the plan's share of the peak.
         let mut count = vec![0u32; n];
         count
             .par_chunks_mut(CHUNK)
@@ -448,42 +421,77 @@ impl Plan {
             .par_iter_mut()
             .zip(order.par_iter())
             .for_each(|(f, &t)| *f = count[t as usize]);
-        drop(count);
         for k in 0..n {
             first[k + 1] += first[k];
         }
-        let mut earlier = vec![Earlier::new(0, false, [0.0; 2]); first[n] as usize];
+        // The entries are computed in blocks of 2^BLOCK_SHIFT consecutive ranks, each block's
+        // texels in storage order. Walking all texels in storage order wrote each rank's
+        // entries, its reach and read its `first` at scattered places of 120 MB (bunny
+        // N = 16: three cache and TLB misses a texel, the plan ~14% of a jump run's
+        // samples); walking the ranks read each texel's data at a scattered place and cost
+        // 2.4x as long (Spot N = 128). Within a block the writes stay in a window of a few
+        // hundred KiB, and the reads sweep the growth front's band in storage order.
+        // Each block sorts its ranks' texels (a slice of `order`) in a scratch vector:
+        // grouping all texels by block beforehand held another 4 B a texel at the plan's
+        // making, the peak of a jump run (bunny N = 16: +15 MiB).
+        const BLOCK_SHIFT: u32 = 14;
+        let blocks = n.div_ceil(1 << BLOCK_SHIFT);
+        drop(count);
+        // Left uninitialised: the blocks write every entry exactly once (checked rank by
+        // rank below). Filling it first was a serial pass over ~2 entries a texel (bunny
+        // N = 16: 80 MB with its page faults, ~2% of a jump run on one core).
+        let total = first[n] as usize;
+        let mut earlier: Vec<Earlier> = Vec::with_capacity(total);
         let mut reach = vec![0.0f32; n];
-        let out = &Scatter {
-            earlier: earlier.as_mut_ptr(),
-            reach: reach.as_mut_ptr(),
-        };
-        (0..n).into_par_iter().with_min_len(CHUNK).for_each(|t| {
-            let k = rank[t];
-            let mut slot = first[k as usize] as usize;
-            let mut r = 0.0f32;
-            let own = edges.of(t);
-            let graph_edges = own.len();
-            for (i, &s) in own.iter().chain(near(t)).enumerate() {
-                let (s, rs) = (s as usize, rank[s as usize]);
-                if rs < k {
-                    let d = offset(pos, frames, s, t, 1.0);
-                    r = r.max(d[0].abs()).max(d[1].abs());
-                    debug_assert!(slot < first[k as usize + 1] as usize);
-                    // SAFETY: slots first[k]..first[k + 1] belong to rank k alone (the
-                    // count above is of exactly these neighbours), and each rank is one
-                    // texel's: no two iterations write the same element, and both arrays
-                    // outlive the loop.
-                    let up = [d[0] * scale_up, d[1] * scale_up];
-                    unsafe { out.earlier(slot, Earlier::new(rs, i >= graph_edges, up)) };
-                    slot += 1;
-                } else {
-                    r = r.max(pos[s].distance(pos[t]));
-                }
+        let mut parts = Vec::with_capacity(blocks);
+        {
+            let mut e_rest = &mut earlier.spare_capacity_mut()[..total];
+            let mut r_rest = &mut reach[..];
+            for b in 0..blocks {
+                let (k0, k1) = (b << BLOCK_SHIFT, ((b + 1) << BLOCK_SHIFT).min(n));
+                let len = (first[k1] - first[k0]) as usize;
+                let (e, er) = std::mem::take(&mut e_rest).split_at_mut(len);
+                let (r, rr) = std::mem::take(&mut r_rest).split_at_mut(k1 - k0);
+                parts.push((k0, e, r));
+                (e_rest, r_rest) = (er, rr);
             }
-            // SAFETY: as above; reach[k] is rank k's.
-            unsafe { out.reach(k as usize, r) };
-        });
+        }
+        parts
+            .into_par_iter()
+            .for_each_init(Vec::new, |texels, (k0, e, r_out)| {
+                texels.clear();
+                texels.extend_from_slice(&order[k0..k0 + r_out.len()]);
+                texels.sort_unstable();
+                let e0 = first[k0] as usize;
+                for &t in texels.iter() {
+                    let t = t as usize;
+                    let k = rank[t];
+                    let mut slot = first[k as usize] as usize - e0;
+                    let mut r = 0.0f32;
+                    let own = edges.of(t);
+                    let graph_edges = own.len();
+                    for (i, &s) in own.iter().chain(near(t)).enumerate() {
+                        let (s, rs) = (s as usize, rank[s as usize]);
+                        if rs < k {
+                            let d = offset(pos, frames, s, t, 1.0);
+                            r = r.max(d[0].abs()).max(d[1].abs());
+                            let up = [d[0] * scale_up, d[1] * scale_up];
+                            e[slot].write(Earlier::new(rs, i >= graph_edges, up));
+                            slot += 1;
+                        } else {
+                            r = r.max(pos[s].distance(pos[t]));
+                        }
+                    }
+                    // Every entry of rank k written: the count above is of exactly these
+                    // neighbours (the safety of `set_len` below).
+                    assert_eq!(slot, first[k as usize + 1] as usize - e0);
+                    r_out[k as usize - k0] = r;
+                }
+            });
+        // SAFETY: each block's part of `earlier` (ranks k0..k1: entries first[k0] ..
+        // first[k1]) was written entry by entry, every rank's entries asserted complete
+        // above, and the blocks cover 0..total; `Earlier` is `Copy`.
+        unsafe { earlier.set_len(total) };
         let count = first
             .windows(2)
             .map(|w| u16::try_from(w[1] - w[0]).expect("under 2^16 earlier neighbours a texel"))
@@ -551,15 +559,19 @@ fn cross_neighbours(layout: &TexelLayout, pos: &[Vec3], edges: &EdgeGraph) -> (V
                 .fold(0.0f32, f32::max)
                 * CROSS_REACH;
             let d = layout.domain_of(t);
-            let mut near: Vec<u32> = tree
-                .query(&pos[t].to_array())
+            // Visited rather than collected: the query's own result vector was an
+            // allocation per border texel (1.2 M on the bunny at N = 16) for the few
+            // texels kept; the same texels either way, sorted below.
+            let mut near: Vec<u32> = Vec::new();
+            tree.query(&pos[t].to_array())
                 .within::<SquaredEuclidean<f32>>(reach * reach)
                 .unsorted()
-                .execute()
-                .iter()
-                .map(|r| list[r.item as usize])
-                .filter(|&s| layout.domain_of(s as usize) != d && !own.contains(&s))
-                .collect();
+                .visit(|r| {
+                    let s = list[r.item as usize];
+                    if layout.domain_of(s as usize) != d && !own.contains(&s) {
+                        near.push(s);
+                    }
+                });
             near.sort_unstable();
             near
         })
@@ -841,12 +853,18 @@ mod tests {
         let obj = "v 0 0 0\nv 1 0 0\nv 2 0 0\nv 0 1 0\nv 1 1 0\nv 2 1 0\nv 1.5 1.8 0\n\
                    f 1 2 5 4\nf 2 3 6 5\nf 4 5 7\nf 5 6 7\n";
         let ngons = ControlMesh::parse_obj(obj).unwrap();
-        for mesh in [ControlMesh::grid(3), ngons] {
+        // The last: 36,864 texels, three blocks of ranks (the last one partial).
+        for (mesh, n) in [
+            (ControlMesh::grid(3), 6),
+            (ngons, 6),
+            (ControlMesh::grid(8), 24),
+        ] {
             let surface = Surface::new(mesh);
             let field =
                 crate::field::OrientationField::compute(&surface, &crate::field::Orientation::Auto)
                     .unwrap();
-            let level = LevelTexels::new(&surface, &field, 6, 0.01);
+            let level = LevelTexels::new(&surface, &field, n, 0.01);
+            assert!(n == 6 || level.len() > 2 << 14);
             let e = level.edges();
             let (xs, xl) = cross_neighbours(level.layout(), &level.geometry.pos, e);
             let growth = Growth::compute(e, level.layout(), &level.geometry.pos);
@@ -858,6 +876,10 @@ mod tests {
             let (pos, frames) = (&level.geometry.pos, &level.frames);
             let ex = (-level.step.log2()).round() as i32;
             let mut done = vec![false; level.len()];
+            let mut rank = vec![0; level.len()];
+            for (k, &t) in order.iter().enumerate() {
+                rank[t as usize] = k;
+            }
             for (k, &t) in order.iter().enumerate() {
                 let t = t as usize;
                 let mut want = Vec::new();
@@ -871,7 +893,7 @@ mod tests {
                         // Stored × 2^e, as half floats.
                         let px = [d[0] * 2f32.powi(ex), d[1] * 2f32.powi(ex)]
                             .map(|x| half::f16::from_f32(x).to_f32());
-                        want.push((order.iter().position(|&o| o as usize == s).unwrap(), px));
+                        want.push((rank[s], px));
                     } else {
                         reach = reach.max(pos[s].distance(pos[t]));
                     }
@@ -908,6 +930,56 @@ mod tests {
                 assert_ne!(layout.domain_of(s as usize), layout.domain_of(t));
                 assert!(!level.edges().of(t).contains(&s));
             }
+        }
+        // The lists are those of the collected query (the form before visiting): the
+        // same texels, within CROSS_REACH of each border texel by kiddo's own rule.
+        let want = {
+            use kiddo::{ImmutableKdTree, SquaredEuclidean};
+            let (pos, edges) = (&level.geometry.pos, level.edges());
+            let border = |t: usize| {
+                let (d, x, y) = layout.coords(t);
+                let (nu, nv) = layout.dims(d);
+                x == 0 || y == 0 || x + 1 == nu || y + 1 == nv
+            };
+            let border_list: Vec<u32> = (0..level.len() as u32)
+                .filter(|&t| border(t as usize))
+                .collect();
+            let pts: Vec<[f32; 3]> = border_list
+                .iter()
+                .map(|&t| pos[t as usize].to_array())
+                .collect();
+            let tree = ImmutableKdTree::<f32, 3>::new_from_slice(&pts).unwrap();
+            let mut all = Vec::new();
+            for &t in &border_list {
+                let t = t as usize;
+                let own = edges.of(t);
+                let reach = own
+                    .iter()
+                    .map(|&s| pos[s as usize].distance(pos[t]))
+                    .fold(0.0f32, f32::max)
+                    * CROSS_REACH;
+                let mut near: Vec<u32> = tree
+                    .query(&pos[t].to_array())
+                    .within::<SquaredEuclidean<f32>>(reach * reach)
+                    .unsorted()
+                    .execute()
+                    .iter()
+                    .map(|r| border_list[r.item as usize])
+                    .filter(|&s| {
+                        layout.domain_of(s as usize) != layout.domain_of(t) && !own.contains(&s)
+                    })
+                    .collect();
+                near.sort_unstable();
+                all.push((t, near));
+            }
+            all
+        };
+        for (t, near) in want {
+            assert_eq!(
+                &list[start[t] as usize..start[t + 1] as usize],
+                &near[..],
+                "texel {t}"
+            );
         }
     }
 }

@@ -735,6 +735,36 @@ pub fn texel_frames_f32(field: &OrientationField, surface: &Surface, n: usize) -
     out
 }
 
+/// [`texel_frames_f32`] from the exact normals the geometry pass kept
+/// ([`TexelGeometry::compute_keeping_normals`]): the same frames, bit for bit, without
+/// evaluating the surface again, written over the slots in place (no second array).
+pub fn frames_from_slots(
+    field: &OrientationField,
+    surface: &Surface,
+    slots: crate::texels::FrameSlots,
+) -> Vec<[Vec3; 2]> {
+    use crate::texels::FrameSlots;
+    let n = slots.resolution();
+    let mut out = slots.into_inner();
+    assert_eq!(out.len(), surface.num_domains() * n * n);
+    if n == 0 {
+        return out;
+    }
+    let inv = 1.0 / n as f64;
+    out.par_chunks_mut(n * n)
+        .enumerate()
+        .for_each(|(d, chunk)| {
+            let d = subdiv::DomainId::from_idx(d);
+            for (i, o) in chunk.iter_mut().enumerate() {
+                let (x, y) = (i % n, i / n);
+                let (u, v) = ((x as f64 + 0.5) * inv, (y as f64 + 0.5) * inv);
+                let f = field.frame_with_normal(surface, d, u, v, FrameSlots::decode(o));
+                *o = [f.v1.as_vec3(), f.v2.as_vec3()];
+            }
+        });
+    out
+}
+
 /// Frames as the synthesizer stores them: (v1, v2) in f32.
 pub fn frames_f32(frames: &[Frame]) -> Vec<[Vec3; 2]> {
     frames

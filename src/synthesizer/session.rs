@@ -45,9 +45,10 @@ use crate::report::{ExampleInfo, Inputs, Report, Seconds};
 use crate::scale_field::{ScaleField, ScaleMap};
 use crate::synth::footprint::LevelTexels;
 use crate::synth::{Analyses, Derived, Method, Settings, Target};
-use crate::texels::{EdgeGraph, TexelGeometry, TexelGraph};
+use crate::texels::{EdgeGraph, FrameSlots, TexelGeometry, TexelGraph};
+use glam::Vec3;
 use rayon::prelude::*;
-use std::sync::{Arc, OnceLock};
+use std::sync::{Arc, Mutex, OnceLock};
 use std::time::Instant;
 use subdiv::{ControlMesh, Surface};
 
@@ -457,12 +458,38 @@ impl Session {
             (both, field_s + t0.elapsed().as_secs_f64())
         };
         let early = settings.orientation != Orientation::Straight;
+        // On a uniform layout the early frames do not evaluate the surface again: the
+        // geometry pass keeps the exact normals in the frames' array, and the frames are
+        // made from them where the field's branch and the texel side meet (`FrameMeet`).
+        let meet = (early && early_frames && layout.uniform_n().is_some())
+            .then(|| FrameMeet::new(&surface));
         let (early_field, texel_side) = rayon::join(
-            || early.then(|| field_and_frames(&options_at(None), early_frames)),
+            || {
+                early.then(|| match &meet {
+                    Some(meet) => {
+                        meet.field_ready(compute_field(&options_at(None)));
+                        None
+                    }
+                    None => Some(field_and_frames(&options_at(None), early_frames)),
+                })
+            },
             || {
                 let t0 = Instant::now();
-                let geometry = TexelGeometry::compute_layout(&surface, layout.clone());
+                let (geometry, slots) = match &meet {
+                    Some(_) => {
+                        let (g, s) =
+                            TexelGeometry::compute_keeping_normals(&surface, layout.clone());
+                        (g, Some(s))
+                    }
+                    None => (
+                        TexelGeometry::compute_layout(&surface, layout.clone()),
+                        None,
+                    ),
+                };
                 let geometry_s = t0.elapsed().as_secs_f64();
+                if let (Some(meet), Some(slots)) = (&meet, slots) {
+                    meet.slots_ready(slots);
+                }
                 let spacing = geometry.median_spacing(&surface);
                 let t0 = Instant::now();
                 let edges = EdgeGraph::build(&surface, &geometry);
@@ -483,6 +510,10 @@ impl Session {
             },
         );
         let (geometry, geometry_s, spacing, edges, growth, graph, mut graph_s) = texel_side;
+        let early_field = match (early_field, meet) {
+            (Some(None), Some(meet)) => Some(meet.into_field_and_frames()),
+            (f, _) => f.flatten(),
+        };
         report(Stage::Geometry, faces, faces);
 
         let (scale, scale_source) = match settings.scale {
@@ -1041,5 +1072,123 @@ fn field_options(scale: f64, unit: f64) -> FieldOptions {
         structure_length: Some(crate::field::STRUCTURE_PIXELS * scale),
         unit,
         ..Default::default()
+    }
+}
+
+/// Where the field's branch and the texel side of [`Session::from_loaded`] meet for the
+/// jump method's frames: each leaves its part (the field; the geometry's [`FrameSlots`]),
+/// and whichever arrives second turns the slots into frames. Neither waits for the other.
+/// The geometry usually finishes first (bunny N = 16: 0.5 s against the field's 1.25 s),
+/// so the field's branch makes the frames beside the growth order, as it did when it
+/// evaluated them itself; with one thread the field comes first and the texel side makes
+/// them before the edge graph. Either way the same frames
+/// ([`crate::synth::frames_from_slots`]).
+struct FrameMeet<'a> {
+    surface: &'a Surface,
+    /// The field's result and its seconds.
+    field: OnceLock<(Result<OrientationField>, f64)>,
+    /// Whether one side has arrived, and the slots once the texel side has.
+    state: Mutex<(bool, Option<FrameSlots>)>,
+    /// The frames and their seconds (none when the field failed).
+    frames: OnceLock<(Vec<[Vec3; 2]>, f64)>,
+}
+
+impl<'a> FrameMeet<'a> {
+    fn new(surface: &'a Surface) -> Self {
+        FrameMeet {
+            surface,
+            field: OnceLock::new(),
+            state: Mutex::new((false, None)),
+            frames: OnceLock::new(),
+        }
+    }
+
+    /// The field's branch arrives with the field.
+    fn field_ready(&self, field: (Result<OrientationField>, f64)) {
+        assert!(self.field.set(field).is_ok(), "one field");
+        self.arrive(None);
+    }
+
+    /// The texel side arrives with the slots.
+    fn slots_ready(&self, slots: FrameSlots) {
+        self.arrive(Some(slots));
+    }
+
+    /// The second arrival makes the frames (outside the lock: the first has left).
+    fn arrive(&self, slots: Option<FrameSlots>) {
+        let slots = {
+            let mut state = self.state.lock().unwrap_or_else(|e| e.into_inner());
+            if slots.is_some() {
+                state.1 = slots;
+            }
+            if !state.0 {
+                state.0 = true;
+                return;
+            }
+            state.1.take().expect("the texel side left its slots")
+        };
+        if let Some((Ok(field), _)) = self.field.get() {
+            let t0 = Instant::now();
+            let frames = crate::synth::frames_from_slots(field, self.surface, slots);
+            let _ = self.frames.set((frames, t0.elapsed().as_secs_f64()));
+        }
+    }
+
+    /// What the field's branch returns without the meeting: the field with its frames,
+    /// and the seconds of both. Both sides must have arrived.
+    #[allow(clippy::type_complexity)]
+    fn into_field_and_frames(self) -> (Result<(OrientationField, Option<Vec<[Vec3; 2]>>)>, f64) {
+        let (field, field_s) = self.field.into_inner().expect("the field's branch arrived");
+        let (frames, frames_s) = match self.frames.into_inner() {
+            Some((f, s)) => (Some(f), s),
+            None => (None, 0.0),
+        };
+        (field.map(|f| (f, frames)), field_s + frames_s)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn bits(v: &[[Vec3; 2]]) -> Vec<[u32; 6]> {
+        v.iter()
+            .map(|[a, b]| [a.x, a.y, a.z, b.x, b.y, b.z].map(f32::to_bits))
+            .collect()
+    }
+
+    /// Whichever side arrives second makes the frames: the same frames either way, the
+    /// evaluated ones; none when the field failed.
+    #[test]
+    fn frames_meet_in_either_order() {
+        let surface = Surface::new(ControlMesh::cuboid(glam::DVec3::ZERO, glam::DVec3::ONE));
+        let n = 5;
+        let layout = Arc::new(TexelLayout::uniform(surface.num_domains(), n));
+        let field = || OrientationField::compute(&surface, &Orientation::Auto).unwrap();
+        let want = crate::synth::texel_frames_f32(&field(), &surface, n);
+        for field_first in [true, false] {
+            let meet = FrameMeet::new(&surface);
+            let (_, slots) = TexelGeometry::compute_keeping_normals(&surface, layout.clone());
+            if field_first {
+                meet.field_ready((Ok(field()), 0.0));
+                assert!(meet.frames.get().is_none());
+                meet.slots_ready(slots);
+            } else {
+                meet.slots_ready(slots);
+                assert!(meet.frames.get().is_none());
+                meet.field_ready((Ok(field()), 0.0));
+            }
+            let (got, _) = meet.into_field_and_frames();
+            let (_, frames) = got.unwrap();
+            assert_eq!(
+                bits(&frames.unwrap()),
+                bits(&want),
+                "field first: {field_first}"
+            );
+        }
+        let meet = FrameMeet::new(&surface);
+        meet.field_ready((Err(Error::invalid("no field")), 0.0));
+        meet.slots_ready(TexelGeometry::compute_keeping_normals(&surface, layout).1);
+        assert!(meet.into_field_and_frames().0.is_err());
     }
 }
