@@ -11,6 +11,9 @@
 //! `z_stream` after each block), so any deflate level — including stored blocks — is
 //! read the same way.
 
+use flate2::write::ZlibEncoder;
+use std::io::Write;
+
 /// `'P' | 't' << 8 | 'e' << 16 | 'x' << 24`.
 pub const MAGIC: u32 = u32::from_le_bytes(*b"Ptex");
 /// File format version the reference reader accepts (it refuses anything else).
@@ -261,41 +264,21 @@ pub fn zip_into(data: &[u8], level: u32, out: &mut Vec<u8>) -> usize {
         return out.len() - start;
     }
     DEFLATE.with_borrow_mut(|slot| {
-        let c = match slot {
-            Some((l, c)) if *l == level => {
-                c.reset();
-                c
-            }
+        let enc = match slot {
+            Some((l, e)) if *l == level => e,
             _ => {
-                &mut slot
-                    .insert((
-                        level,
-                        flate2::Compress::new(flate2::Compression::new(level), true),
-                    ))
-                    .1
+                let fresh = ZlibEncoder::new(Vec::new(), flate2::Compression::new(level));
+                &mut slot.insert((level, fresh)).1
             }
         };
-        // The calls a `ZlibEncoder` makes: all input without flushing, then the finish
-        // with none (finishing in the same call as the input marks the last data block
-        // final instead of ending with an empty one: other bytes). compress_vec writes
-        // only into spare capacity.
-        let mut input = data;
-        while !input.is_empty() {
-            out.reserve(input.len() / 2 + 64);
-            let before = c.total_in();
-            c.compress_vec(input, out, flate2::FlushCompress::None)
-                .expect("in-memory compression");
-            input = &input[(c.total_in() - before) as usize..];
-        }
-        loop {
-            out.reserve(64);
-            let status = c
-                .compress_vec(&[], out, flate2::FlushCompress::Finish)
-                .expect("in-memory compression");
-            if status == flate2::Status::StreamEnd {
-                break;
-            }
-        }
+        // Exactly a fresh encoder's calls (write, then finish) on a reset one, writing
+        // into `out`; `reset` hands back the previous output and starts a new stream.
+        // Writing into a Vec cannot fail.
+        enc.reset(std::mem::take(out))
+            .expect("in-memory compression");
+        enc.write_all(data).expect("in-memory compression");
+        enc.try_finish().expect("in-memory compression");
+        *out = enc.reset(Vec::new()).expect("in-memory compression");
     });
     out.len() - start
 }
@@ -305,9 +288,10 @@ thread_local! {
     /// writer compresses a small stream per face (its tiles' headers), and a new
     /// compressor's state (~0.3 MiB: window and hash tables) was a fresh mapping to fault in
     /// and give back every time (docs/benchmarks.md, "Ptex writing without fresh
-    /// buffers"). The same stream bytes: deflate's output does not depend on whether its
-    /// state was new or reset.
-    static DEFLATE: std::cell::RefCell<Option<(u32, flate2::Compress)>> =
+    /// buffers"). The same calls as a fresh `ZlibEncoder` on a reset one, so the same
+    /// bytes: feeding the compressor otherwise (all input in one call with a large output
+    /// buffer) gave other bytes for the bunny's large tables.
+    static DEFLATE: std::cell::RefCell<Option<(u32, ZlibEncoder<Vec<u8>>)>> =
         const { std::cell::RefCell::new(None) };
 }
 
@@ -396,8 +380,21 @@ mod tests {
     /// thread compressed before).
     #[test]
     fn a_reused_compressor_writes_what_a_fresh_one_writes() {
-        use std::io::Write;
         let data: Vec<u8> = (0..300_000u32).map(|i| (i * i % 253) as u8).collect();
+        // Table-like records (face infos: resolutions, flags, neighbour ids), the kind of
+        // large stream the bunny's tables are.
+        let records: Vec<u8> = (0..60_000u32)
+            .flat_map(|i| {
+                let mut r = [0u8; 20];
+                r[0] = 4;
+                r[1] = 4;
+                r[4..8].copy_from_slice(&(i.wrapping_mul(2_654_435_761) % 19_794).to_le_bytes());
+                r[8..12].copy_from_slice(&(i ^ (i >> 3)).to_le_bytes());
+                r[12..16].copy_from_slice(&((i * 3 + 1) % 19_794).to_le_bytes());
+                r[16] = (i % 7) as u8;
+                r
+            })
+            .collect();
         let fresh = |d: &[u8], level: u32| {
             let mut e =
                 flate2::write::ZlibEncoder::new(Vec::new(), flate2::Compression::new(level));
@@ -414,6 +411,9 @@ mod tests {
         ] {
             let mut out = vec![7u8; 3];
             let n = zip_into(&data[..len], level, &mut out);
+            let mut again = Vec::new();
+            zip_into(&records, level, &mut again);
+            assert_eq!(again, fresh(&records, level), "records, level {level}");
             assert_eq!(&out[..3], &[7, 7, 7]);
             assert_eq!(
                 &out[3..],
