@@ -325,45 +325,15 @@ impl<'a> TexelBvh<'a> {
                 return Some(i);
             }
         }
-        // Depth-first, nearer child first: at most one pending sibling per level of a
-        // balanced tree (median splits), so a fixed stack, no allocation per query.
-        let mut stack = [(0usize, 0f64); STACK];
-        stack[0] = (0, box_dist2(&q, &self.nodes[0]));
-        let mut top = 1;
-        while top > 0 {
-            top -= 1;
-            let (k, d) = stack[top];
-            // Equal bounds are visited: they may hold a tie of lower index.
-            if d > best {
-                continue;
-            }
-            let n = &self.nodes[k];
-            if n.block != INNER {
-                self.each(&self.blocks[n.block as usize], |i, x| {
-                    let d2 = dist2(&q, x);
-                    if d2 < best || (d2 == best && i < best_i) {
-                        (best, best_i) = (d2, i);
-                    }
-                });
-                continue;
-            }
-            let (l, r) = (k + 1, k + n.right as usize);
-            let (dl, dr) = (box_dist2(&q, &self.nodes[l]), box_dist2(&q, &self.nodes[r]));
-            // The nearer child on top; a child farther than the best is not pushed.
-            let (near, far) = if dl <= dr {
-                ((l, dl), (r, dr))
-            } else {
-                ((r, dr), (l, dl))
-            };
-            if far.1 <= best {
-                stack[top] = far;
-                top += 1;
-            }
-            if near.1 <= best {
-                stack[top] = near;
-                top += 1;
-            }
-        }
+        self.descend_nearest(&q, best, |b| {
+            self.each(b, |i, x| {
+                let d2 = dist2(&q, x);
+                if d2 < best || (d2 == best && i < best_i) {
+                    (best, best_i) = (d2, i);
+                }
+            });
+            best
+        });
         (best_i != usize::MAX).then_some(best_i)
     }
 
@@ -501,22 +471,9 @@ impl<'a> TexelBvh<'a> {
         // rounded square root at most `best` comes from a square within a few ulps of
         // best², far inside the margin); at most `r2` (the radius search's own test).
         let mut bound = r2;
-        let mut stack = [(0usize, 0f64); STACK];
-        stack[0] = (0, box_dist2(&q, &self.nodes[0]));
-        let mut top = 1;
-        while top > 0 {
-            top -= 1;
-            let (k, d) = stack[top];
-            if d > bound {
-                continue;
-            }
-            let n = &self.nodes[k];
-            if n.block != INNER {
-                let b = &self.blocks[n.block as usize];
-                // A block lies in one face: out of `skip` whole or not at all.
-                if skip.contains(&(b.start as usize)) {
-                    continue;
-                }
+        self.descend_nearest(&q, r2, |b| {
+            // A block lies in one face: out of `skip` whole or not at all.
+            if !skip.contains(&(b.start as usize)) {
                 self.each(b, |i, x| {
                     let d2 = dist2(&q, x);
                     if d2 > r2 {
@@ -528,10 +485,38 @@ impl<'a> TexelBvh<'a> {
                         bound = r2.min(best * best * TIE_MARGIN);
                     }
                 });
+            }
+            bound
+        });
+        (best_i != usize::MAX).then_some((best_i, best))
+    }
+
+    /// The nearest-first descent of [`Self::nearest_seeded`] and [`Self::nearest_outside`]:
+    /// depth first, the nearer child on top, every node whose box is within the current
+    /// bound (equal bounds are visited: they may hold a tie of lower index). `leaf` scans a
+    /// block and returns the bound after it (`bound` at the start). At most one pending
+    /// sibling per level of a balanced tree (median splits), so a fixed stack, no
+    /// allocation per query.
+    #[inline(always)]
+    fn descend_nearest(&self, q: &[f64; 3], bound: f64, mut leaf: impl FnMut(&Block) -> f64) {
+        let mut bound = bound;
+        let mut stack = [(0usize, 0f64); STACK];
+        stack[0] = (0, box_dist2(q, &self.nodes[0]));
+        let mut top = 1;
+        while top > 0 {
+            top -= 1;
+            let (k, d) = stack[top];
+            if d > bound {
+                continue;
+            }
+            let n = &self.nodes[k];
+            if n.block != INNER {
+                bound = leaf(&self.blocks[n.block as usize]);
                 continue;
             }
             let (l, r) = (k + 1, k + n.right as usize);
-            let (dl, dr) = (box_dist2(&q, &self.nodes[l]), box_dist2(&q, &self.nodes[r]));
+            let (dl, dr) = (box_dist2(q, &self.nodes[l]), box_dist2(q, &self.nodes[r]));
+            // A child farther than the bound is not pushed.
             let (near, far) = if dl <= dr {
                 ((l, dl), (r, dr))
             } else {
@@ -546,7 +531,6 @@ impl<'a> TexelBvh<'a> {
                 top += 1;
             }
         }
-        (best_i != usize::MAX).then_some((best_i, best))
     }
 
     /// The counted texels whose squared distance from `p` is at most `r2`, in texel order.
