@@ -5,7 +5,12 @@
 //! any directory and cannot pick up a stale or edited copy. They are written next to the
 //! result, into `DIR/inputs/`, so the run can be repeated or varied with `surfsynth synth`
 //! and `report.json` points at files that exist. Licences: fixtures/LICENSES.txt (Spot is
-//! public domain, the gravel example CC0).
+//! public domain, the gravel and brick examples CC0).
+//!
+//! Three runs: gravel (a stochastic example) into `DIR/`, a brick wall (a structured one:
+//! what the default method is for — courses that stay level and continuous, joints that
+//! meet) into `DIR/bricks/`, and a BTF with surface textons into `DIR/btf/`; each with a
+//! preview picture.
 
 use crate::error::Error;
 use crate::io::atomic::{prepare_out_dir, write_bytes_atomic};
@@ -28,6 +33,11 @@ pub fn control_mesh() -> subdiv::ControlMesh {
 pub const EXAMPLE_PNG: &[u8] = include_bytes!("../fixtures/gravel.png");
 /// File name of the example in `DIR/inputs/`.
 pub const EXAMPLE_NAME: &str = "gravel.png";
+/// 128x128 brick wall (scikit-image, CC0; horizontal courses ~17 pixels apart): the
+/// structured example, synthesized with the default method into `DIR/bricks/`.
+pub const BRICKS_PNG: &[u8] = include_bytes!("../fixtures/bricks.png");
+/// File name of the brick example in `DIR/inputs/`.
+pub const BRICKS_NAME: &str = "bricks.png";
 /// Texels per side: 252 domains x 32² = 258,048 texels, about a second.
 pub const RESOLUTION: usize = 32;
 /// Seed of the demo run.
@@ -69,7 +79,9 @@ pub fn command(out: &Path) -> SynthCommand {
 }
 
 /// Writes the fixtures to `out/inputs/`, runs [`command`] (progress bars, summary line),
-/// renders `preview.png` and prints the quality measures of BRIEF.md on one line.
+/// renders `preview.png` and prints the quality measures of BRIEF.md on one line; then the
+/// same for the brick wall ([`bricks`]) and the BTF part ([`btf`]), and a last line naming
+/// the pictures to look at.
 pub fn run(out: &Path) -> anyhow::Result<Report> {
     prepare_out_dir(out)?;
     let inputs = out.join("inputs");
@@ -77,14 +89,43 @@ pub fn run(out: &Path) -> anyhow::Result<Report> {
         .map_err(|e| Error::io(&inputs, "cannot create directory", e))?;
     write_bytes_atomic(inputs.join(MESH_NAME), MESH_OBJ)?;
     write_bytes_atomic(inputs.join(EXAMPLE_NAME), EXAMPLE_PNG)?;
+    write_bytes_atomic(inputs.join(BRICKS_NAME), BRICKS_PNG)?;
     let report = run_command(&command(out))?;
+    preview_and_eval(out)?;
+    bricks(out)?;
+    btf(out)?;
+    let pictures = [
+        out.join("preview.png"),
+        out.join("bricks").join("preview.png"),
+        out.join("btf").join(BTF_PREVIEW_LIGHTS[0].0),
+        out.join("btf").join(BTF_PREVIEW_LIGHTS[1].0),
+    ];
+    let pictures: Vec<String> = pictures.iter().map(|p| p.display().to_string()).collect();
+    println!("demo: look at {}", pictures.join(", "));
+    Ok(report)
+}
+
+/// Renders `dir`'s `preview.png` and prints its quality measures on one line.
+fn preview_and_eval(dir: &Path) -> anyhow::Result<()> {
     // The render's summary shows its own peak beside its estimate, not the synthesis's.
     crate::bench::reset_peak_rss();
-    crate::render::run_cli(out, None, &crate::render::RenderOptions::default())?;
-    let q = crate::eval::evaluate(out, None)?;
+    crate::render::run_cli(dir, None, &crate::render::RenderOptions::default())?;
+    let q = crate::eval::evaluate(dir, None)?;
     println!("{}", eval_summary(&q));
-    btf(out)?;
-    Ok(report)
+    Ok(())
+}
+
+/// The structured part of the demo: the bundled brick wall over Spot with the default
+/// method (texture optimisation, the example upright: courses run level around the body)
+/// into `DIR/bricks/`, with its preview and quality line. Bricks show at a glance what a
+/// stochastic example cannot: whether mortar lines stay straight and meet.
+pub fn bricks(out: &Path) -> anyhow::Result<()> {
+    let dir = out.join("bricks");
+    let mut c = command(&dir);
+    c.mesh = out.join("inputs").join(MESH_NAME);
+    c.example = out.join("inputs").join(BRICKS_NAME);
+    run_command(&c)?;
+    preview_and_eval(&dir)
 }
 
 /// Texels per side of the demo's BTF run (252 domains x 16² texels).
@@ -152,13 +193,16 @@ mod tests {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures");
         assert_eq!(std::fs::read(dir.join(MESH_NAME)).unwrap(), MESH_OBJ);
         assert_eq!(std::fs::read(dir.join(EXAMPLE_NAME)).unwrap(), EXAMPLE_PNG);
+        assert_eq!(std::fs::read(dir.join(BRICKS_NAME)).unwrap(), BRICKS_PNG);
         // Small, as the licence file promises.
-        let ex = crate::example::Example::load(dir.join(EXAMPLE_NAME)).unwrap();
-        assert_eq!((ex.width, ex.height), (128, 128));
+        for name in [EXAMPLE_NAME, BRICKS_NAME] {
+            let ex = crate::example::Example::load(dir.join(name)).unwrap();
+            assert_eq!((ex.width, ex.height), (128, 128), "{name}");
+        }
         // The parsed bundled mesh is the file's mesh (252 domains, as the demo reports).
         assert_eq!(control_mesh().num_domains(), 252);
         let licences = std::fs::read_to_string(dir.join("LICENSES.txt")).unwrap();
-        for name in [MESH_NAME, EXAMPLE_NAME] {
+        for name in [MESH_NAME, EXAMPLE_NAME, BRICKS_NAME] {
             assert!(licences.contains(name), "{name} has a licence entry");
         }
         assert!(licences.contains("Public domain") && licences.contains("CC0-1.0"));
