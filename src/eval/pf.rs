@@ -397,17 +397,9 @@ impl Windows {
 /// All example windows at one S, with the exact nearest-window search (module docs).
 pub(crate) struct Bank {
     win: Windows,
-    mean: Vec<f32>,
-    /// [`SCAN_DIMS`] orthonormal rows of [`DIMS_PAD`] values (zero-padded), leading
-    /// principal directions first.
-    basis: Vec<f32>,
-    /// The windows' [`ROWS`] values in blocks of [`LANES`] windows, row-major inside a
-    /// block (one row = one value of 8 windows), rows in [`row_order`] order, the windows
-    /// in [`coherent_order`]. Padding windows of the last block hold huge values, so no
-    /// bound lets them through.
-    blocks: Vec<[f32; LANES]>,
-    /// The window in each lane of `blocks` (`u32::MAX` for padding).
-    slots: Vec<u32>,
+    /// The PCA and the windows' projections, shared with the analyses that keep them
+    /// (a 2048² example's bank is ~0.6 GB: a copy per bank raised the peak by as much).
+    core: std::sync::Arc<BankCore>,
     /// Per group of [`GROUP_BLOCKS`] consecutive blocks, the box of its windows' first
     /// stage ([`TREE_DIMS`] rows): the lower bound of a whole group ([`group_bound`]).
     groups: Vec<GroupBox>,
@@ -462,7 +454,7 @@ impl Bank {
     pub fn build(example: &Rgb, s: usize, pairs: usize, seed: u64) -> Option<Self> {
         let win = Self::windows(example, s)?;
         let core = BankCore::compute(&win, pairs, seed)?;
-        Self::assemble(win, core)
+        Self::assemble(win, std::sync::Arc::new(core))
     }
 
     /// [`Bank::build`] through `analyses` (memory, the disk cache, else built and saved
@@ -481,7 +473,7 @@ impl Bank {
                 BankCore::compute(&win, pairs, seed).ok_or(())
             })
             .ok()?;
-        Self::assemble(win, (*core).clone())
+        Self::assemble(win, core)
     }
 
     /// The windows of `example` at spacing `s` (`None`: none fits).
@@ -502,43 +494,19 @@ impl Bank {
         })
     }
 
-    /// The bank from its windows and computed part: the windows moved to
-    /// [`coherent_order`] and the boxes of their groups.
-    fn assemble(win: Windows, core: BankCore) -> Option<Self> {
-        let BankCore {
-            mean,
-            basis,
-            blocks,
-            pairs_mean_sq,
-        } = core;
-        if blocks.len() != win.count.div_ceil(LANES) * ROWS {
+    /// The bank from its windows and computed part (whose blocks are already in
+    /// [`coherent_order`]): the boxes of their groups.
+    fn assemble(win: Windows, core: std::sync::Arc<BankCore>) -> Option<Self> {
+        let padded = win.count.div_ceil(LANES) * LANES;
+        if core.blocks.len() != win.count.div_ceil(LANES) * ROWS || core.slots.len() != padded {
             return None;
         }
-        let count = win.count;
-        let points: Vec<[f32; TREE_DIMS]> = (0..count)
-            .map(|j| {
-                let blk = &blocks[(j / LANES) * ROWS..];
-                let mut p = [0f32; TREE_DIMS];
-                for (k, x) in p.iter_mut().enumerate() {
-                    // Rows 0..TREE_PCA are the first coordinates, then their residual.
-                    *x = blk[k][j % LANES];
-                }
-                p
-            })
-            .collect();
-        let slots = coherent_order(&points);
-        drop(points);
-        let mut blocks = blocks;
-        reorder_blocks(&mut blocks, &slots);
-        let groups = group_boxes(&blocks, &slots);
+        let groups = group_boxes(&core.blocks, &core.slots);
         Some(Self {
+            pairs_mean_sq: core.pairs_mean_sq,
             win,
-            mean,
-            basis,
-            blocks,
-            slots,
+            core,
             groups,
-            pairs_mean_sq,
         })
     }
 }
@@ -549,13 +517,29 @@ impl Bank {
 /// blocks. Padded with `u32::MAX` to whole blocks. Any order gives the same distances (the
 /// search takes a minimum); this one only makes the bounds prune sooner.
 fn coherent_order(points: &[[f32; TREE_DIMS]]) -> Vec<u32> {
-    let mut order: Vec<u32> = (0..points.len() as u32).collect();
-    split_coherent(&mut order, points);
+    // The splits move the points with their indices (one array of 40-byte items), so
+    // each pass over a part streams through memory: partitioning indices into a separate
+    // array of points read a random point per comparison, and for the ~4 M windows of a
+    // 2048² example the order took most of the end-of-run pf summary (~20 s).
+    let mut items: Vec<Item> = points
+        .iter()
+        .enumerate()
+        .map(|(i, p)| Item { p: *p, i: i as u32 })
+        .collect();
+    split_coherent(&mut items);
+    let mut order: Vec<u32> = items.iter().map(|it| it.i).collect();
     order.resize(points.len().div_ceil(LANES) * LANES, u32::MAX);
     order
 }
 
-fn split_coherent(items: &mut [u32], points: &[[f32; TREE_DIMS]]) {
+/// A window's first-stage values with its index ([`coherent_order`]).
+#[derive(Clone, Copy)]
+struct Item {
+    p: [f32; TREE_DIMS],
+    i: u32,
+}
+
+fn split_coherent(items: &mut [Item]) {
     if items.len() <= LANES {
         return;
     }
@@ -565,8 +549,8 @@ fn split_coherent(items: &mut [u32], points: &[[f32; TREE_DIMS]]) {
         LANES
     };
     let (mut lo, mut hi) = ([f32::MAX; TREE_DIMS], [f32::MIN; TREE_DIMS]);
-    for &i in items.iter() {
-        for (k, &v) in points[i as usize].iter().enumerate() {
+    for it in items.iter() {
+        for (k, &v) in it.p.iter().enumerate() {
             lo[k] = lo[k].min(v);
             hi[k] = hi[k].max(v);
         }
@@ -575,48 +559,31 @@ fn split_coherent(items: &mut [u32], points: &[[f32; TREE_DIMS]]) {
         .max_by(|&a, &b| (hi[a] - lo[a]).total_cmp(&(hi[b] - lo[b])))
         .unwrap_or(0);
     let mid = (items.len() / 2).div_ceil(unit) * unit;
-    items.select_nth_unstable_by(mid, |&a, &b| {
-        points[a as usize][axis]
-            .total_cmp(&points[b as usize][axis])
-            .then(a.cmp(&b))
+    items.select_nth_unstable_by(mid, |a, b| {
+        a.p[axis].total_cmp(&b.p[axis]).then(a.i.cmp(&b.i))
     });
     let (left, right) = items.split_at_mut(mid);
-    split_coherent(left, points);
-    split_coherent(right, points);
+    // The two halves are independent: split side by side while they are large.
+    if left.len() > 1 << 15 {
+        rayon::join(|| split_coherent(left), || split_coherent(right));
+    } else {
+        split_coherent(left);
+        split_coherent(right);
+    }
 }
 
-/// Moves the windows of `blocks` (in their natural order) to `slots`' order, in place:
-/// position p takes window `slots[p]`, one cycle of the permutation at a time. In place
-/// because a second copy of the blocks (~140 bytes a window, the three S side by side)
-/// raised the peak of `eval` with a 512² example by a sixth.
-fn reorder_blocks(blocks: &mut [[f32; LANES]], slots: &[u32]) {
-    let get = |blocks: &[[f32; LANES]], j: usize| -> [f32; ROWS] {
-        std::array::from_fn(|r| blocks[(j / LANES) * ROWS + r][j % LANES])
-    };
-    let set = |blocks: &mut [[f32; LANES]], j: usize, v: &[f32; ROWS]| {
-        for (r, &x) in v.iter().enumerate() {
-            blocks[(j / LANES) * ROWS + r][j % LANES] = x;
-        }
-    };
-    let mut done = vec![false; slots.len()];
-    for start in 0..slots.len() {
-        if done[start] || slots[start] == u32::MAX {
-            continue;
-        }
-        let first = get(blocks, start);
-        let mut p = start;
-        loop {
-            done[p] = true;
-            let j = slots[p] as usize;
-            if j == start {
-                set(blocks, p, &first);
-                break;
-            }
-            let v = get(blocks, j);
-            set(blocks, p, &v);
-            p = j;
-        }
+/// Whether `slots` names every window `0..n` exactly once, followed only by padding
+/// (`u32::MAX`, fewer than [`LANES`] of it): a saved order that left a window out would
+/// make the search miss it.
+fn is_padded_permutation(slots: &[u32]) -> bool {
+    let n = slots.iter().take_while(|&&j| j != u32::MAX).count();
+    if slots.len() - n >= LANES || slots[n..].iter().any(|&j| j != u32::MAX) {
+        return false;
     }
+    let mut seen = vec![false; n];
+    slots[..n]
+        .iter()
+        .all(|&j| (j as usize) < n && !std::mem::replace(&mut seen[j as usize], true))
 }
 
 /// The [`GroupBox`] of every [`GROUP_BLOCKS`] consecutive blocks (padding lanes left out).
@@ -667,14 +634,26 @@ fn group_bound(g: &GroupBox, qr: &[f32; ROWS]) -> f32 {
 pub(crate) struct BankCore {
     mean: Vec<f32>,
     basis: Vec<f32>,
+    /// The projections in [`coherent_order`] (the search's layout, [`Bank::blocks`]).
     blocks: Vec<[f32; LANES]>,
+    /// The window in each lane of `blocks` ([`Bank::slots`]). Saved with the blocks: the
+    /// order costs more than the projections for a large example, and a cache hit should
+    /// cost neither.
+    slots: Vec<u32>,
     pairs_mean_sq: f64,
 }
 
+/// Largest bank (bytes of its projections) saved in the analysis cache. Measured on Spot
+/// N = 32 (busy machine): a 1024² example (three banks of ~145 MB) takes the summary 5.3 s
+/// without the cache, 6.6 s when saving and 2.1 s from the cache; a 2048² one (~570 MB
+/// each) 17.9 s, 30.0 s and 6.7 s.
+const MAX_SAVED_BANK: usize = 256 << 20;
+
 /// Cache kind of [`BankCore`].
 pub const BANK_KIND: &str = "pf-bank";
-/// Bump when [`BankCore::compute`] changes what it computes.
-const BANK_VERSION: u64 = 1;
+/// Bump when [`BankCore::compute`] changes what it computes (2: the blocks saved in
+/// [`coherent_order`], with their slots).
+const BANK_VERSION: u64 = 2;
 
 impl BankCore {
     /// The cache key: the example's pixels, the spacing, the denominator's draw, and the
@@ -701,20 +680,41 @@ impl BankCore {
         let s = win.s;
         let (mean, basis) = fit_pca(win);
         let count = win.count;
+        // The order first, from each window's first stage alone, then every window's
+        // projection written straight into its place in that order: no reordering pass
+        // over the blocks (serial, a random gather per window: for the ~4 M windows of a
+        // 2048² example it took longer than all the projections) and no second copy of them.
+        let points: Vec<[f32; TREE_DIMS]> = (0..count)
+            .into_par_iter()
+            .map_init(
+                || (vec![0f32; DIMS], [0f32; ROWS]),
+                |(buf, vals), j| {
+                    win.window(j, buf);
+                    project_rows(&mean, &basis, buf, TREE_PCA, vals);
+                    // Rows 0..TREE_PCA are the first coordinates, then their residual.
+                    std::array::from_fn(|k| vals[if k < TREE_PCA { k } else { SCAN_DIMS }])
+                },
+            )
+            .collect();
+        let slots = coherent_order(&points);
+        drop(points);
         let nblocks = count.div_ceil(LANES);
         let mut blocks = vec![[1e30f32; LANES]; nblocks * ROWS];
-        blocks.par_chunks_mut(ROWS).enumerate().for_each_init(
-            || (vec![0f32; DIMS], [0f32; ROWS]),
-            |(buf, vals), (b, blk)| {
-                for (l, j) in (b * LANES..count.min((b + 1) * LANES)).enumerate() {
-                    win.window(j, buf);
-                    project(&mean, &basis, buf, vals);
-                    for (v, &x) in vals.iter().enumerate() {
-                        blk[row_order(v)][l] = x;
+        blocks
+            .par_chunks_mut(ROWS)
+            .zip(slots.par_chunks(LANES))
+            .for_each_init(
+                || (vec![0f32; DIMS], [0f32; ROWS]),
+                |(buf, vals), (blk, lanes)| {
+                    for (l, &j) in lanes.iter().enumerate().filter(|(_, &j)| j != u32::MAX) {
+                        win.window(j as usize, buf);
+                        project(&mean, &basis, buf, vals);
+                        for (v, &x) in vals.iter().enumerate() {
+                            blk[row_order(v)][l] = x;
+                        }
                     }
-                }
-            },
-        );
+                },
+            );
         if blocks.iter().flatten().any(|v| !v.is_finite()) {
             return None;
         }
@@ -743,6 +743,7 @@ impl BankCore {
             mean,
             basis,
             blocks,
+            slots,
             pairs_mean_sq,
         })
     }
@@ -753,35 +754,43 @@ impl crate::cache::Persist for BankCore {
         w.f32s(&self.mean);
         w.f32s(&self.basis);
         w.f32s(self.blocks.as_flattened());
+        w.u32s(&self.slots);
         w.f64(self.pairs_mean_sq);
+    }
+
+    /// Not for a large example: a 2048² example's three banks are ~1.7 GB, which took
+    /// longer to write (a first run's summary +12 s) than to compute, and the disk
+    /// besides. Up to [`MAX_SAVED_BANK`] (about a 1350² example) a bank is saved.
+    fn worth_saving(&self) -> bool {
+        std::mem::size_of_val(self.blocks.as_slice()) <= MAX_SAVED_BANK
     }
 
     fn load(r: &mut crate::cache::Reader<'_>) -> Option<Self> {
         let mean = r.f32s()?;
         let basis = r.f32s()?;
-        let flat = r.f32s()?;
+        let blocks: Vec<[f32; LANES]> = r.f32_arrays()?;
+        let slots = r.u32s()?;
         let pairs_mean_sq = r.f64()?;
         if mean.len() != DIMS
             || basis.len() != SCAN_DIMS * DIMS_PAD
-            || flat.len() % (LANES * ROWS) != 0
+            || !blocks.len().is_multiple_of(ROWS)
+            || slots.len() != blocks.len() / ROWS * LANES
             || !r.at_end()
             || !pairs_mean_sq.is_finite()
             || mean
                 .iter()
                 .chain(&basis)
-                .chain(&flat)
+                .chain(blocks.as_flattened())
                 .any(|v| !v.is_finite())
+            || !is_padded_permutation(&slots)
         {
             return None;
         }
-        let blocks = flat
-            .chunks_exact(LANES)
-            .map(|c| c.try_into().expect("LANES values"))
-            .collect();
         Some(Self {
             mean,
             basis,
             blocks,
+            slots,
             pairs_mean_sq,
         })
     }
@@ -796,7 +805,7 @@ impl Bank {
     /// The query's values in block row order.
     fn query_rows(&self, q: &[f32]) -> [f32; ROWS] {
         let mut vals = [0f32; ROWS];
-        project(&self.mean, &self.basis, q, &mut vals);
+        project(&self.core.mean, &self.core.basis, q, &mut vals);
         let mut rows = [0f32; ROWS];
         for (v, &x) in vals.iter().enumerate() {
             rows[row_order(v)] = x;
@@ -824,8 +833,8 @@ impl Bank {
                 break;
             }
             let g = g as usize;
-            let end = ((g + 1) * group_rows).min(self.blocks.len());
-            let blocks = &self.blocks[g * group_rows..end];
+            let end = ((g + 1) * group_rows).min(self.core.blocks.len());
+            let blocks = &self.core.blocks[g * group_rows..end];
             for (k, blk) in blocks.chunks_exact(ROWS).enumerate() {
                 self.scan_block(g * GROUP_BLOCKS + k, blk, q, qr, &mut best);
             }
@@ -879,7 +888,7 @@ impl Bank {
             r0 += n + 1;
             start = end;
         }
-        let slots = &self.slots[b * LANES..(b + 1) * LANES];
+        let slots = &self.core.slots[b * LANES..(b + 1) * LANES];
         for (&a, &j) in alive.iter().zip(slots) {
             if a < *best && j != u32::MAX {
                 let d = self.win.exact(q, j as usize, *best);
@@ -997,6 +1006,12 @@ fn fit_pca(win: &Windows) -> (Vec<f32>, Vec<f32>) {
 /// stage the residual norm outside its coordinates. Coordinates are f32 dot products in
 /// eight fixed lanes (vectorisable, deterministic); residual norms come from f64 sums.
 fn project(mean: &[f32], basis: &[f32], q: &[f32], out: &mut [f32; ROWS]) {
+    project_rows(mean, basis, q, SCAN_DIMS, out)
+}
+
+/// [`project`] on the first `rows` basis rows only (a multiple of a stage's end): the
+/// same values there, the rest of `out` left as it was.
+fn project_rows(mean: &[f32], basis: &[f32], q: &[f32], rows: usize, out: &mut [f32; ROWS]) {
     let mut c = [0f32; DIMS_PAD];
     let mut total = 0f64;
     for (i, o) in c.iter_mut().take(DIMS).enumerate() {
@@ -1005,7 +1020,7 @@ fn project(mean: &[f32], basis: &[f32], q: &[f32], out: &mut [f32; ROWS]) {
     }
     let mut kept = 0f64;
     let mut stage = 0;
-    for (k, b) in basis.chunks_exact(DIMS_PAD).enumerate() {
+    for (k, b) in basis.chunks_exact(DIMS_PAD).take(rows).enumerate() {
         let mut acc = [0f32; 8];
         for (bx, cx) in b.chunks_exact(8).zip(c.chunks_exact(8)) {
             for l in 0..8 {
@@ -1261,6 +1276,74 @@ mod tests {
         }
     }
 
+    /// A bank saved in the cache and read back (blocks in their search order, with the
+    /// order) is the bank computed, and searches the same; a second store answers from
+    /// the file. An order that misses a window or names one twice is refused.
+    #[test]
+    fn a_cached_bank_is_the_computed_one_and_a_bad_order_is_refused() {
+        let ex = noise(40, 36, 6);
+        let dir = std::env::temp_dir().join(format!("surfsynth-pf-bank-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let cache = crate::cache::CacheDir::Dir(dir.clone());
+        let first = crate::synth::Analyses::new(&cache);
+        let a = Bank::build_in(&ex, 4, 64, 3, &first).unwrap();
+        let second = crate::synth::Analyses::new(&cache);
+        let b = Bank::build_in(&ex, 4, 64, 3, &second).unwrap();
+        let sources: Vec<_> = second.events().into_iter().map(|e| e.source).collect();
+        assert_eq!(sources, [crate::synth::analysis::Source::Hit]);
+        assert_eq!(a.core.slots, b.core.slots);
+        assert_eq!(a.core.blocks, b.core.blocks);
+        let fresh = Bank::build(&ex, 4, 64, 3).unwrap();
+        assert_eq!(fresh.core.blocks, a.core.blocks);
+        let mut q = vec![0f32; DIMS];
+        for j in [0, 17, 100] {
+            fresh.win.window(j, &mut q);
+            q[5] += 0.3;
+            assert_eq!(
+                b.nearest_sq(&q).to_bits(),
+                brute_force(&fresh, &q).to_bits()
+            );
+        }
+        let _ = std::fs::remove_dir_all(&dir);
+
+        let n = 21;
+        let mut slots: Vec<u32> = (0..n).rev().collect();
+        slots.resize(24, u32::MAX);
+        assert!(is_padded_permutation(&slots));
+        let mut twice = slots.clone();
+        twice[3] = twice[4];
+        assert!(!is_padded_permutation(&twice));
+        let mut short = slots.clone();
+        short[20] = u32::MAX;
+        assert!(!is_padded_permutation(&short), "window 0 left out");
+        let mut past = slots.clone();
+        past[0] = 21;
+        assert!(!is_padded_permutation(&past));
+        let mut gap = slots.clone();
+        gap.swap(5, 22);
+        assert!(!is_padded_permutation(&gap), "padding inside");
+        let mut long = slots.clone();
+        long.extend([u32::MAX; LANES]);
+        assert!(!is_padded_permutation(&long), "a whole block of padding");
+    }
+
+    /// Banks are saved up to [`MAX_SAVED_BANK`] bytes of projections and kept in memory
+    /// only above it.
+    #[test]
+    fn large_banks_are_not_saved() {
+        let core = |windows: usize| BankCore {
+            mean: Vec::new(),
+            basis: Vec::new(),
+            blocks: vec![[0f32; LANES]; windows.div_ceil(LANES) * ROWS],
+            slots: Vec::new(),
+            pairs_mean_sq: 1.0,
+        };
+        use crate::cache::Persist;
+        let per_window = ROWS * 4;
+        assert!(core(MAX_SAVED_BANK / per_window / LANES * LANES).worth_saving());
+        assert!(!core((MAX_SAVED_BANK / per_window + 1).next_multiple_of(LANES)).worth_saving());
+    }
+
     /// A group's bound is at most the first-stage bound of each of its windows, as the
     /// lanes compute it (so skipping a group skips only windows the lanes would prune).
     #[test]
@@ -1275,9 +1358,9 @@ mod tests {
             let qr = bank.query_rows(&q);
             for (g, gb) in bank.groups.iter().enumerate() {
                 let bound = group_bound(gb, &qr);
-                let blocks = bank.blocks.chunks(ROWS).skip(g * GROUP_BLOCKS);
+                let blocks = bank.core.blocks.chunks(ROWS).skip(g * GROUP_BLOCKS);
                 for (b, blk) in blocks.take(GROUP_BLOCKS).enumerate() {
-                    let slots = &bank.slots[(g * GROUP_BLOCKS + b) * LANES..][..LANES];
+                    let slots = &bank.core.slots[(g * GROUP_BLOCKS + b) * LANES..][..LANES];
                     for l in (0..LANES).filter(|&l| slots[l] != u32::MAX) {
                         let mut coord = 0f32;
                         for r in 0..TREE_PCA {

@@ -26,7 +26,8 @@ pub enum Source {
     Memory,
     /// Loaded from the disk cache.
     Hit,
-    /// Computed: no cache entry (saved afterwards when there is a cache).
+    /// Computed: no cache entry (saved afterwards when there is a cache and the value is
+    /// worth a file, [`crate::cache::Persist::worth_saving`]).
     Miss,
     /// Computed: the entry was truncated, corrupt or of another version (rewritten).
     Rebuilt,
@@ -158,7 +159,7 @@ impl Analyses {
         }
         let v = Arc::new(build()?);
         let mut bytes = 0;
-        if let Some(dir) = &self.dir {
+        if let Some(dir) = self.dir.as_ref().filter(|_| v.worth_saving()) {
             let mut w = Writer::default();
             v.save(&mut w);
             match cache::store(dir, kind, key, &w.0) {
