@@ -249,6 +249,9 @@ pub enum Stage {
     Geometry,
     Field,
     Graph,
+    /// An analysis of the example being built (not found in memory or the cache):
+    /// progress in the analysis's own unit (e.g. example pixels).
+    Analysis,
     /// Progress counts domains.
     Synthesis,
     Maps,
@@ -263,6 +266,7 @@ impl Stage {
             Stage::Geometry => "geometry",
             Stage::Field => "field",
             Stage::Graph => "graph",
+            Stage::Analysis => "analysis",
             Stage::Synthesis => "synthesis",
             Stage::Maps => "maps",
             Stage::Write => "write",
@@ -1570,9 +1574,13 @@ impl StageBars {
             *cur = Some((stage, crate::progress::bar(total as u64, stage.label())));
         }
         if let Some((_, b)) = cur.as_ref() {
+            // An analysis reports its start as 0 of 1, then its own count.
+            b.set_length(total as u64);
             b.set_position(done as u64);
             if done >= total {
                 b.finish_and_clear();
+                // A later report of the same stage (the next analysis) gets a new bar.
+                *cur = None;
             }
         }
     }

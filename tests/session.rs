@@ -174,6 +174,39 @@ fn a_second_synthesis_reuses_the_example_analysis() {
     assert!(Arc::ptr_eq(&first.geometry, &second.geometry));
 }
 
+/// Building the example's analysis shows as its own stage, counting the jump map's pixels
+/// up to all of them, before the domains; a synthesis that finds the analysis in memory
+/// goes straight to the domains.
+#[test]
+fn analyses_being_built_report_progress() {
+    use std::sync::Mutex;
+    use surfsynth::synthesizer::Stage;
+    let seen: Arc<Mutex<Vec<(Stage, usize, usize)>>> = Arc::default();
+    let log = seen.clone();
+    let s = session().on_progress(move |st, d, t| log.lock().unwrap().push((st, d, t)));
+    let example = example();
+    let params = SynthParams::new(Method::Jump);
+    s.synthesize(&example, &params).unwrap();
+    let first = std::mem::take(&mut *seen.lock().unwrap());
+    let analysis: Vec<(usize, usize)> = first
+        .iter()
+        .filter(|e| e.0 == Stage::Analysis)
+        .map(|e| (e.1, e.2))
+        .collect();
+    let pixels = example.width * example.height;
+    assert!(analysis.contains(&(pixels, pixels)), "{analysis:?}");
+    assert_eq!(analysis.last(), Some(&(1, 1)), "{analysis:?}");
+    let first_domains = first.iter().position(|e| e.0 == Stage::Synthesis).unwrap();
+    let last_analysis = first.iter().rposition(|e| e.0 == Stage::Analysis).unwrap();
+    assert!(first_domains < last_analysis, "announced, then analysed");
+    assert!(first.iter().rposition(|e| e.0 == Stage::Synthesis).unwrap() > last_analysis);
+    s.synthesize(&example, &SynthParams { seed: 2, ..params })
+        .unwrap();
+    let second = seen.lock().unwrap();
+    assert!(second.iter().all(|e| e.0 != Stage::Analysis), "{second:?}");
+    assert!(second.iter().any(|e| e.0 == Stage::Synthesis));
+}
+
 #[test]
 fn session_errors_are_one_line() {
     let settings = MeshSettings {

@@ -59,6 +59,10 @@ pub struct CacheReport {
 
 type Shared = Arc<dyn Any + Send + Sync>;
 
+/// Where an analysis being built reports how far it is: `(done, total)`, in whatever unit
+/// it counts (pixels, lists); `(0, 1)` when it starts and `(1, 1)` when it is done.
+pub type BuildProgress = Arc<dyn Fn(usize, usize) + Send + Sync>;
+
 /// Per-example analyses of one process (see the module docs). Cheap to share: clone the
 /// `Arc` around it, or keep one per example.
 pub struct Analyses {
@@ -68,6 +72,10 @@ pub struct Analyses {
     /// A save already failed and said so: a folder that cannot be written costs one
     /// warning per store, not one per analysis (the pf summary saves three banks).
     save_warned: std::sync::atomic::AtomicBool,
+    /// Told about analyses being built ([`Analyses::set_progress`]): a first run with a
+    /// large example can spend minutes here (a 1024² example's jump map: ~150 CPU-s), and
+    /// a progress bar that stood still that long looked like a hang.
+    progress: Mutex<Option<BuildProgress>>,
 }
 
 impl std::fmt::Debug for Analyses {
@@ -93,6 +101,26 @@ impl Analyses {
             memo: Mutex::new(HashMap::new()),
             save_warned: Default::default(),
             events: Mutex::new(Vec::new()),
+            progress: Mutex::new(None),
+        }
+    }
+
+    /// Sets (or, with `None`, clears) where analyses built from now on report their
+    /// progress. A session sets it for the span of one synthesis.
+    pub fn set_progress(&self, hook: Option<BuildProgress>) {
+        *self.progress.lock().unwrap_or_else(|e| e.into_inner()) = hook;
+    }
+
+    /// Reports `(done, total)` of the analysis being built (nothing without a hook):
+    /// what a long builder calls as it goes.
+    pub fn progress(&self, done: usize, total: usize) {
+        let hook = self
+            .progress
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone();
+        if let Some(h) = hook {
+            h(done, total);
         }
     }
 
@@ -157,7 +185,9 @@ impl Analyses {
                 }
             }
         }
+        self.progress(0, 1);
         let v = Arc::new(build()?);
+        self.progress(1, 1);
         let mut bytes = 0;
         if let Some(dir) = self.dir.as_ref().filter(|_| v.worth_saving()) {
             let mut w = Writer::default();
@@ -232,4 +262,45 @@ fn warn_corrupt(dir: &std::path::Path, kind: &str, key: Key, why: &str) {
         "warning: cache entry {} is not usable ({why}); rebuilding it",
         cache::entry_path(dir, kind, key).display()
     );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A value to store: a number.
+    struct N(u64);
+    impl Persist for N {
+        fn save(&self, w: &mut Writer) {
+            w.u64(self.0);
+        }
+        fn load(r: &mut Reader<'_>) -> Option<Self> {
+            r.u64().map(N)
+        }
+    }
+
+    /// A build is announced (0 of 1), may report its own counts through
+    /// [`Analyses::progress`], and ends with 1 of 1; a value from memory reports nothing,
+    /// and neither does anything once the hook is cleared.
+    #[test]
+    fn builds_report_progress_and_memory_hits_do_not() {
+        let a = Analyses::default();
+        let seen = Arc::new(Mutex::new(Vec::new()));
+        let log = seen.clone();
+        a.set_progress(Some(Arc::new(move |d, t| log.lock().unwrap().push((d, t)))));
+        let key = crate::cache::KeyBuilder::new("test").u64(1).finish();
+        let v = a.get("test", key, || {
+            a.progress(5, 10);
+            N(7)
+        });
+        assert_eq!(v.0, 7);
+        assert_eq!(*seen.lock().unwrap(), [(0, 1), (5, 10), (1, 1)]);
+        let again = a.get("test", key, || N(8));
+        assert_eq!(again.0, 7, "from memory");
+        assert_eq!(seen.lock().unwrap().len(), 3);
+        a.set_progress(None);
+        let other = crate::cache::KeyBuilder::new("test").u64(2).finish();
+        a.get("test", other, || N(9));
+        assert_eq!(seen.lock().unwrap().len(), 3);
+    }
 }

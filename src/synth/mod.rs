@@ -389,7 +389,12 @@ pub fn synthesize(
                 .u64(p.map.candidates as u64)
                 .finish();
             let map = analyses.get("jumpmap", key, || {
-                matching::jumpmap::JumpMap::from_appearance(&app.image, app.info, p.map)
+                matching::jumpmap::JumpMap::from_appearance_with(
+                    &app.image,
+                    app.info,
+                    p.map,
+                    &|d, t| analyses.progress(d, t),
+                )
             });
             let plan = target.derived.jump_plan(target.texels);
             let (source, stats) = jump::run(&map, target.texels, plan, &p, target.seed, progress);

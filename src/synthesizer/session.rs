@@ -850,10 +850,19 @@ impl Session {
             derived: &self.derived,
             scale_field: self.scale_field.as_deref(),
         };
+        // Analyses built for this synthesis (a first run with a large example can spend
+        // minutes there) show as their own stage, then the domains go on.
+        if let Some(p) = &self.progress {
+            let p = p.clone();
+            self.analyses
+                .set_progress(Some(Arc::new(move |d, t| p(Stage::Analysis, d, t))));
+        }
         let out =
             crate::synth::synthesize(synth_example, &target, settings, &self.analyses, &|d, t| {
                 progress(Stage::Synthesis, d * faces / t.max(1), faces)
-            })?;
+            });
+        self.analyses.set_progress(None);
+        let out = out?;
         let cache = self.analyses.report(self.analyses.take_events());
         let mut source = out.source;
         if params.handedness == Handedness::Tiles {

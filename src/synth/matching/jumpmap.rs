@@ -113,6 +113,18 @@ impl JumpMap {
 
     /// The jump map of an image already in the matched space.
     pub fn from_appearance(img: &Image, appearance: AppearanceInfo, params: JumpMapParams) -> Self {
+        Self::from_appearance_with(img, appearance, params, &|_, _| {})
+    }
+
+    /// [`JumpMap::from_appearance`], telling `progress(done, total)` how many pixels'
+    /// jumps are found as it goes (the searches are most of the work: ~150 µs a pixel of a
+    /// 1024² example). The result does not depend on it.
+    pub fn from_appearance_with(
+        img: &Image,
+        appearance: AppearanceInfo,
+        params: JumpMapParams,
+        progress: &(dyn Fn(usize, usize) + Sync),
+    ) -> Self {
         let (w, h, c) = (img.width, img.height, img.channels);
         let n = w * h;
         let jumps = params.jumps.clamp(1, MAX_JUMPS);
@@ -153,11 +165,19 @@ impl JumpMap {
                 ImmutableKdTree::new_from_slice(&proj).expect("finite example vectors");
             let ask = NonZeroUsize::new(params.candidates.max(jumps).min(n)).expect("n > 1");
             let ex = params.exclude as isize;
+            // Progress every PROGRESS_PIXELS pixels (counted per pixel, reported per step).
+            const PROGRESS_PIXELS: usize = 1 << 14;
+            let found = std::sync::atomic::AtomicUsize::new(0);
             targets
                 .par_iter_mut()
                 .zip(dists.par_iter_mut())
                 .enumerate()
                 .for_each_init(Vec::new, |cands, (i, (tg, ds))| {
+                    if i % PROGRESS_PIXELS == PROGRESS_PIXELS - 1 {
+                        let done =
+                            found.fetch_add(PROGRESS_PIXELS, std::sync::atomic::Ordering::Relaxed);
+                        progress(done + PROGRESS_PIXELS, n);
+                    }
                     let (x, y) = ((i % w) as isize, (i / w) as isize);
                     let far = |j: usize, px: isize, py: isize| {
                         let (jx, jy) = ((j % w) as isize, (j / w) as isize);
@@ -192,6 +212,7 @@ impl JumpMap {
                     }
                 });
         }
+        progress(n, n);
         // σ: the median best-jump distance.
         let mut best: Vec<f32> = dists
             .iter()
