@@ -151,7 +151,9 @@ impl KnnLists {
     /// Pruned as [`KnnLists::exact`] is, with the same result: every fine feature is
     /// projected once onto [`PRUNE_DIMS`] principal directions (a lower bound of every
     /// distance), the `len` candidates with the lowest bounds are measured first, and the
-    /// rest only where their bound beats the current `len`-th best. Why: the full distance
+    /// rest, nearest bound first, only while their bound beats the current `len`-th best.
+    /// The directions must fit `fine` (its own level's appearance space) to prune much.
+    /// Why: the full distance
     /// (the 9x9 + 5x5 neighbourhood, ~850 numbers) of each of the ≤ 4m = 400 candidates was
     /// most of the analysis of a large example (issue 14: a 512² example's lists took
     /// 24 s of a 44 s first run); most candidates are far, and 16 numbers say so.
