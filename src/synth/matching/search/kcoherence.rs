@@ -208,13 +208,19 @@ impl KnnLists {
                         }
                     }
                 }
+                // Their projections side by side: read scattered once per parent, then
+                // in order by each of its pixels.
+                s.rows.clear();
+                for &j in &s.children {
+                    s.rows.extend_from_slice(proj.row(j as usize));
+                }
                 s.parent = parent;
             }
             let pi = proj.row(i);
             s.lbs.clear();
-            for &j in &s.children {
+            for (&j, pj) in s.children.iter().zip(s.rows.chunks_exact(PRUNE_DIMS)) {
                 if j as usize != i {
-                    s.lbs.push((lower_bound(pi, proj.row(j as usize)), j));
+                    s.lbs.push((lower_bound(pi, pj), j));
                 }
             }
             fine.vector_into(i, &mut s.qi);
@@ -238,6 +244,7 @@ impl KnnLists {
                     parent: u32::MAX,
                     parents: Vec::new(),
                     children: Vec::new(),
+                    rows: Vec::new(),
                     lbs: Vec::new(),
                     qi: vec![0.0f32; dim],
                 },
@@ -270,6 +277,8 @@ struct Candidates {
     parent: u32,
     parents: Vec<u32>,
     children: Vec<u32>,
+    /// The children's projected rows, in the children's order.
+    rows: Vec<f32>,
     lbs: Vec<(f32, u32)>,
     qi: Vec<f32>,
 }
