@@ -122,22 +122,17 @@ impl KnnLists {
             || (Vec::<(f32, u32)>::new(), vec![0.0f32; dim]),
             |(lbs, qi), (i, out)| {
                 f.vector_into(i, qi);
-                let pi = &proj[i * PRUNE_DIMS..(i + 1) * PRUNE_DIMS];
+                let pi = proj.row(i);
                 lbs.clear();
-                for (j, pj) in proj.chunks_exact(PRUNE_DIMS).enumerate() {
+                for (j, pj) in proj.rows.chunks_exact(PRUNE_DIMS).enumerate() {
                     if j != i {
-                        let mut lb = 0.0f32;
-                        for t in 0..PRUNE_DIMS {
-                            let d = pi[t] - pj[t];
-                            lb += d * d;
-                        }
-                        lbs.push((lb, j as u32));
+                        lbs.push((lower_bound(pi, pj), j as u32));
                     }
                 }
                 let mut top = TopK::new(len);
                 // The pixel itself first (distance 0 and lowest possible key).
                 top.push(-1.0, i as u32);
-                measure_pruned(f, qi, lbs, 4 * len, &mut top);
+                measure_pruned(f, qi, lbs, &proj, &mut top);
                 for (o, &(_, idx)) in out.iter_mut().zip(&top.items) {
                     *o = idx;
                 }
@@ -156,7 +151,9 @@ impl KnnLists {
     /// Pruned as [`KnnLists::exact`] is, with the same result: every fine feature is
     /// projected once onto [`PRUNE_DIMS`] principal directions (a lower bound of every
     /// distance), the `len` candidates with the lowest bounds are measured first, and the
-    /// rest only where their bound beats the current `len`-th best. Why: the full distance
+    /// rest, nearest bound first, only while their bound beats the current `len`-th best.
+    /// The directions must fit `fine` (its own level's appearance space) to prune much.
+    /// Why: the full distance
     /// (the 9x9 + 5x5 neighbourhood, ~850 numbers) of each of the ≤ 4m = 400 candidates was
     /// most of the analysis of a large example (issue 14: a 512² example's lists took
     /// 24 s of a 44 s first run); most candidates are far, and 16 numbers say so.
@@ -182,20 +179,22 @@ impl KnnLists {
         let dim = fine.dim();
         let proj = pruning.project(fine);
         let mut lists = vec![0u32; n * len];
-        lists.par_chunks_mut(len).enumerate().for_each_init(
-            || {
-                (
-                    Vec::<u32>::new(),
-                    Vec::<(f32, u32)>::new(),
-                    vec![0.0f32; dim],
-                )
-            },
-            |(cands, lbs, qi), (i, out)| {
-                let (x, y) = fine.pixel(i as u32);
-                // Parent pixel centre in coarse pixels: (x + 0.5) / 2.
-                let parent = coarse.nearest_index((x as f32 + 0.5) / 2.0, (y as f32 + 0.5) / 2.0);
-                cands.clear();
-                for &c in coarse_lists.list(parent as usize) {
+        let cols = fine.cols;
+        let one = |s: &mut Candidates, i: usize, out: &mut [u32]| {
+            let (x, y) = fine.pixel(i as u32);
+            // Parent pixel centre in coarse pixels: (x + 0.5) / 2.
+            let parent = coarse.nearest_index((x as f32 + 0.5) / 2.0, (y as f32 + 0.5) / 2.0);
+            if parent != s.parent {
+                // The children of the parent's list's distinct entries (distinct
+                // coarse pixels have distinct children: no duplicates), shared by the
+                // (up to four) fine pixels of one parent that follow each other.
+                s.parents.clear();
+                s.parents
+                    .extend_from_slice(coarse_lists.list(parent as usize));
+                s.parents.sort_unstable();
+                s.parents.dedup();
+                s.children.clear();
+                for &c in &s.parents {
                     let (cx, cy) = coarse.pixel(c);
                     for (a, b) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
                         let (fx, fy) = (2 * cx + a, 2 * cy + b);
@@ -204,37 +203,61 @@ impl KnnLists {
                             && fx < fine.margin + fine.cols
                             && fy < fine.margin + fine.rows
                         {
-                            let j = ((fy - fine.margin) * fine.cols + fx - fine.margin) as u32;
-                            if j as usize != i {
-                                cands.push(j);
-                            }
+                            s.children
+                                .push(((fy - fine.margin) * fine.cols + fx - fine.margin) as u32);
                         }
                     }
                 }
-                cands.sort_unstable();
-                cands.dedup();
-                let pi = &proj[i * PRUNE_DIMS..(i + 1) * PRUNE_DIMS];
-                lbs.clear();
-                lbs.extend(cands.iter().map(|&j| {
-                    let pj = &proj[j as usize * PRUNE_DIMS..(j as usize + 1) * PRUNE_DIMS];
-                    let mut lb = 0.0f32;
-                    for t in 0..PRUNE_DIMS {
-                        let d = pi[t] - pj[t];
-                        lb += d * d;
-                    }
-                    (lb, j)
-                }));
-                fine.vector_into(i, qi);
-                let mut top = TopK::new(len);
-                top.push(-1.0, i as u32);
-                measure_pruned(fine, qi, lbs, len, &mut top);
-                // Too few candidates (tiny levels): pad with the pixel itself; duplicates
-                // are removed when candidate sets are assembled.
-                for (t, o) in out.iter_mut().enumerate() {
-                    *o = top.items.get(t).map_or(i as u32, |&(_, idx)| idx);
+                // Their projections side by side: read scattered once per parent, then
+                // in order by each of its pixels.
+                s.rows.clear();
+                for &j in &s.children {
+                    s.rows.extend_from_slice(proj.row(j as usize));
                 }
-            },
-        );
+                s.parent = parent;
+            }
+            let pi = proj.row(i);
+            s.lbs.clear();
+            for (&j, pj) in s.children.iter().zip(s.rows.chunks_exact(PRUNE_DIMS)) {
+                if j as usize != i {
+                    s.lbs.push((lower_bound(pi, pj), j));
+                }
+            }
+            fine.vector_into(i, &mut s.qi);
+            let mut top = TopK::new(len);
+            top.push(-1.0, i as u32);
+            measure_pruned(fine, &s.qi, &mut s.lbs, &proj, &mut top);
+            // Too few candidates (tiny levels): pad with the pixel itself; duplicates
+            // are removed when candidate sets are assembled.
+            for (t, o) in out.iter_mut().enumerate() {
+                *o = top.items.get(t).map_or(i as u32, |&(_, idx)| idx);
+            }
+        };
+        // Two rows at a time, column by column: the (up to four) pixels of one parent,
+        // which share their candidates, follow each other, so the candidates' pixels
+        // read for the first are still in cache for the others.
+        lists
+            .par_chunks_mut(2 * cols * len)
+            .enumerate()
+            .for_each_init(
+                || Candidates {
+                    parent: u32::MAX,
+                    parents: Vec::new(),
+                    children: Vec::new(),
+                    rows: Vec::new(),
+                    lbs: Vec::new(),
+                    qi: vec![0.0f32; dim],
+                },
+                |s, (r, rows)| {
+                    let nrows = rows.len() / (cols * len);
+                    for x in 0..cols {
+                        for dy in 0..nrows {
+                            let at = (dy * cols + x) * len;
+                            one(s, (2 * r + dy) * cols + x, &mut rows[at..at + len]);
+                        }
+                    }
+                },
+            );
         Self {
             len,
             lists,
@@ -249,23 +272,53 @@ impl KnnLists {
     }
 }
 
+/// Per-thread state of [`KnnLists::two_level_pruned`]: the candidates of the last parent.
+struct Candidates {
+    parent: u32,
+    parents: Vec<u32>,
+    children: Vec<u32>,
+    /// The children's projected rows, in the children's order.
+    rows: Vec<f32>,
+    lbs: Vec<(f32, u32)>,
+    qi: Vec<f32>,
+}
+
 /// The directions the list computations prune with: the first [`PRUNE_DIMS`] principal
 /// directions of some level's features. Squared distances between projections are lower
 /// bounds of the squared feature distances for *any* orthonormal directions (projecting
 /// onto a subspace never lengthens a vector), so the lists do not depend on which
-/// features the directions were fitted to — only how much is pruned does. One fit serves
-/// every level of a model ([`super::model`]): the fit is serial, ~0.3 s on 850-number
-/// neighbourhoods, and the levels' neighbourhoods share their shape and statistics.
+/// features the directions were fitted to — only how much is pruned does, and that is a
+/// great deal: fitted to the level's own features, 16 directions of a 512² brick's
+/// finest level (in appearance space) keep 99% of its variance and leave ~29 of ~400
+/// two-level candidates to be measured; fitted to another level's (each level has an
+/// appearance space of its own) they keep almost nothing and leave ~387
+/// ([`super::model`] fits one per level).
 pub struct Pruning {
     pca: Pca,
+    /// Bound on how far the fitted rows are from orthonormal: ‖B x‖² ≤ (1 + ortho)‖x‖².
+    ortho: f64,
 }
 
 impl Pruning {
     /// Fitted to `f`'s features.
     pub fn fit(f: &Features) -> Self {
         let dim = f.dim();
+        let pca = Pca::fit(&f.pca_rows(), dim, PRUNE_DIMS.min(dim));
+        // ‖B Bᵀ − I‖_F bounds the spread of B's singular values around 1.
+        let (k, b) = (pca.k, &pca.basis);
+        let mut dev = 0.0f64;
+        for r in 0..k {
+            for s in 0..k {
+                let dot: f64 = (0..dim)
+                    .map(|t| b[r * dim + t] as f64 * b[s * dim + t] as f64)
+                    .sum();
+                let e = dot - if r == s { 1.0 } else { 0.0 };
+                dev += e * e;
+            }
+        }
         Self {
-            pca: Pca::fit(&f.pca_rows(), dim, PRUNE_DIMS.min(dim)),
+            pca,
+            ortho: dev.sqrt(),
         }
     }
 
@@ -274,40 +327,168 @@ impl Pruning {
         self.pca.dim
     }
 
-    /// Every feature of `f` projected, in rows of [`PRUNE_DIMS`] (zero-padded).
-    fn project(&self, f: &Features) -> Vec<f32> {
+    /// Every feature of `f` projected, in rows of [`PRUNE_DIMS`] (zero-padded), with the
+    /// slack its rounding calls for.
+    fn project(&self, f: &Features) -> Projection {
         let dim = f.dim();
         assert_eq!(dim, self.pca.dim, "pruning directions of another shape");
         let pd = self.pca.k;
-        let mut proj = vec![0.0f32; f.len() * PRUNE_DIMS];
-        proj.par_chunks_mut(PRUNE_DIMS).enumerate().for_each_init(
-            || vec![0.0f32; dim],
-            |v, (i, o)| {
-                f.vector_into(i, v);
-                self.pca.project(v, &mut o[..pd]);
-            },
-        );
-        proj
+        let mut rows = vec![0.0f32; f.len() * PRUNE_DIMS];
+        let mut norms = vec![0.0f32; f.len()];
+        rows.par_chunks_mut(PRUNE_DIMS)
+            .zip(norms.par_iter_mut())
+            .enumerate()
+            .for_each_init(
+                || (vec![0.0f32; dim], vec![0.0f32; dim]),
+                |(v, c), (i, (o, norm))| {
+                    f.vector_into(i, v);
+                    project_centred(&self.pca, v, c, &mut o[..pd], norm);
+                },
+            );
+        // Each projected coordinate is a sum of `dim` products in 8 lanes: its rounding
+        // error is at most γ·Σ|b||x − μ| ≤ γ‖x − μ‖ (unit rows), with γ = n·u for the
+        // n ≈ dim / 8 + 10 roundings along the longest path (centring, products, lane
+        // sums, the sum of the lanes), doubled for safety; the rows' error at most √pd
+        // times that.
+        let u = f32::EPSILON as f64 / 2.0;
+        let gamma = 2.0 * (dim as f64 / 8.0 + 10.0) * u;
+        let max_norm = norms.iter().fold(0.0f32, |a, &b| a.max(b)) as f64;
+        // The norms themselves are rounded (relative error far below 1%).
+        let row_err = gamma * (pd as f64).sqrt() * max_norm * 1.01;
+        Projection {
+            rows,
+            slack: 2.0 * row_err,
+            scale: 1.0 + self.ortho + 1e-4,
+        }
     }
 }
 
-/// Measures the candidates `lbs` ((lower bound, feature)) against `qi` into `top`: the
-/// `seeds` with the lowest bounds first, so that the bound is tight from the start, then
-/// the rest only where the lower bound does not rule them out (with a margin for rounding
-/// in the projection). The result is the one measuring every candidate would give.
-fn measure_pruned(f: &Features, qi: &[f32], lbs: &mut [(f32, u32)], seeds: usize, top: &mut TopK) {
-    let len = top.cap;
-    let seeds = seeds.min(lbs.len());
-    if seeds > 0 && seeds < lbs.len() {
-        lbs.select_nth_unstable_by(seeds, |a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-    }
-    for (t, &(lb, j)) in lbs.iter().enumerate() {
-        if t >= seeds && lb * (1.0 - 1e-4) > top.bound() {
-            continue;
+/// `v − μ` into `c`, its norm into `norm`, and its coordinates along the rows of `pca` into
+/// `out` (8 lanes per row, like [`Pca::project`]).
+#[inline]
+fn project_centred(pca: &Pca, v: &[f32], c: &mut [f32], out: &mut [f32], norm: &mut f32) {
+    let mut n2 = [0.0f32; 8];
+    for ((cc, vv), mm) in c
+        .chunks_exact_mut(8)
+        .zip(v.chunks_exact(8))
+        .zip(pca.mean.chunks_exact(8))
+    {
+        for t in 0..8 {
+            cc[t] = vv[t] - mm[t];
+            n2[t] += cc[t] * cc[t];
         }
+    }
+    let r = v.len() / 8 * 8;
+    let mut n2s: f32 = n2.iter().sum();
+    for t in r..v.len() {
+        c[t] = v[t] - pca.mean[t];
+        n2s += c[t] * c[t];
+    }
+    *norm = n2s.sqrt();
+    for (j, o) in out.iter_mut().enumerate() {
+        let b = &pca.basis[j * pca.dim..(j + 1) * pca.dim];
+        let mut acc = [0.0f32; 8];
+        for (bb, cc) in b.chunks_exact(8).zip(c.chunks_exact(8)) {
+            for t in 0..8 {
+                acc[t] += bb[t] * cc[t];
+            }
+        }
+        let mut s: f32 = acc.iter().sum();
+        for t in r..v.len() {
+            s += b[t] * c[t];
+        }
+        *o = s;
+    }
+}
+
+/// The features of one level projected for pruning.
+struct Projection {
+    /// [`PRUNE_DIMS`] coordinates per feature.
+    rows: Vec<f32>,
+    /// Bound on the rounding error of the distance between two rows (in distance units,
+    /// not squared).
+    slack: f64,
+    /// Factor covering the directions' deviation from orthonormality and the rounding of
+    /// squared sums (bounds and distances), with a wide margin.
+    scale: f64,
+}
+
+impl Projection {
+    #[inline]
+    fn row(&self, i: usize) -> &[f32] {
+        &self.rows[i * PRUNE_DIMS..(i + 1) * PRUNE_DIMS]
+    }
+
+    /// The largest lower bound (as [`lower_bound`] computes it) a candidate whose full
+    /// distance is at most `bound` can have: candidates above it are certainly farther.
+    #[inline]
+    fn cutoff(&self, bound: f32) -> f32 {
+        if bound.is_infinite() {
+            return f32::INFINITY;
+        }
+        let r = (bound.max(0.0) as f64).sqrt() + self.slack;
+        (r * r * self.scale) as f32
+    }
+}
+
+/// Squared distance between two projected rows (8 lanes, then their sum): a lower bound
+/// of the squared feature distance up to [`Projection::cutoff`]'s margins.
+#[inline]
+fn lower_bound(a: &[f32], b: &[f32]) -> f32 {
+    let mut acc = [0.0f32; 8];
+    for (x, y) in a.chunks_exact(8).zip(b.chunks_exact(8)) {
+        for t in 0..8 {
+            let d = x[t] - y[t];
+            acc[t] += d * d;
+        }
+    }
+    acc.iter().sum()
+}
+
+/// Measures the candidates `lbs` ((lower bound, feature)) against `qi` into `top`: the
+/// `top.cap` with the lowest bounds first, so that the `cap`-th best distance is known
+/// early, then — nearest bound first — those the bound does not rule out, stopping at the
+/// first it does. The result is the one measuring every candidate would give: `top` keeps
+/// the best by (distance, index), whatever the order of the offers.
+fn measure_pruned(
+    f: &Features,
+    qi: &[f32],
+    lbs: &mut [(f32, u32)],
+    proj: &Projection,
+    top: &mut TopK,
+) {
+    let by_bound = |a: &(f32, u32), b: &(f32, u32)| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1));
+    let seeds = top.cap.min(lbs.len());
+    if seeds < lbs.len() {
+        lbs.select_nth_unstable_by(seeds, by_bound);
+    }
+    let (head, rest) = lbs.split_at_mut(seeds);
+    for &(_, j) in head.iter() {
         let d = f.distance_to(qi, None, j as usize, top.bound());
-        if d < top.bound() || top.items.len() < len {
-            top.push(d, j);
+        top.push(d, j);
+    }
+    // The others that can still enter, nearest bound first.
+    let cut = proj.cutoff(top.bound());
+    let mut kept = 0;
+    for t in 0..rest.len() {
+        if rest[t].0 <= cut {
+            rest[kept] = rest[t];
+            kept += 1;
+        }
+    }
+    let rest = &mut rest[..kept];
+    rest.sort_unstable_by(by_bound);
+    let mut bound = top.bound();
+    let mut cut = proj.cutoff(bound);
+    for &(lb, j) in rest.iter() {
+        if lb > cut {
+            break;
+        }
+        let d = f.distance_to(qi, None, j as usize, bound);
+        top.push(d, j);
+        if top.bound() != bound {
+            bound = top.bound();
+            cut = proj.cutoff(bound);
         }
     }
 }
@@ -357,4 +538,123 @@ pub fn search(
     top.clear();
     features.rerank(q, &scratch.cands, top);
     scratch.cands.len()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::{hash, Shape};
+    use super::*;
+    use crate::pyramid::{Image, Pyramid};
+
+    /// A `w x h` image of `c` channels: random values, or (`period`) a tiling of a small
+    /// random tile, whose repeated neighbourhoods are at exactly equal distances.
+    fn image(w: usize, h: usize, c: usize, seed: u64, period: Option<(usize, usize)>) -> Image {
+        let mut img = Image::new(w, h, c);
+        for y in 0..h {
+            for x in 0..w {
+                let (u, v) = period.map_or((x, y), |(pw, ph)| (x % pw, y % ph));
+                for k in 0..c {
+                    let r = hash(seed, &[u as u64, v as u64, k as u64]) % 10_000;
+                    img.pixel_mut(x, y)[k] = r as f32 / 1e4;
+                }
+            }
+        }
+        img
+    }
+
+    /// The `len - 1` nearest of `cands` to `i` by (full distance, index).
+    fn ranked(f: &Features, i: usize, cands: impl Iterator<Item = u32>, len: usize) -> Vec<u32> {
+        let qi = f.vector(i);
+        let mut d: Vec<(f32, u32)> = cands
+            .filter(|&j| j as usize != i)
+            .map(|j| (f.distance_to(&qi, None, j as usize, f32::INFINITY), j))
+            .collect();
+        d.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        d.iter().take(len - 1).map(|x| x.1).collect()
+    }
+
+    #[test]
+    fn lists_are_the_full_ranking_even_with_ties() {
+        // Tiled images have many neighbourhoods at exactly the same distance (0 among
+        // copies): the lists must still be the first by (distance, index), whatever order
+        // the candidates were measured in. 8 channels take the AVX2 kernel where there is
+        // one, 3 the portable one.
+        for (c, period) in [(8, Some((5, 3))), (3, Some((4, 4))), (8, None), (3, None)] {
+            let pyr = Pyramid::build(image(30, 28, c, 7, period), 2);
+            let shape = Shape::new(5, 3, c);
+            let f0 = Features::build(&pyr, 0, shape, 2).unwrap();
+            let f1 = Features::build(&pyr, 1, Shape::new(3, 0, c), 2).unwrap();
+            let len = 9;
+            let exact = KnnLists::exact(&f0, len);
+            let parents = KnnLists::exact(&f1, 6);
+            let two = KnnLists::two_level(&f0, &f1, &parents, len);
+            for i in 0..f0.len() {
+                let l = exact.list(i);
+                assert_eq!(l[0] as usize, i);
+                let want = ranked(&f0, i, 0..f0.len() as u32, len);
+                assert_eq!(&l[1..], &want[..], "exact, {c} channels, pixel {i}");
+                // The two-level candidates: children of the parent's list.
+                let (x, y) = f0.pixel(i as u32);
+                let p = f1.nearest_index((x as f32 + 0.5) / 2.0, (y as f32 + 0.5) / 2.0);
+                let mut cands = Vec::new();
+                for &q in parents.list(p as usize) {
+                    let (cx, cy) = f1.pixel(q);
+                    for (a, b) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                        let (fx, fy) = (2 * cx + a, 2 * cy + b);
+                        if (f0.margin..f0.margin + f0.cols).contains(&fx)
+                            && (f0.margin..f0.margin + f0.rows).contains(&fy)
+                        {
+                            cands.push(((fy - f0.margin) * f0.cols + fx - f0.margin) as u32);
+                        }
+                    }
+                }
+                cands.sort_unstable();
+                cands.dedup();
+                let mut want = ranked(&f0, i, cands.into_iter(), len);
+                while want.len() < len - 1 {
+                    want.push(i as u32);
+                }
+                assert_eq!(
+                    &two.list(i)[1..],
+                    &want[..],
+                    "two-level, {c} channels, pixel {i}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn pruning_bounds_stay_below_the_distances() {
+        // Every pair's bound is within the cutoff of its full distance (what makes pruning
+        // exact), and the cutoff's margin is small: the bounds prune.
+        for c in [8, 3] {
+            // Smooth, like a texture's neighbourhoods (white noise has no leading
+            // directions to prune with).
+            let mut img = image(40, 36, c, 3, None);
+            for y in 0..36 {
+                for x in 0..40 {
+                    for (k, v) in img.pixel_mut(x, y).iter_mut().enumerate() {
+                        let t = 0.1 * (k + 1) as f32 * x as f32 + 0.23 * y as f32 + k as f32;
+                        *v = t.sin() + 0.05 * *v;
+                    }
+                }
+            }
+            let pyr = Pyramid::build(img, 2);
+            let f = Features::build(&pyr, 0, Shape::new(9, 5, c), 0).unwrap();
+            let proj = Pruning::fit(&f).project(&f);
+            let (mut pruned, mut pairs) = (0, 0);
+            for i in (0..f.len()).step_by(5) {
+                let qi = f.vector(i);
+                for j in (0..f.len()).step_by(3) {
+                    let d = f.distance_to(&qi, None, j, f32::INFINITY);
+                    let lb = lower_bound(proj.row(i), proj.row(j));
+                    assert!(lb <= proj.cutoff(d), "{i} {j}: {lb} > cutoff of {d}");
+                    assert!(proj.cutoff(d) <= d * 1.01 + 1e-6);
+                    pairs += 1;
+                    pruned += (lb > proj.cutoff(0.5 * d)) as usize;
+                }
+            }
+            assert!(pruned * 10 > pairs, "{c} channels: {pruned} of {pairs}");
+        }
+    }
 }
