@@ -281,9 +281,10 @@ impl<'a> Reader<'a> {
 pub trait Persist: Sized {
     fn save(&self, w: &mut Writer);
     fn load(r: &mut Reader<'_>) -> Option<Self>;
-    /// Whether this value earns a file in the cache folder (default: always). One that
-    /// costs more to write and read back than to compute again says no, and is kept in
-    /// memory only ([`crate::synth::Analyses`]).
+    /// Whether this value earns a file in the cache folder and a place in memory between
+    /// uses (default: always). One that costs more to write and read back than to compute
+    /// again, and is too large to keep for a later run of the process, says no: it is
+    /// computed each time it is asked for ([`crate::synth::Analyses`]).
     fn worth_saving(&self) -> bool {
         true
     }

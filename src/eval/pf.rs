@@ -760,7 +760,8 @@ impl crate::cache::Persist for BankCore {
 
     /// Not for a large example: a 2048² example's three banks are ~1.7 GB, which took
     /// longer to write (a first run's summary +12 s) than to compute, and the disk
-    /// besides. Up to [`MAX_SAVED_BANK`] (about a 1350² example) a bank is saved.
+    /// besides — and kept in memory for the process's life they held its peak. Up to
+    /// [`MAX_SAVED_BANK`] (about a 1350² example) a bank is saved and kept.
     fn worth_saving(&self) -> bool {
         std::mem::size_of_val(self.blocks.as_slice()) <= MAX_SAVED_BANK
     }

@@ -207,7 +207,9 @@ impl Analyses {
                 }
             }
         }
-        self.remember(id, v.clone());
+        if v.worth_saving() {
+            self.remember(id, v.clone());
+        }
         self.record(kind, source, t0, bytes);
         Ok(v)
     }
@@ -302,5 +304,32 @@ mod tests {
         let other = crate::cache::KeyBuilder::new("test").u64(2).finish();
         a.get("test", other, || N(9));
         assert_eq!(seen.lock().unwrap().len(), 3);
+    }
+
+    /// A value too large to keep (here: any, `worth_saving` false) is neither saved nor
+    /// remembered: asked again, it is built again.
+    #[test]
+    fn values_not_worth_saving_are_built_each_time() {
+        struct Big(u64);
+        impl Persist for Big {
+            fn save(&self, w: &mut Writer) {
+                w.u64(self.0);
+            }
+            fn load(r: &mut Reader<'_>) -> Option<Self> {
+                r.u64().map(Big)
+            }
+            fn worth_saving(&self) -> bool {
+                false
+            }
+        }
+        let dir = std::env::temp_dir().join(format!("surfsynth-big-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let a = Analyses::new(&CacheDir::Dir(dir.clone()));
+        let key = crate::cache::KeyBuilder::new("big").u64(1).finish();
+        assert_eq!(a.get("big", key, || Big(1)).0, 1);
+        assert_eq!(a.get("big", key, || Big(2)).0, 2, "built again");
+        let files = std::fs::read_dir(&dir).map(|d| d.count()).unwrap_or(0);
+        assert_eq!(files, 0, "nothing saved");
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }
