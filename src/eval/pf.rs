@@ -633,13 +633,19 @@ fn group_bound(g: &GroupBox, qr: &[f32; ROWS]) -> f32 {
 #[derive(Clone, Debug)]
 pub(crate) struct BankCore {
     mean: Vec<f32>,
+    /// [`SCAN_DIMS`] orthonormal rows of [`DIMS_PAD`] values (zero-padded), leading
+    /// principal directions first.
     basis: Vec<f32>,
-    /// The projections in [`coherent_order`] (the search's layout, [`Bank::blocks`]).
+    /// The windows' [`ROWS`] values in blocks of [`LANES`] windows, row-major inside a
+    /// block (one row = one value of 8 windows), rows in [`row_order`] order, the windows
+    /// in [`coherent_order`] — the layout [`Bank::search`] scans. Padding windows of the
+    /// last block hold huge values, so no bound lets them through.
     blocks: Vec<[f32; LANES]>,
-    /// The window in each lane of `blocks` ([`Bank::slots`]). Saved with the blocks: the
-    /// order costs more than the projections for a large example, and a cache hit should
-    /// cost neither.
+    /// The window in each lane of `blocks` (`u32::MAX` for padding). Saved with the
+    /// blocks: the order costs more than the projections for a large example, and a cache
+    /// hit should cost neither.
     slots: Vec<u32>,
+    /// Mean squared distance between random pairs of windows.
     pairs_mean_sq: f64,
 }
 
