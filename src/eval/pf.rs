@@ -403,8 +403,6 @@ pub(crate) struct Bank {
     /// Per group of [`GROUP_BLOCKS`] consecutive blocks, the box of its windows' first
     /// stage ([`TREE_DIMS`] rows): the lower bound of a whole group ([`group_bound`]).
     groups: Vec<GroupBox>,
-    /// Mean squared distance between random pairs of windows.
-    pub pairs_mean_sq: f64,
 }
 
 /// Windows per block of the scan (one SIMD-friendly row of lanes).
@@ -502,12 +500,7 @@ impl Bank {
             return None;
         }
         let groups = group_boxes(&core.blocks, &core.slots);
-        Some(Self {
-            pairs_mean_sq: core.pairs_mean_sq,
-            win,
-            core,
-            groups,
-        })
+        Some(Self { win, core, groups })
     }
 }
 
@@ -807,6 +800,11 @@ impl Bank {
     /// Number of example windows.
     pub fn len(&self) -> usize {
         self.win.count
+    }
+
+    /// Mean squared distance between random pairs of windows.
+    pub fn pairs_mean_sq(&self) -> f64 {
+        self.core.pairs_mean_sq
     }
 
     /// The query's values in block row order.
@@ -1114,7 +1112,7 @@ pub(crate) fn score_scale(
         return out;
     };
     out.example_windows = bank.len();
-    out.pairs_mean_sq = Some(bank.pairs_mean_sq);
+    out.pairs_mean_sq = Some(bank.pairs_mean_sq());
     if laid.is_empty() {
         return out;
     }
@@ -1122,10 +1120,10 @@ pub(crate) fn score_scale(
     let nearest = bank.nearest_all(&qs);
     let num = nearest.iter().map(|&d| d.max(0.0) as f64).sum::<f64>() / nearest.len() as f64;
     out.nearest_mean_sq = Some(num);
-    if bank.pairs_mean_sq > 0.0 {
-        out.value = Some(num / bank.pairs_mean_sq);
+    if bank.pairs_mean_sq() > 0.0 {
+        out.value = Some(num / bank.pairs_mean_sq());
         for (&k, &d) in at.iter().zip(&nearest) {
-            out.per_window[k] = Some(d.max(0.0) as f64 / bank.pairs_mean_sq);
+            out.per_window[k] = Some(d.max(0.0) as f64 / bank.pairs_mean_sq());
         }
     }
     out
@@ -1436,12 +1434,12 @@ mod tests {
             .collect();
         let q: Vec<&[f32]> = qs.iter().map(|v| v.as_slice()).collect();
         let built = Bank::build(&ex, 4, 256, 3).unwrap();
-        let want = (built.pairs_mean_sq, built.nearest_all(&q));
+        let want = (built.pairs_mean_sq(), built.nearest_all(&q));
         let cache = CacheDir::Dir(dir.path().to_path_buf());
         for expect in [Source::Miss, Source::Hit] {
             let a = Analyses::new(&cache);
             let b = Bank::build_in(&ex, 4, 256, 3, &a).unwrap();
-            assert_eq!((b.pairs_mean_sq, b.nearest_all(&q)), want);
+            assert_eq!((b.pairs_mean_sq(), b.nearest_all(&q)), want);
             let ev = a.events();
             assert_eq!(ev.len(), 1);
             assert_eq!(ev[0].source, expect);
@@ -1455,7 +1453,7 @@ mod tests {
         }
         let a = Analyses::new(&cache);
         let b = Bank::build_in(&ex, 4, 256, 3, &a).unwrap();
-        assert_eq!((b.pairs_mean_sq, b.nearest_all(&q)), want);
+        assert_eq!((b.pairs_mean_sq(), b.nearest_all(&q)), want);
         assert_eq!(a.events()[0].source, Source::Rebuilt);
     }
 }

@@ -270,16 +270,21 @@ fn warn_corrupt(dir: &std::path::Path, kind: &str, key: Key, why: &str) {
 mod tests {
     use super::*;
 
-    /// A value to store: a number.
-    struct N(u64);
-    impl Persist for N {
+    /// A value to store: a number, worth saving (and keeping) when `KEEP`.
+    struct Value<const KEEP: bool>(u64);
+    impl<const KEEP: bool> Persist for Value<KEEP> {
         fn save(&self, w: &mut Writer) {
             w.u64(self.0);
         }
         fn load(r: &mut Reader<'_>) -> Option<Self> {
-            r.u64().map(N)
+            r.u64().map(Value)
+        }
+        fn worth_saving(&self) -> bool {
+            KEEP
         }
     }
+    type N = Value<true>;
+    type Big = Value<false>;
 
     /// A build is announced (0 of 1), may report its own counts through
     /// [`Analyses::progress`], and ends with 1 of 1; a value from memory reports nothing,
@@ -291,18 +296,18 @@ mod tests {
         let log = seen.clone();
         a.set_progress(Some(Arc::new(move |d, t| log.lock().unwrap().push((d, t)))));
         let key = crate::cache::KeyBuilder::new("test").u64(1).finish();
-        let v = a.get("test", key, || {
+        let v = a.get("test", key, || -> N {
             a.progress(5, 10);
-            N(7)
+            Value(7)
         });
         assert_eq!(v.0, 7);
         assert_eq!(*seen.lock().unwrap(), [(0, 1), (5, 10), (1, 1)]);
-        let again = a.get("test", key, || N(8));
+        let again = a.get("test", key, || -> N { Value(8) });
         assert_eq!(again.0, 7, "from memory");
         assert_eq!(seen.lock().unwrap().len(), 3);
         a.set_progress(None);
         let other = crate::cache::KeyBuilder::new("test").u64(2).finish();
-        a.get("test", other, || N(9));
+        a.get("test", other, || -> N { Value(9) });
         assert_eq!(seen.lock().unwrap().len(), 3);
     }
 
@@ -310,24 +315,16 @@ mod tests {
     /// remembered: asked again, it is built again.
     #[test]
     fn values_not_worth_saving_are_built_each_time() {
-        struct Big(u64);
-        impl Persist for Big {
-            fn save(&self, w: &mut Writer) {
-                w.u64(self.0);
-            }
-            fn load(r: &mut Reader<'_>) -> Option<Self> {
-                r.u64().map(Big)
-            }
-            fn worth_saving(&self) -> bool {
-                false
-            }
-        }
         let dir = std::env::temp_dir().join(format!("surfsynth-big-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         let a = Analyses::new(&CacheDir::Dir(dir.clone()));
         let key = crate::cache::KeyBuilder::new("big").u64(1).finish();
-        assert_eq!(a.get("big", key, || Big(1)).0, 1);
-        assert_eq!(a.get("big", key, || Big(2)).0, 2, "built again");
+        assert_eq!(a.get("big", key, || -> Big { Value(1) }).0, 1);
+        assert_eq!(
+            a.get("big", key, || -> Big { Value(2) }).0,
+            2,
+            "built again"
+        );
         let files = std::fs::read_dir(&dir).map(|d| d.count()).unwrap_or(0);
         assert_eq!(files, 0, "nothing saved");
         let _ = std::fs::remove_dir_all(&dir);

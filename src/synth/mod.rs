@@ -721,23 +721,44 @@ pub fn layout_frames(
 /// same rounding), without holding the f64 frames (48 B per texel) at the same time.
 pub fn texel_frames_f32(field: &OrientationField, surface: &Surface, n: usize) -> Vec<[Vec3; 2]> {
     let mut out = vec![[Vec3::ZERO; 2]; surface.num_domains() * n * n];
+    each_texel_centre(
+        &mut out,
+        n,
+        subdiv::surface::LeafHint::default,
+        |hint, d, u, v, o| {
+            let f = field.frame_hinted(surface, d, u, v, hint);
+            *o = [f.v1.as_vec3(), f.v2.as_vec3()];
+        },
+    );
+    out
+}
+
+/// Calls `f(state, domain, u, v, slot)` for every texel centre of `n`×`n` maps, `out`
+/// holding one slot per texel (domain-major, then row, then column); in parallel per
+/// domain, `state` made by `init` once per domain. The centres are `(x + 0.5) · (1 / n)`,
+/// the points the geometry pass evaluates on a uniform layout (so a slot's kept normal,
+/// [`frames_from_slots`], is the one of its very centre).
+fn each_texel_centre<S>(
+    out: &mut [[Vec3; 2]],
+    n: usize,
+    init: impl Fn() -> S + Sync,
+    f: impl Fn(&mut S, subdiv::DomainId, f64, f64, &mut [Vec3; 2]) + Sync,
+) {
     if n == 0 {
-        return out;
+        return;
     }
     let inv = 1.0 / n as f64;
     out.par_chunks_mut(n * n)
         .enumerate()
         .for_each(|(d, chunk)| {
-            let mut hint = subdiv::surface::LeafHint::default();
+            let d = subdiv::DomainId::from_idx(d);
+            let mut state = init();
             for (i, o) in chunk.iter_mut().enumerate() {
                 let (x, y) = (i % n, i / n);
                 let (u, v) = ((x as f64 + 0.5) * inv, (y as f64 + 0.5) * inv);
-                let d = subdiv::DomainId::from_idx(d);
-                let f = field.frame_hinted(surface, d, u, v, &mut hint);
-                *o = [f.v1.as_vec3(), f.v2.as_vec3()];
+                f(&mut state, d, u, v, o);
             }
         });
-    out
 }
 
 /// [`texel_frames_f32`] from the exact normals the geometry pass kept
@@ -752,21 +773,15 @@ pub fn frames_from_slots(
     let n = slots.resolution();
     let mut out = slots.into_inner();
     assert_eq!(out.len(), surface.num_domains() * n * n);
-    if n == 0 {
-        return out;
-    }
-    let inv = 1.0 / n as f64;
-    out.par_chunks_mut(n * n)
-        .enumerate()
-        .for_each(|(d, chunk)| {
-            let d = subdiv::DomainId::from_idx(d);
-            for (i, o) in chunk.iter_mut().enumerate() {
-                let (x, y) = (i % n, i / n);
-                let (u, v) = ((x as f64 + 0.5) * inv, (y as f64 + 0.5) * inv);
-                let f = field.frame_with_normal(surface, d, u, v, FrameSlots::decode(o));
-                *o = [f.v1.as_vec3(), f.v2.as_vec3()];
-            }
-        });
+    each_texel_centre(
+        &mut out,
+        n,
+        || (),
+        |_, d, u, v, o| {
+            let f = field.frame_with_normal(surface, d, u, v, FrameSlots::decode(o));
+            *o = [f.v1.as_vec3(), f.v2.as_vec3()];
+        },
+    );
     out
 }
 
