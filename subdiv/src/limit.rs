@@ -182,13 +182,16 @@ impl TangentMask {
     }
 }
 
-/// [`TangentMask`]s of every valence up to [`crate::topology::MAX_VALENCE`].
+/// Valences whose [`TangentMask`]s are tabled: the common ones. Rarer, higher valences
+/// (up to [`crate::topology::MAX_VALENCE`]) compute theirs at the vertex — the same bits —
+/// rather than every run holding ~8 MB of masks of valences up to 1024.
+const TABLED_VALENCE: usize = 64;
+
+/// [`TangentMask`]s of every valence up to [`TABLED_VALENCE`].
 static TANGENT_MASKS: std::sync::OnceLock<Vec<TangentMask>> = std::sync::OnceLock::new();
 
 fn tangent_masks() -> Vec<TangentMask> {
-    (0..=crate::topology::MAX_VALENCE)
-        .map(TangentMask::new)
-        .collect()
+    (0..=TABLED_VALENCE).map(TangentMask::new).collect()
 }
 
 /// The limit with a known unit normal, `dir` projected on its tangent plane as the first

@@ -15,8 +15,12 @@ use glam::DVec3;
 /// Marks an absent half-edge (boundary twin, unused vertex).
 pub const NONE: u32 = u32::MAX;
 
-/// Largest valence accepted in input meshes (limit masks and charts are tested up to this).
-pub const MAX_VALENCE: usize = 64;
+/// Largest valence accepted in input meshes. Cylinder caps triangulated as fans have poles
+/// of valence 100–1000; OpenSubdiv takes them, and so do we: limit positions and normals
+/// at a valence-360 pole match OpenSubdiv's to 4e-13 (`tests/opensubdiv_creases.rs`), and
+/// every method synthesizes a valence-1000 cone (docs/subdivision.md). The cap keeps the
+/// per-vertex work (masks, charts, patch trees of O(valence) faces) bounded on absurd input.
+pub const MAX_VALENCE: usize = 1024;
 
 /// A polygon mesh with positions and half-edge connectivity.
 #[derive(Clone, Debug)]
@@ -983,6 +987,35 @@ mod tests {
         assert!(!mesh(vec![0, 1, 2, 1, 2, 3]).is_clean());
         assert!(!mesh(vec![0, 1, 2, 1, 0, 3, 0, 1, 4]).is_clean());
         assert!(!mesh(vec![0, 1, 1, 2, 1, 3]).is_clean());
+    }
+
+    /// A fan of `k` triangles round vertex 0 (a cone: the apex and a ring of `k` vertices).
+    fn fan(k: usize) -> Result<PolyMesh, MeshError> {
+        let mut pos = vec![DVec3::Z];
+        let ring = |i: usize| 2.0 * std::f64::consts::PI * i as f64 / k as f64;
+        pos.extend((0..k).map(|i| DVec3::new(ring(i).cos(), ring(i).sin(), 0.0)));
+        let mut fs = vec![0u32];
+        let mut fv = Vec::new();
+        for i in 0..k {
+            fv.extend([0, 1 + i as u32, 1 + ((i + 1) % k) as u32]);
+            fs.push(fv.len() as u32);
+        }
+        PolyMesh::new(pos, fs, fv, Check::Strict)
+    }
+
+    #[test]
+    fn valence_up_to_the_cap_is_accepted_and_above_it_named() {
+        // A closed fan: the apex has k faces and k edges.
+        let m = fan(MAX_VALENCE).unwrap();
+        assert_eq!(m.vertex_faces(VertexId(0)), MAX_VALENCE);
+        let e = fan(MAX_VALENCE + 1).unwrap_err().to_string();
+        assert_eq!(
+            e,
+            format!(
+                "<mesh>: vertex 1 has valence {}; at most {MAX_VALENCE} is supported",
+                MAX_VALENCE + 1
+            )
+        );
     }
 
     #[test]
