@@ -117,20 +117,41 @@ fn obj_with_zero_faces() {
     );
 }
 
+/// Non-manifold meshes are not bad input: they are cut apart and made sharp as OpenSubdiv
+/// makes them (subdiv's `nonmanifold`; the surface checked against OpenSubdiv in
+/// `subdiv/tests/opensubdiv_creases.rs`), with one note naming the file.
 #[test]
-fn non_manifold_edge() {
-    // Three quads share edge (1, 2).
-    let obj = format!(
+fn non_manifold_meshes_are_baked_with_a_note() {
+    let edge = format!(
         "{SQUARE_VERTS}v 2 0 0\nv 2 1 0\nv 1 0 1\nv 1 1 1\nf 1 2 3 4\nf 2 5 6 3\nf 2 3 8 7\n"
     );
-    bad_obj(&obj, &["non-manifold edge"]);
-}
-
-#[test]
-fn non_manifold_vertex_bow_tie() {
-    // Two triangles touching only at vertex 1.
-    let obj = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv -1 0 0\nv 0 -1 0\nf 1 2 3\nf 1 4 5\n";
-    bad_obj(obj, &["non-manifold vertex"]);
+    let bow_tie = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv -1 0 0\nv 0 -1 0\nf 1 2 3\nf 1 4 5\n".to_string();
+    for (obj, what) in [
+        (edge, "1 non-manifold edge and 2 non-manifold vertices"),
+        (bow_tie, "1 non-manifold vertex"),
+    ] {
+        let dir = tempfile::tempdir().unwrap();
+        let mesh = dir.path().join("nm.obj");
+        std::fs::write(&mesh, obj).unwrap();
+        let out = dir.path().join("out");
+        let o = run(&[
+            "bake".as_ref(),
+            "--mesh".as_ref(),
+            mesh.as_os_str(),
+            "--resolution".as_ref(),
+            "4".as_ref(),
+            "--out".as_ref(),
+            out.as_os_str(),
+        ]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.success(), "{err}");
+        assert!(out.join("geometry.exr").is_file());
+        let note = format!(
+            "{}: {what} cut apart and made sharp, as OpenSubdiv treats non-manifold input",
+            mesh.display()
+        );
+        assert!(err.contains(&note), "{err}");
+    }
 }
 
 #[test]

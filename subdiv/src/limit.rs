@@ -84,7 +84,12 @@ pub fn corner_limit(m: &PolyMesh, h: u32) -> VertexLimit {
             let normal = if sector.closed {
                 normal_near_corner(m, h)
             } else {
+                // A sector whose faces fold back onto each other (two faces on the same
+                // four vertices, opposite ways round: the double-sided sheets of
+                // non-manifold input) has no fan normal; then the face's own, as there.
                 normal_by_refinement(m, v, position, k)
+                    .try_normalize()
+                    .unwrap_or_else(|| normal_near_corner(m, h))
             };
             // Along the crease (leading minus trailing edge); around a cone point (a
             // sharp vertex with no sharp edge) toward the first edge neighbour.

@@ -27,6 +27,25 @@ pub struct ControlMesh {
     /// `v` lines with values after x y z (a weight w, vertex colours r g b) that were read
     /// and ignored: the first such line and how many.
     pub ignored_vertex_values: Option<IgnoredTag>,
+    /// Where the input was non-manifold and has been cut apart and made sharp as
+    /// OpenSubdiv makes it ([`crate::nonmanifold`]); `None` for manifold input.
+    pub non_manifold: Option<NonManifold>,
+}
+
+/// The non-manifold places of an input mesh, cut apart ([`crate::nonmanifold`]).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct NonManifold {
+    /// Input edges shared by three or more faces.
+    pub edges: usize,
+    /// Input vertices on such edges or whose faces form several fans.
+    pub vertices: usize,
+    /// The input vertex of every vertex of [`ControlMesh::mesh`] (the copies are appended
+    /// after the input's vertices): tags name input vertices and apply to all their copies.
+    pub origin: Vec<u32>,
+    /// What OpenSubdiv makes infinitely sharp: vertices and edges (vertex pairs), in the
+    /// mesh's own indices. Applied after the tags, which it overrides, as in OpenSubdiv.
+    corners: Vec<u32>,
+    sharp_edges: Vec<(u32, u32)>,
 }
 
 /// A kind of tag line that was not applied (e.g. `interpolateboundary`: boundaries are
@@ -109,6 +128,23 @@ impl ControlMesh {
                 )
             })
             .collect();
+        if let Some(n) = &self.non_manifold {
+            let mut what = Vec::new();
+            match n.edges {
+                0 => {}
+                1 => what.push("1 non-manifold edge".to_string()),
+                k => what.push(format!("{k} non-manifold edges")),
+            }
+            match n.vertices {
+                0 => {}
+                1 => what.push("1 non-manifold vertex".to_string()),
+                k => what.push(format!("{k} non-manifold vertices")),
+            }
+            notes.push(format!(
+                "{file}: {} cut apart and made sharp, as OpenSubdiv treats non-manifold input",
+                what.join(" and ")
+            ));
+        }
         if let Some(t) = &self.ignored_vertex_values {
             notes.push(format!(
                 "{file}: line {}: vertex values after x y z ({}) ignored{}",
@@ -238,7 +274,7 @@ impl ControlMesh {
             }
         }
         let mut m = Self::from_polygons(positions, face_start, face_verts)?;
-        apply_tags(&mut m.mesh, &tags)?;
+        apply_tags(&mut m.mesh, &tags, m.non_manifold.as_ref())?;
         m.ignored_tags = ignored;
         m.ignored_vertex_values = extras;
         Ok(m)
@@ -268,22 +304,67 @@ impl ControlMesh {
             corner.push((v as i64, s));
         }
         let tags = [(None, Tag::Crease(crease)), (None, Tag::Corner(corner))];
-        apply_tags(&mut self.mesh, &tags)?;
+        apply_tags(&mut self.mesh, &tags, self.non_manifold.as_ref())?;
         Ok(self)
     }
 
     /// Builds a control mesh from positions and polygons (`face_start` has F+1 offsets).
+    /// Non-manifold edges and vertices are cut apart and made sharp as OpenSubdiv makes
+    /// them ([`crate::nonmanifold`]; [`Self::non_manifold`] says where).
     pub fn from_polygons(
         positions: Vec<DVec3>,
         face_start: Vec<u32>,
         face_verts: Vec<u32>,
     ) -> Result<Self, MeshError> {
-        let mesh = PolyMesh::new(positions, face_start, face_verts, Check::Strict)?;
+        let first = match PolyMesh::new(
+            positions.clone(),
+            face_start.clone(),
+            face_verts.clone(),
+            Check::Strict,
+        ) {
+            Ok(mesh) => {
+                return Ok(Self {
+                    mesh,
+                    path: None,
+                    ignored_tags: Vec::new(),
+                    ignored_vertex_values: None,
+                    non_manifold: None,
+                })
+            }
+            Err(e) => e,
+        };
+        if !matches!(
+            first.problem,
+            MeshProblem::NonManifoldEdge { .. } | MeshProblem::NonManifoldVertex { .. }
+        ) {
+            return Err(first);
+        }
+        let Some(split) = crate::nonmanifold::split(&positions, &face_start, &face_verts) else {
+            return Err(first);
+        };
+        // What the cut cannot make manifold (fins that still meet, faces flipped against
+        // each other) is reported as the input's own problem.
+        let mut mesh = PolyMesh::new(
+            split.positions.clone(),
+            face_start,
+            split.face_verts.clone(),
+            Check::Strict,
+        )
+        .map_err(|_| first)?;
+        let nm = NonManifold {
+            edges: split.edges,
+            vertices: split.vertices,
+            origin: split.origin,
+            corners: split.corners,
+            sharp_edges: split.sharp_edges,
+        };
+        sharpen_non_manifold(&mut mesh, &nm);
         Ok(Self {
             mesh,
             path: None,
             ignored_tags: Vec::new(),
             ignored_vertex_values: None,
+            non_manifold: Some(nm),
         })
     }
 
@@ -305,6 +386,7 @@ impl ControlMesh {
             path: None,
             ignored_tags: Vec::new(),
             ignored_vertex_values: None,
+            non_manifold: None,
         }
     }
 
@@ -375,6 +457,8 @@ impl ControlMesh {
             path: self.path.clone(),
             ignored_tags: self.ignored_tags.clone(),
             ignored_vertex_values: self.ignored_vertex_values.clone(),
+            // Refinement renumbers vertices; the sharpness is in the refined mesh.
+            non_manifold: None,
         }
     }
 
@@ -597,16 +681,65 @@ fn parse_tag(toks: &[&str]) -> Result<ParsedTag, TagProblem> {
     }))
 }
 
+/// The sharpness OpenSubdiv gives non-manifold edges and vertices, over what is there.
+fn sharpen_non_manifold(mesh: &mut PolyMesh, nm: &NonManifold) {
+    let mut edges: Vec<Sharpness> = (0..mesh.num_edges())
+        .map(|e| mesh.tagged_edge_sharpness(e))
+        .collect();
+    let mut verts: Vec<Sharpness> = (0..mesh.num_vertices())
+        .map(|v| mesh.tagged_vertex_sharpness(VertexId::from_idx(v)))
+        .collect();
+    for &(a, b) in &nm.sharp_edges {
+        if let Some(h) = mesh.find_edge(VertexId(a), VertexId(b)) {
+            edges[mesh.edge_of(h)] = Sharpness::INFINITE;
+        }
+    }
+    for &v in &nm.corners {
+        verts[v as usize] = Sharpness::INFINITE;
+    }
+    mesh.set_sharpness(edges, verts);
+}
+
 /// Checks tags against the mesh and stores their sharpness in it (in file order: a later
-/// tag on the same edge or vertex wins, as in OpenSubdiv).
-fn apply_tags(mesh: &mut PolyMesh, tags: &[(Option<usize>, Tag)]) -> Result<(), MeshError> {
+/// tag on the same edge or vertex wins, as in OpenSubdiv). Tags name input vertices: on a
+/// mesh cut apart at non-manifold places (`nm`) they apply to every copy, and the
+/// non-manifold sharpness is applied again afterwards (OpenSubdiv sharpens after tags).
+fn apply_tags(
+    mesh: &mut PolyMesh,
+    tags: &[(Option<usize>, Tag)],
+    nm: Option<&NonManifold>,
+) -> Result<(), MeshError> {
     if tags.iter().all(|(_, t)| match t {
         Tag::Crease(v) => v.is_empty(),
         Tag::Corner(v) => v.is_empty(),
     }) {
         return Ok(());
     }
-    let nv = mesh.num_vertices();
+    // Copies of each input vertex (itself first).
+    let mut copies: Vec<Vec<u32>> = Vec::new();
+    if let Some(nm) = nm {
+        let inputs = nm
+            .origin
+            .iter()
+            .enumerate()
+            .take_while(|&(i, &o)| i as u32 == o)
+            .count();
+        copies = (0..inputs as u32).map(|v| vec![v]).collect();
+        for (c, &o) in nm.origin.iter().enumerate().skip(inputs) {
+            copies[o as usize].push(c as u32);
+        }
+    }
+    let copies_of = |v: VertexId| -> Vec<VertexId> {
+        match copies.get(v.idx()) {
+            Some(c) => c.iter().map(|&i| VertexId(i)).collect(),
+            None => vec![v],
+        }
+    };
+    let nv = if nm.is_some() {
+        copies.len()
+    } else {
+        mesh.num_vertices()
+    };
     let vertex = |line: Option<usize>, tag: &'static str, i: i64| {
         if i < 0 || i as u64 >= nv as u64 {
             Err(tag_err(
@@ -632,20 +765,33 @@ fn apply_tags(mesh: &mut PolyMesh, tags: &[(Option<usize>, Tag)]) -> Result<(), 
             Tag::Crease(pairs) => {
                 for &(a, b, s) in pairs {
                     let (va, vb) = (vertex(*line, "crease", a)?, vertex(*line, "crease", b)?);
-                    let h = mesh
-                        .find_edge(va, vb)
-                        .ok_or_else(|| tag_err(*line, TagProblem::NoEdge { a, b }))?;
-                    edges[mesh.edge_of(h)] = s;
+                    let mut found = false;
+                    for &ca in &copies_of(va) {
+                        for &cb in &copies_of(vb) {
+                            if let Some(h) = mesh.find_edge(ca, cb) {
+                                edges[mesh.edge_of(h)] = s;
+                                found = true;
+                            }
+                        }
+                    }
+                    if !found {
+                        return Err(tag_err(*line, TagProblem::NoEdge { a, b }));
+                    }
                 }
             }
             Tag::Corner(vs) => {
                 for &(v, s) in vs {
-                    verts[vertex(*line, "corner", v)?.idx()] = s;
+                    for c in copies_of(vertex(*line, "corner", v)?) {
+                        verts[c.idx()] = s;
+                    }
                 }
             }
         }
     }
     mesh.set_sharpness(edges, verts);
+    if let Some(nm) = nm {
+        sharpen_non_manifold(mesh, nm);
+    }
     Ok(())
 }
 
@@ -782,16 +928,6 @@ mod tests {
             err("v 0 inf 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"),
             MeshProblem::NonFiniteCoordinate { vertex: 0 }
         ));
-        // Three triangles on edge 1-2.
-        let fan = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 -1 0\nv 0 0 1\nf 1 2 3\nf 2 1 4\nf 1 2 5\n";
-        assert!(matches!(
-            err(fan),
-            MeshProblem::NonManifoldEdge {
-                a: 0,
-                b: 1,
-                face: 2
-            }
-        ));
         let flipped = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2 3 4\n";
         assert!(matches!(
             err(flipped),
@@ -801,14 +937,51 @@ mod tests {
                 ..
             }
         ));
-        // Two triangles touching only at vertex 1 (a bow tie).
-        let bowtie = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv -1 0 0\nv -1 -1 0\nf 1 2 3\nf 1 4 5\n";
-        assert!(matches!(
-            err(bowtie),
-            MeshProblem::NonManifoldVertex { vertex: 0, fans: 2 }
-        ));
         assert!(matches!(err("v 0 0\n"), MeshProblem::Parse(_)));
         assert!(matches!(err("v 0 0 0\nf 1 a 2\n"), MeshProblem::Parse(_)));
+    }
+
+    /// Non-manifold input is cut apart and made sharp as OpenSubdiv makes it
+    /// (`crate::nonmanifold`; the surface against OpenSubdiv's in
+    /// `tests/opensubdiv_creases.rs`), with one note.
+    #[test]
+    fn non_manifold_input_is_cut_apart_and_noted() {
+        // Three triangles on edge 1-2.
+        let fan = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 -1 0\nv 0 0 1\nf 1 2 3\nf 2 1 4\nf 1 2 5\n";
+        let m = ControlMesh::parse_obj(fan).unwrap();
+        let nm = m.non_manifold.as_ref().unwrap();
+        assert_eq!((nm.edges, nm.vertices), (1, 2));
+        assert_eq!(m.mesh.num_vertices(), 5 + 4);
+        assert_eq!(nm.origin[5..], [1, 0, 0, 1]);
+        // Every copy of 1 and 2 is a sharp corner (each has boundary edges).
+        for v in [0, 1, 5, 6, 7, 8] {
+            assert!(m.mesh.tagged_vertex_sharpness(VertexId(v)).is_infinite());
+        }
+        assert_eq!(
+            m.notes(),
+            vec!["<mesh>: 1 non-manifold edge and 2 non-manifold vertices cut apart and made sharp, as OpenSubdiv treats non-manifold input"]
+        );
+        // Two triangles touching only at vertex 1 (a bow tie); a tag on vertex 1 reaches
+        // both copies.
+        let bowtie = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv -1 0 0\nv -1 -1 0\nf 1 2 3\nf 1 4 5\n\
+                      t crease 2/1/0 0 1 2.5\n";
+        let m = ControlMesh::parse_obj(bowtie).unwrap();
+        let nm = m.non_manifold.as_ref().unwrap();
+        assert_eq!((nm.edges, nm.vertices), (0, 1));
+        assert_eq!(m.notes(), vec!["<mesh>: 1 non-manifold vertex cut apart and made sharp, as OpenSubdiv treats non-manifold input"]);
+        assert_eq!(m.mesh.num_vertices(), 6);
+        let h = m.mesh.find_edge(VertexId(0), VertexId(1)).unwrap();
+        assert_eq!(
+            m.mesh.tagged_edge_sharpness(m.mesh.edge_of(h)),
+            Sharpness::new(2.5).unwrap()
+        );
+        // Three triangles on one edge and one third vertex come apart into three.
+        let fins = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 2 1 3\nf 1 2 3\n";
+        let m = ControlMesh::parse_obj(fins).unwrap();
+        assert_eq!(m.mesh.num_vertices(), 9);
+        assert_eq!(m.mesh.num_edges(), 9);
+        // Manifold input has no such note.
+        assert!(ControlMesh::parse_obj(CUBE).unwrap().non_manifold.is_none());
     }
 
     /// A cube (8 vertices, 6 quads) as OBJ text.

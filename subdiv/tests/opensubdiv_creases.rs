@@ -310,6 +310,25 @@ fn valence_360_matches_opensubdiv() {
     check_texel_rows(&mesh_dir, &ref_dir, "catmark_pole360", Rows::Some);
 }
 
+/// Non-manifold input, cut apart and made sharp as OpenSubdiv makes it
+/// (`subdiv::nonmanifold`): OpenSubdiv's regression shapes `catmark_fan` (four edges shared
+/// by three faces), `catmark_nonman_verts` (four vertices where separate fans touch) and
+/// `catmark_gregory_test4` (one such vertex). References from the crease set's generator
+/// (`fixtures/opensubdiv/README.md`): every grid row, a quarter of the texel rows.
+#[test]
+fn non_manifold_shapes_match_opensubdiv() {
+    let mesh_dir = common::shared().join("data/meshes/opensubdiv");
+    let ref_dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../fixtures/opensubdiv");
+    for shape in [
+        "catmark_fan",
+        "catmark_nonman_verts",
+        "catmark_gregory_test4",
+    ] {
+        check_grid_rows(&mesh_dir, &ref_dir, shape, Rows::Every);
+        check_texel_rows(&mesh_dir, &ref_dir, shape, Rows::Some);
+    }
+}
+
 /// Held-out shapes (see the module doc).
 #[test]
 #[ignore = "needs SURFSYNTH_CREASE_EXTRA"]
