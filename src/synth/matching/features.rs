@@ -103,6 +103,12 @@ impl<const K: usize> Features<K> {
         &self.data[y * self.width + x]
     }
 
+    /// All vectors, row by row, `K` values each (for kernels that load them directly).
+    #[inline(always)]
+    pub fn flat(&self) -> &[f32] {
+        self.data.as_flattened()
+    }
+
     /// Bilinear feature at continuous position (x, y) (pixel centres at +0.5), clamped to
     /// the image: outside it the border pixels repeat (see [`Example::bilinear_taps`] for
     /// why clamping, not wrapping).
