@@ -760,48 +760,48 @@ fn choose<const K: usize>(
         .max(1);
     let sub: Vec<usize> = known.iter().copied().step_by(estep).collect();
     s.errs.clear();
-    // Error of position z over the subset, abandoned once above `bound`: anything beyond
-    // (1 + tol) × best can never be eligible.
-    let error = |z: [f32; 2], bound: f32| {
-        let mut e = 0.0f32;
-        for &i in &sub {
-            let l = coords[i];
-            e += dist2(
-                &app[texels[i] as usize],
-                &f.sample(z[0] + l[0], z[1] + l[1]),
-            );
-            if e > bound {
-                break;
-            }
-        }
-        e
-    };
+    // Errors of positions over the subset, eight at a time ([`measure`]); a position is
+    // eligible when its error is within (1 + tol) × the best so far, in candidate order.
+    let tol1 = 1.0 + c.params.tolerance;
+    let pts: Vec<(usize, [f32; 2])> = sub
+        .iter()
+        .map(|&i| (texels[i] as usize, coords[i]))
+        .collect();
+    let mut es = Vec::with_capacity(8);
     let mut best = f32::INFINITY;
-    for (ci, &z) in s.cands.iter().enumerate() {
-        let bound = best * (1.0 + c.params.tolerance);
-        let e = error(z, bound);
-        if e <= bound {
-            s.errs.push((e, ci as u32));
-            best = best.min(e);
+    for (g, zs) in s.cands.chunks(8).enumerate() {
+        measure(f, app, &pts, zs, best * tol1, &mut es);
+        for (j, &e) in es.iter().enumerate() {
+            let bound = best * tol1;
+            if e <= bound {
+                s.errs.push((e, (g * 8 + j) as u32));
+                best = best.min(e);
+            }
         }
     }
     // Local refinement of the best few: ±2 pixels.
     if c.params.refine > 0 {
         let mut order: Vec<(f32, u32)> = s.errs.clone();
         order.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let mut around = Vec::with_capacity(24);
         for &(_, ci) in order.iter().take(c.params.refine as usize) {
             let z0 = s.cands[ci as usize];
+            around.clear();
             for dy in -2i32..=2 {
                 for dx in -2i32..=2 {
                     if dx == 0 && dy == 0 {
                         continue;
                     }
                     let z = [z0[0] + dx as f32, z0[1] + dy as f32];
-                    if !valid(z) {
-                        continue;
+                    if valid(z) {
+                        around.push(z);
                     }
-                    let bound = best * (1.0 + c.params.tolerance);
-                    let e = error(z, bound);
+                }
+            }
+            for zs in around.chunks(8) {
+                measure(f, app, &pts, zs, best * tol1, &mut es);
+                for (&z, &e) in zs.iter().zip(&es) {
+                    let bound = best * tol1;
                     if e <= bound {
                         s.cands.push(z);
                         s.errs.push((e, (s.cands.len() - 1) as u32));
@@ -821,6 +821,98 @@ fn choose<const K: usize>(
         s.cands.len() as u64,
         false,
     )
+}
+
+/// The errors of up to eight positions `zs` over `pts` (texel, `l`): for each, the sum
+/// over `pts` in order of [`dist2`] between the texel's appearance and the example sampled
+/// at `z + l` — exactly, or cut short once above `bound` (then the value returned is some
+/// partial sum above `bound`). [`choose`] passes the bound the first of the eight would
+/// have had; the bound only falls from one position to the next, so a sum cut short is
+/// refused as the sequential loop refused it, and a sum not cut short is its value.
+///
+/// *Why eight at a time*: with 8 matched values the eight positions are measured side by
+/// side ([`measure8_avx2`]: a sample's eight squared differences per position transposed,
+/// so each sum runs over the values in [`dist2`]'s order), which was most of the cost of
+/// choosing a patch after the grid search (docs/benchmarks.md, "Patch sampling speed").
+fn measure<const K: usize>(
+    f: &Features<K>,
+    app: &[[f32; K]],
+    pts: &[(usize, [f32; 2])],
+    zs: &[[f32; 2]],
+    bound: f32,
+    out: &mut Vec<f32>,
+) {
+    debug_assert!(zs.len() <= 8);
+    out.clear();
+    #[cfg(target_arch = "x86_64")]
+    if K == 8 && !zs.is_empty() && std::arch::is_x86_feature_detected!("avx2") {
+        // Unused lanes repeat the last position.
+        let z8: [[f32; 2]; 8] = std::array::from_fn(|j| zs[j.min(zs.len() - 1)]);
+        // SAFETY: AVX2 is available (checked just above) and K == 8.
+        let e = unsafe { measure8_avx2(f.flat(), f, app.as_flattened(), pts, &z8, bound) };
+        out.extend_from_slice(&e[..zs.len()]);
+        return;
+    }
+    for &z in zs {
+        let mut e = 0.0f32;
+        for &(t, l) in pts {
+            e += dist2(&app[t], &f.sample(z[0] + l[0], z[1] + l[1]));
+            if e > bound {
+                break;
+            }
+        }
+        out.push(e);
+    }
+}
+
+/// [`measure`] for 8 values per pixel and eight positions; `flat` is [`Features::flat`]
+/// and `app` the texels' appearance, 8 values each. The bilinear lookup is
+/// [`Features::sample`]'s (its taps and weights from [`Features::taps`], the same
+/// arithmetic per value, no fused multiply-add), so every sum is the scalar one.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn measure8_avx2<const K: usize>(
+    flat: &[f32],
+    f: &Features<K>,
+    app: &[f32],
+    pts: &[(usize, [f32; 2])],
+    zs: &[[f32; 2]; 8],
+    bound: f32,
+) -> [f32; 8] {
+    use super::matching::search::transpose8;
+    use std::arch::x86_64::*;
+    let bv = _mm256_set1_ps(bound);
+    let mut e = _mm256_setzero_ps();
+    let mut sq = [_mm256_setzero_ps(); 8];
+    let load = |i: usize| _mm256_loadu_ps(flat[i * 8..i * 8 + 8].as_ptr());
+    for &(t, l) in pts {
+        let q = _mm256_loadu_ps(app[t * 8..t * 8 + 8].as_ptr());
+        for j in 0..8 {
+            let ([a, b, c, d], tx, ty) = f.taps(zs[j][0] + l[0], zs[j][1] + l[1]);
+            let (a, b, c, d) = (load(a), load(b), load(c), load(d));
+            let txv = _mm256_set1_ps(tx);
+            let top = _mm256_add_ps(a, _mm256_mul_ps(txv, _mm256_sub_ps(b, a)));
+            let bot = _mm256_add_ps(c, _mm256_mul_ps(txv, _mm256_sub_ps(d, c)));
+            let v = _mm256_add_ps(
+                top,
+                _mm256_mul_ps(_mm256_set1_ps(ty), _mm256_sub_ps(bot, top)),
+            );
+            let dv = _mm256_sub_ps(q, v);
+            sq[j] = _mm256_mul_ps(dv, dv);
+        }
+        let tr = transpose8(&sq);
+        let mut d2 = tr[0];
+        for v in &tr[1..] {
+            d2 = _mm256_add_ps(d2, *v);
+        }
+        e = _mm256_add_ps(e, d2);
+        if _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_GT_OQ>(e, bv)) == 0xFF {
+            break;
+        }
+    }
+    let mut out = [0.0f32; 8];
+    _mm256_storeu_ps(out.as_mut_ptr(), e);
+    out
 }
 
 /// The coarse search of [`choose`]: the `keep` positions of the grid of step `g` over
