@@ -1380,6 +1380,69 @@ mod tests {
         }
     }
 
+    /// The candidates' kernel gives the scalar errors bit for bit without a bound, and with
+    /// one, every error either exactly or cut short above the bound (never below it), for
+    /// positions near and beyond the example's edges and fewer than eight at a time.
+    #[test]
+    fn measure_kernel_matches_the_scalar_errors() {
+        let (w, h) = (45, 38);
+        let mut img = crate::pyramid::Image::new(w, h, 8);
+        let mut r = 0x9E37_79B9u64;
+        let mut next = || {
+            r = r
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (r >> 40) as f32 / (1u64 << 24) as f32
+        };
+        for v in img.data.iter_mut() {
+            *v = next() - 0.5;
+        }
+        let f = Features::<8>::from_image(&img);
+        let app: Vec<[f32; 8]> = (0..30)
+            .map(|_| std::array::from_fn(|_| next() - 0.5))
+            .collect();
+        let pts: Vec<(usize, [f32; 2])> = (0..50)
+            .map(|i| (i % 30, [next() * 24.0 - 12.0, next() * 24.0 - 12.0]))
+            .collect();
+        let zs: Vec<[f32; 2]> = (0..13)
+            .map(|_| {
+                [
+                    next() * (w as f32 + 10.0) - 5.0,
+                    next() * (h as f32 + 10.0) - 5.0,
+                ]
+            })
+            .collect();
+        let scalar = |z: [f32; 2]| {
+            let mut e = 0.0f32;
+            for &(t, l) in &pts {
+                e += dist2(&app[t], &f.sample(z[0] + l[0], z[1] + l[1]));
+            }
+            e
+        };
+        let mut out = Vec::new();
+        for n in [8, 5, 1] {
+            for chunk in zs.chunks(n) {
+                measure(&f, &app, &pts, chunk, f32::INFINITY, &mut out);
+                assert_eq!(out.len(), chunk.len());
+                for (&z, &e) in chunk.iter().zip(&out) {
+                    assert_eq!(e.to_bits(), scalar(z).to_bits(), "{z:?}");
+                }
+                let bound = scalar(chunk[0]) * 0.9;
+                measure(&f, &app, &pts, chunk, bound, &mut out);
+                for (&z, &e) in chunk.iter().zip(&out) {
+                    let full = scalar(z);
+                    assert!(
+                        e.to_bits() == full.to_bits() || (e > bound && e <= full),
+                        "{z:?}: {e} vs {full}, bound {bound}"
+                    );
+                    if full <= bound {
+                        assert_eq!(e.to_bits(), full.to_bits());
+                    }
+                }
+            }
+        }
+    }
+
     #[test]
     fn blended_joins_bend_a_small_step_and_leave_single_patches_and_large_steps_alone() {
         let (fp, z, mut src) = two_patches(0.8);
