@@ -1329,22 +1329,31 @@ mod tests {
     }
 
     /// The grid search's kernel gives the scalar scan's positions and errors bit for bit,
-    /// ties included (values on a coarse lattice, so many sums are equal), for samples
-    /// reaching past the example's edges and rows whose length is not a multiple of 8.
+    /// ties included (the example repeats every 9 × 7 pixels, so positions 9 apart along a
+    /// row have equal sums; the values are not on a lattice, so the order of a sum's terms
+    /// shows in its bits), for samples reaching past the example's edges and rows whose
+    /// length is not a multiple of 8.
     #[test]
     fn grid_search_kernel_matches_the_scalar_scan() {
         let (w, h) = (61, 53);
         let mut img = crate::pyramid::Image::new(w, h, 8);
-        let mut r = 0x1234_5678u64;
-        for v in img.data.iter_mut() {
-            r = r
+        let rnd = |a: u64| {
+            let r = a
                 .wrapping_mul(6364136223846793005)
                 .wrapping_add(1442695040888963407);
-            *v = ((r >> 40) % 5) as f32 * 0.25 - 0.3;
+            let r = (r ^ (r >> 29)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+            ((r >> 40) as f32 / (1u64 << 24) as f32) - 0.5
+        };
+        for y in 0..h {
+            for x in 0..w {
+                for k in 0..8 {
+                    img.data[(y * w + x) * 8 + k] = rnd((((x % 9) * 7 + y % 7) * 8 + k) as u64);
+                }
+            }
         }
         let f = Features::<8>::from_image(&img);
         let app: Vec<[f32; 8]> = (0..40)
-            .map(|i| std::array::from_fn(|k| ((i * 7 + k * 3) % 5) as f32 * 0.25 - 0.3))
+            .map(|i| std::array::from_fn(|k| rnd(1000 + i * 8 + k as u64)))
             .collect();
         for (ns, half, g, keep) in [
             (24, 12.0f32, 3.0f32, 8),
