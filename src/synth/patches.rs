@@ -41,7 +41,7 @@
 
 use super::footprint::{centres, spread, turned, Footprints, LevelTexels, Turn};
 use super::matching::exemplar::Exemplar;
-use super::matching::features::dist2;
+use super::matching::features::{dist2, Features};
 use super::matching::pixel_grid;
 use super::matching::search::hash;
 use super::mincut::CutGraph;
@@ -741,34 +741,8 @@ fn choose<const K: usize>(
                 .map(|&i| (texels[i as usize] as usize, coords[i as usize]))
                 .collect();
         let keep = c.params.grid_keep as usize;
-        let mut top: Vec<(f32, [f32; 2])> = Vec::with_capacity(keep + 1);
         let g = c.params.grid_step as f32;
-        let mut y = c.lo;
-        while y <= c.hi_y {
-            let mut x = c.lo;
-            while x <= c.hi_x {
-                let bound = if top.len() == keep {
-                    top[keep - 1].0
-                } else {
-                    f32::INFINITY
-                };
-                let mut e = 0.0f32;
-                for &(t, l) in &gsub {
-                    let (px, py) = ((x + l[0]) as usize, (y + l[1]) as usize);
-                    e += dist2(&app[t], f.at(px.min(w - 1), py.min(h - 1)));
-                    if e >= bound {
-                        break;
-                    }
-                }
-                if e < bound {
-                    let pos = top.partition_point(|o| o.0 <= e);
-                    top.insert(pos, (e, [x, y]));
-                    top.truncate(keep);
-                }
-                x += g;
-            }
-            y += g;
-        }
+        let top = grid_top(f, app, &gsub, [c.lo, c.hi_x, c.hi_y], g, keep);
         for (_, z) in top {
             push(&mut s.cands, z);
         }
@@ -786,48 +760,48 @@ fn choose<const K: usize>(
         .max(1);
     let sub: Vec<usize> = known.iter().copied().step_by(estep).collect();
     s.errs.clear();
-    // Error of position z over the subset, abandoned once above `bound`: anything beyond
-    // (1 + tol) × best can never be eligible.
-    let error = |z: [f32; 2], bound: f32| {
-        let mut e = 0.0f32;
-        for &i in &sub {
-            let l = coords[i];
-            e += dist2(
-                &app[texels[i] as usize],
-                &f.sample(z[0] + l[0], z[1] + l[1]),
-            );
-            if e > bound {
-                break;
-            }
-        }
-        e
-    };
+    // Errors of positions over the subset, eight at a time ([`measure`]); a position is
+    // eligible when its error is within (1 + tol) × the best so far, in candidate order.
+    let tol1 = 1.0 + c.params.tolerance;
+    let pts: Vec<(usize, [f32; 2])> = sub
+        .iter()
+        .map(|&i| (texels[i] as usize, coords[i]))
+        .collect();
+    let mut es = Vec::with_capacity(8);
     let mut best = f32::INFINITY;
-    for (ci, &z) in s.cands.iter().enumerate() {
-        let bound = best * (1.0 + c.params.tolerance);
-        let e = error(z, bound);
-        if e <= bound {
-            s.errs.push((e, ci as u32));
-            best = best.min(e);
+    for (g, zs) in s.cands.chunks(8).enumerate() {
+        measure(f, app, &pts, zs, best * tol1, &mut es);
+        for (j, &e) in es.iter().enumerate() {
+            let bound = best * tol1;
+            if e <= bound {
+                s.errs.push((e, (g * 8 + j) as u32));
+                best = best.min(e);
+            }
         }
     }
     // Local refinement of the best few: ±2 pixels.
     if c.params.refine > 0 {
         let mut order: Vec<(f32, u32)> = s.errs.clone();
         order.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let mut around = Vec::with_capacity(24);
         for &(_, ci) in order.iter().take(c.params.refine as usize) {
             let z0 = s.cands[ci as usize];
+            around.clear();
             for dy in -2i32..=2 {
                 for dx in -2i32..=2 {
                     if dx == 0 && dy == 0 {
                         continue;
                     }
                     let z = [z0[0] + dx as f32, z0[1] + dy as f32];
-                    if !valid(z) {
-                        continue;
+                    if valid(z) {
+                        around.push(z);
                     }
-                    let bound = best * (1.0 + c.params.tolerance);
-                    let e = error(z, bound);
+                }
+            }
+            for zs in around.chunks(8) {
+                measure(f, app, &pts, zs, best * tol1, &mut es);
+                for (&z, &e) in zs.iter().zip(&es) {
+                    let bound = best * tol1;
                     if e <= bound {
                         s.cands.push(z);
                         s.errs.push((e, (s.cands.len() - 1) as u32));
@@ -847,6 +821,306 @@ fn choose<const K: usize>(
         s.cands.len() as u64,
         false,
     )
+}
+
+/// The errors of up to eight positions `zs` over `pts` (texel, `l`): for each, the sum
+/// over `pts` in order of [`dist2`] between the texel's appearance and the example sampled
+/// at `z + l` — exactly, or cut short once above `bound` (then the value returned is some
+/// partial sum above `bound`). [`choose`] passes the bound the first of the eight would
+/// have had; the bound only falls from one position to the next, so a sum cut short is
+/// refused as the sequential loop refused it, and a sum not cut short is its value.
+///
+/// *Why eight at a time*: with 8 matched values the eight positions are measured side by
+/// side ([`measure8_avx2`]: a sample's eight squared differences per position transposed,
+/// so each sum runs over the values in [`dist2`]'s order), which was most of the cost of
+/// choosing a patch after the grid search (docs/benchmarks.md, "Patch sampling speed").
+fn measure<const K: usize>(
+    f: &Features<K>,
+    app: &[[f32; K]],
+    pts: &[(usize, [f32; 2])],
+    zs: &[[f32; 2]],
+    bound: f32,
+    out: &mut Vec<f32>,
+) {
+    debug_assert!(zs.len() <= 8);
+    out.clear();
+    #[cfg(target_arch = "x86_64")]
+    if K == 8 && !zs.is_empty() && std::arch::is_x86_feature_detected!("avx2") {
+        // Unused lanes repeat the last position.
+        let z8: [[f32; 2]; 8] = std::array::from_fn(|j| zs[j.min(zs.len() - 1)]);
+        // SAFETY: AVX2 is available (checked just above) and K == 8.
+        let e = unsafe { measure8_avx2(f.flat(), f, app.as_flattened(), pts, &z8, bound) };
+        out.extend_from_slice(&e[..zs.len()]);
+        return;
+    }
+    for &z in zs {
+        let mut e = 0.0f32;
+        for &(t, l) in pts {
+            e += dist2(&app[t], &f.sample(z[0] + l[0], z[1] + l[1]));
+            if e > bound {
+                break;
+            }
+        }
+        out.push(e);
+    }
+}
+
+/// [`measure`] for 8 values per pixel and eight positions; `flat` is [`Features::flat`]
+/// and `app` the texels' appearance, 8 values each. The bilinear lookup is
+/// [`Features::sample`]'s (its taps and weights from [`Features::taps`], the same
+/// arithmetic per value, no fused multiply-add), so every sum is the scalar one.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn measure8_avx2<const K: usize>(
+    flat: &[f32],
+    f: &Features<K>,
+    app: &[f32],
+    pts: &[(usize, [f32; 2])],
+    zs: &[[f32; 2]; 8],
+    bound: f32,
+) -> [f32; 8] {
+    use super::matching::search::transpose8;
+    use std::arch::x86_64::*;
+    let bv = _mm256_set1_ps(bound);
+    let mut e = _mm256_setzero_ps();
+    let mut sq = [_mm256_setzero_ps(); 8];
+    let load = |i: usize| _mm256_loadu_ps(flat[i * 8..i * 8 + 8].as_ptr());
+    for &(t, l) in pts {
+        let q = _mm256_loadu_ps(app[t * 8..t * 8 + 8].as_ptr());
+        for j in 0..8 {
+            let ([a, b, c, d], tx, ty) = f.taps(zs[j][0] + l[0], zs[j][1] + l[1]);
+            let (a, b, c, d) = (load(a), load(b), load(c), load(d));
+            let txv = _mm256_set1_ps(tx);
+            let top = _mm256_add_ps(a, _mm256_mul_ps(txv, _mm256_sub_ps(b, a)));
+            let bot = _mm256_add_ps(c, _mm256_mul_ps(txv, _mm256_sub_ps(d, c)));
+            let v = _mm256_add_ps(
+                top,
+                _mm256_mul_ps(_mm256_set1_ps(ty), _mm256_sub_ps(bot, top)),
+            );
+            let dv = _mm256_sub_ps(q, v);
+            sq[j] = _mm256_mul_ps(dv, dv);
+        }
+        let tr = transpose8(&sq);
+        let mut d2 = tr[0];
+        for v in &tr[1..] {
+            d2 = _mm256_add_ps(d2, *v);
+        }
+        e = _mm256_add_ps(e, d2);
+        if _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_GT_OQ>(e, bv)) == 0xFF {
+            break;
+        }
+    }
+    let mut out = [0.0f32; 8];
+    _mm256_storeu_ps(out.as_mut_ptr(), e);
+    out
+}
+
+/// The coarse search of [`choose`]: the `keep` positions of the grid of step `g` over
+/// `[lo, hi_x] × [lo, hi_y]` (`bounds`) whose error over `gsub` (texel, `l`) against the
+/// example's pixels is lowest, best first, ties in scan order (rows, then columns).
+///
+/// *Why a kernel*: this scan measures a few thousand positions per patch and was the
+/// largest part of choosing one (docs/benchmarks.md, "Patch sampling speed"). With 8
+/// matched values ([`super::matching::appearance`]'s default) eight positions of a row are
+/// measured side by side ([`grid_row8_avx2`]), each sum in the scalar order, so the result
+/// is bit for bit the scalar scan's ([`grid_row_scalar`]).
+fn grid_top<const K: usize>(
+    f: &Features<K>,
+    app: &[[f32; K]],
+    gsub: &[(usize, [f32; 2])],
+    bounds: [f32; 3],
+    g: f32,
+    keep: usize,
+) -> Vec<(f32, [f32; 2])> {
+    let [lo, hi_x, hi_y] = bounds;
+    let mut top: Vec<(f32, [f32; 2])> = Vec::with_capacity(keep + 1);
+    // The row's positions, accumulated as the scan always did (x += g).
+    let mut xs = Vec::new();
+    let mut x = lo;
+    while x <= hi_x {
+        xs.push(x);
+        x += g;
+    }
+    #[cfg(target_arch = "x86_64")]
+    let simd = K == 8
+        && f.width * f.height * K < i32::MAX as usize
+        && std::arch::is_x86_feature_detected!("avx2");
+    #[cfg(target_arch = "x86_64")]
+    let queries: Vec<f32> = if simd {
+        gsub.iter().flat_map(|&(t, _)| app[t]).collect()
+    } else {
+        Vec::new()
+    };
+    let mut y = lo;
+    while y <= hi_y {
+        #[cfg(target_arch = "x86_64")]
+        if simd {
+            // SAFETY: AVX2 is available (checked above), K == 8 and every offset fits i32.
+            unsafe {
+                grid_row8_avx2(
+                    f.flat(),
+                    f.width,
+                    f.height,
+                    &queries,
+                    gsub,
+                    &xs,
+                    y,
+                    keep,
+                    &mut top,
+                )
+            };
+            y += g;
+            continue;
+        }
+        grid_row_scalar(f, app, gsub, &xs, y, keep, &mut top);
+        y += g;
+    }
+    top
+}
+
+/// Offers position (x, y) with error `e` to `top` (the `keep` best so far, ascending; an
+/// equal error goes after those already there, so earlier positions win ties).
+#[inline]
+fn offer(top: &mut Vec<(f32, [f32; 2])>, keep: usize, e: f32, z: [f32; 2]) {
+    if e < bound_of(top, keep) {
+        let pos = top.partition_point(|o| o.0 <= e);
+        top.insert(pos, (e, z));
+        top.truncate(keep);
+    }
+}
+
+/// The error a position must stay below to enter `top`.
+#[inline]
+fn bound_of(top: &[(f32, [f32; 2])], keep: usize) -> f32 {
+    if top.len() == keep {
+        top[keep - 1].0
+    } else {
+        f32::INFINITY
+    }
+}
+
+/// One row of [`grid_top`]'s scan, position by position; each sum stops once it can no
+/// longer enter `top`.
+#[allow(clippy::too_many_arguments)]
+fn grid_row_scalar<const K: usize>(
+    f: &Features<K>,
+    app: &[[f32; K]],
+    gsub: &[(usize, [f32; 2])],
+    xs: &[f32],
+    y: f32,
+    keep: usize,
+    top: &mut Vec<(f32, [f32; 2])>,
+) {
+    let (w, h) = (f.width, f.height);
+    for &x in xs {
+        let bound = bound_of(top, keep);
+        let mut e = 0.0f32;
+        for &(t, l) in gsub {
+            let (px, py) = ((x + l[0]) as usize, (y + l[1]) as usize);
+            e += dist2(&app[t], f.at(px.min(w - 1), py.min(h - 1)));
+            if e >= bound {
+                break;
+            }
+        }
+        offer(top, keep, e, [x, y]);
+    }
+}
+
+/// [`grid_row_scalar`] for 8 values per pixel, eight positions at a time: each position's
+/// sum is kept in one lane, and one sample's eight squared differences per position are
+/// transposed ([`transpose8`]) so that their sum runs over the values in [`dist2`]'s order
+/// — every lane's total is the scalar one, bit for bit. A group stops once all eight
+/// totals are at or above the bound `top` had when it began; the totals are then offered
+/// to `top` one by one, in scan order, as the scalar scan does. A total cut short that way
+/// is above that bound and so above any later one (the bound only falls): it is refused
+/// as the scalar scan refuses it, and a total not cut short is the scalar's exactly.
+/// `flat`: the example's vectors ([`Features::flat`]); `queries`: the 8 values of each
+/// sample of `gsub`, in order.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[allow(clippy::too_many_arguments)]
+unsafe fn grid_row8_avx2(
+    flat: &[f32],
+    w: usize,
+    h: usize,
+    queries: &[f32],
+    gsub: &[(usize, [f32; 2])],
+    xs: &[f32],
+    y: f32,
+    keep: usize,
+    top: &mut Vec<(f32, [f32; 2])>,
+) {
+    use super::matching::search::transpose8;
+    use std::arch::x86_64::*;
+    let n = gsub.len();
+    // Each sample's row start (in values), as the scalar scan clamps it.
+    let rows: Vec<i32> = gsub
+        .iter()
+        .map(|&(_, l)| (((y + l[1]) as usize).min(h - 1) * w * 8) as i32)
+        .collect();
+    let wmax = _mm256_set1_ps((w - 1) as f32);
+    let zero = _mm256_setzero_ps();
+    let mut i0 = 0;
+    while i0 + 8 <= xs.len() {
+        let bound = bound_of(top, keep);
+        let bv = _mm256_set1_ps(bound);
+        let xv = _mm256_loadu_ps(xs[i0..i0 + 8].as_ptr());
+        let mut e = _mm256_setzero_ps();
+        let mut at = [0i32; 8];
+        for s in 0..n {
+            let l0 = gsub[s].1[0];
+            // (x + l0) as usize, then .min(w − 1): clamping in floats first gives the same
+            // column for every finite value (and 0 for NaN, as `as usize` does).
+            let px = _mm256_min_ps(
+                _mm256_max_ps(_mm256_add_ps(xv, _mm256_set1_ps(l0)), zero),
+                wmax,
+            );
+            let off = _mm256_add_epi32(
+                _mm256_slli_epi32::<3>(_mm256_cvttps_epi32(px)),
+                _mm256_set1_epi32(rows[s]),
+            );
+            _mm256_storeu_si256(at.as_mut_ptr() as *mut __m256i, off);
+            let q = _mm256_loadu_ps(queries[s * 8..s * 8 + 8].as_ptr());
+            let mut sq = [zero; 8];
+            for j in 0..8 {
+                let a = at[j] as usize;
+                let d = _mm256_sub_ps(q, _mm256_loadu_ps(flat[a..a + 8].as_ptr()));
+                sq[j] = _mm256_mul_ps(d, d);
+            }
+            let tr = transpose8(&sq);
+            let mut d2 = tr[0];
+            for v in &tr[1..] {
+                d2 = _mm256_add_ps(d2, *v);
+            }
+            e = _mm256_add_ps(e, d2);
+            if _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_GE_OQ>(e, bv)) == 0xFF {
+                break;
+            }
+        }
+        let mut es = [0.0f32; 8];
+        _mm256_storeu_ps(es.as_mut_ptr(), e);
+        for j in 0..8 {
+            offer(top, keep, es[j], [xs[i0 + j], y]);
+        }
+        i0 += 8;
+    }
+    // The row's last positions, fewer than eight.
+    for &x in &xs[i0..] {
+        let bound = bound_of(top, keep);
+        let mut e = 0.0f32;
+        for s in 0..n {
+            let l0 = gsub[s].1[0];
+            let px = ((x + l0) as usize).min(w - 1);
+            let a = rows[s] as usize + px * 8;
+            let q: &[f32; 8] = queries[s * 8..s * 8 + 8].try_into().expect("8 values");
+            let v: &[f32; 8] = flat[a..a + 8].try_into().expect("8 values");
+            e += dist2(q, v);
+            if e >= bound {
+                break;
+            }
+        }
+        offer(top, keep, e, [x, y]);
+    }
 }
 
 /// Joins patch `p` at position `z` to the texture already there by a minimum cut; returns
@@ -1052,6 +1326,130 @@ mod tests {
             })
             .collect();
         (fp, positions, src)
+    }
+
+    /// The grid search's kernel gives the scalar scan's positions and errors bit for bit,
+    /// ties included (the example repeats every 9 × 7 pixels, so positions 9 apart along a
+    /// row have equal sums; the values are not on a lattice, so the order of a sum's terms
+    /// shows in its bits), for samples reaching past the example's edges and rows whose
+    /// length is not a multiple of 8.
+    #[test]
+    fn grid_search_kernel_matches_the_scalar_scan() {
+        let (w, h) = (61, 53);
+        let mut img = crate::pyramid::Image::new(w, h, 8);
+        let rnd = |a: u64| {
+            let r = a
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            let r = (r ^ (r >> 29)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+            ((r >> 40) as f32 / (1u64 << 24) as f32) - 0.5
+        };
+        for y in 0..h {
+            for x in 0..w {
+                for k in 0..8 {
+                    img.data[(y * w + x) * 8 + k] = rnd((((x % 9) * 7 + y % 7) * 8 + k) as u64);
+                }
+            }
+        }
+        let f = Features::<8>::from_image(&img);
+        let app: Vec<[f32; 8]> = (0..40)
+            .map(|i| std::array::from_fn(|k| rnd(1000 + i * 8 + k as u64)))
+            .collect();
+        for (ns, half, g, keep) in [
+            (24, 12.0f32, 3.0f32, 8),
+            (7, 20.0, 1.0, 3),
+            (1, 5.0, 2.0, 1),
+        ] {
+            let gsub: Vec<(usize, [f32; 2])> = (0..ns)
+                .map(|i| {
+                    let a = i as f32 * 2.39996;
+                    let rr = half * 1.3 * ((i + 1) as f32 / ns as f32).sqrt();
+                    (i % app.len(), [rr * a.cos(), rr * a.sin()])
+                })
+                .collect();
+            let (lo, hi_x, hi_y) = (0.5 + half, w as f32 - 0.5 - half, h as f32 - 0.5 - half);
+            let got = grid_top(&f, &app, &gsub, [lo, hi_x, hi_y], g, keep);
+            let mut xs = Vec::new();
+            let mut x = lo;
+            while x <= hi_x {
+                xs.push(x);
+                x += g;
+            }
+            let mut want = Vec::new();
+            let mut y = lo;
+            while y <= hi_y {
+                grid_row_scalar(&f, &app, &gsub, &xs, y, keep, &mut want);
+                y += g;
+            }
+            assert_eq!(got.len(), keep);
+            for (a, b) in got.iter().zip(&want) {
+                assert_eq!(a.0.to_bits(), b.0.to_bits(), "{got:?} vs {want:?}");
+                assert_eq!(a.1, b.1, "{got:?} vs {want:?}");
+            }
+        }
+    }
+
+    /// The candidates' kernel gives the scalar errors bit for bit without a bound, and with
+    /// one, every error either exactly or cut short above the bound (never below it), for
+    /// positions near and beyond the example's edges and fewer than eight at a time.
+    #[test]
+    fn measure_kernel_matches_the_scalar_errors() {
+        let (w, h) = (45, 38);
+        let mut img = crate::pyramid::Image::new(w, h, 8);
+        let mut r = 0x9E37_79B9u64;
+        let mut next = || {
+            r = r
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (r >> 40) as f32 / (1u64 << 24) as f32
+        };
+        for v in img.data.iter_mut() {
+            *v = next() - 0.5;
+        }
+        let f = Features::<8>::from_image(&img);
+        let app: Vec<[f32; 8]> = (0..30)
+            .map(|_| std::array::from_fn(|_| next() - 0.5))
+            .collect();
+        let pts: Vec<(usize, [f32; 2])> = (0..50)
+            .map(|i| (i % 30, [next() * 24.0 - 12.0, next() * 24.0 - 12.0]))
+            .collect();
+        let zs: Vec<[f32; 2]> = (0..13)
+            .map(|_| {
+                [
+                    next() * (w as f32 + 10.0) - 5.0,
+                    next() * (h as f32 + 10.0) - 5.0,
+                ]
+            })
+            .collect();
+        let scalar = |z: [f32; 2]| {
+            let mut e = 0.0f32;
+            for &(t, l) in &pts {
+                e += dist2(&app[t], &f.sample(z[0] + l[0], z[1] + l[1]));
+            }
+            e
+        };
+        let mut out = Vec::new();
+        for n in [8, 5, 1] {
+            for chunk in zs.chunks(n) {
+                measure(&f, &app, &pts, chunk, f32::INFINITY, &mut out);
+                assert_eq!(out.len(), chunk.len());
+                for (&z, &e) in chunk.iter().zip(&out) {
+                    assert_eq!(e.to_bits(), scalar(z).to_bits(), "{z:?}");
+                }
+                let bound = scalar(chunk[0]) * 0.9;
+                measure(&f, &app, &pts, chunk, bound, &mut out);
+                for (&z, &e) in chunk.iter().zip(&out) {
+                    let full = scalar(z);
+                    assert!(
+                        e.to_bits() == full.to_bits() || (e > bound && e <= full),
+                        "{z:?}: {e} vs {full}, bound {bound}"
+                    );
+                    if full <= bound {
+                        assert_eq!(e.to_bits(), full.to_bits());
+                    }
+                }
+            }
+        }
     }
 
     #[test]

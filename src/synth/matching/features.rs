@@ -103,6 +103,29 @@ impl<const K: usize> Features<K> {
         &self.data[y * self.width + x]
     }
 
+    /// All vectors, row by row, `K` values each (for kernels that load them directly).
+    #[inline(always)]
+    pub fn flat(&self) -> &[f32] {
+        self.data.as_flattened()
+    }
+
+    /// [`Features::sample`]'s lookup at (x, y): the indices of its four pixels (x0 y0,
+    /// x1 y0, x0 y1, x1 y1) and its weights tx, ty, computed as it computes them, for
+    /// kernels that blend the four vectors themselves.
+    #[inline(always)]
+    pub fn taps(&self, x: f32, y: f32) -> ([usize; 4], f32, f32) {
+        let fx = (x - 0.5).clamp(0.0, self.max_x);
+        let fy = (y - 0.5).clamp(0.0, self.max_y);
+        let x0 = fx as usize;
+        let y0 = fy as usize;
+        let tx = fx - x0 as f32;
+        let ty = fy - y0 as f32;
+        let x1 = (x0 + 1).min(self.width - 1);
+        let y1 = (y0 + 1).min(self.height - 1);
+        let w = self.width;
+        ([y0 * w + x0, y0 * w + x1, y1 * w + x0, y1 * w + x1], tx, ty)
+    }
+
     /// Bilinear feature at continuous position (x, y) (pixel centres at +0.5), clamped to
     /// the image: outside it the border pixels repeat (see [`Example::bilinear_taps`] for
     /// why clamping, not wrapping).
@@ -135,6 +158,41 @@ impl<const K: usize> Features<K> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `taps` is `sample`'s lookup: blending its four pixels as `sample` does gives
+    /// `sample`'s value bit for bit, inside, on and beyond the edges, and for NaN.
+    #[test]
+    fn taps_blend_to_sample() {
+        let mut img = crate::pyramid::Image::new(7, 5, 2);
+        for (i, v) in img.data.iter_mut().enumerate() {
+            *v = ((i * 37) % 11) as f32 * 0.13 - 0.4;
+        }
+        let f = Features::<2>::from_image(&img);
+        let flat = f.flat();
+        for &(x, y) in &[
+            (3.3f32, 2.7f32),
+            (0.5, 0.5),
+            (-2.0, 9.0),
+            (6.99, 4.51),
+            (100.0, -3.0),
+            (f32::NAN, 1.2),
+        ] {
+            let ([a, b, c, d], tx, ty) = f.taps(x, y);
+            let s = f.sample(x, y);
+            for k in 0..2 {
+                let (a, b, c, d) = (
+                    flat[a * 2 + k],
+                    flat[b * 2 + k],
+                    flat[c * 2 + k],
+                    flat[d * 2 + k],
+                );
+                let top = a + tx * (b - a);
+                let bot = c + tx * (d - c);
+                let v = top + ty * (bot - top);
+                assert_eq!(v.to_bits(), s[k].to_bits(), "({x}, {y}) value {k}");
+            }
+        }
+    }
 
     #[test]
     fn sample_is_bilinear_weighted_and_clamped() {
