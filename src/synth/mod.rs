@@ -979,6 +979,60 @@ mod tests {
         assert_eq!(w1.matched(&ex).num_channels(), 6);
     }
 
+    /// Blended face maps mix every channel — colour and every map — with the same shares,
+    /// keep source.u/v, and leave texels without entries as [`face_maps`] writes them.
+    #[test]
+    fn blending_mixes_every_channel_with_the_same_shares() {
+        let ex = material();
+        let layout = std::sync::Arc::new(crate::layout::TexelLayout::uniform(1, 4));
+        let source: Vec<[f32; 2]> = (0..16).map(|i| [1.5 + i as f32 * 0.7, 3.25]).collect();
+        let blend = Blend::from_entries(vec![
+            (5, [12.5, 9.5], 0.25),
+            (5, [2.5, 14.5], 0.125),
+            (11, [7.5, 1.5], 0.2),
+        ]);
+        let plain = face_maps(&ex, &source, &layout);
+        let mixed = face_maps_blended(&ex, &source, Some(&blend), &layout);
+        let k = ex.num_channels();
+        let names = output_channels(&ex);
+        let look = |p: [f32; 2]| {
+            let mut v = vec![0.0f32; k];
+            ex.bilinear(p[0], p[1], &mut v);
+            v
+        };
+        for t in 0..16 {
+            let own = look(source[t]);
+            let mut want = own.clone();
+            for (_, p, share) in (0..blend.len())
+                .map(|i| blend.entry(i))
+                .filter(|e| e.0 == t)
+            {
+                let e = look(p);
+                for c in 0..k {
+                    want[c] += share * (e[c] - own[c]);
+                }
+            }
+            for (c, name) in names.iter().take(k).enumerate() {
+                let got = mixed.channel(name).unwrap()[t];
+                assert_eq!(got.to_bits(), want[c].to_bits(), "texel {t} {name}");
+                if t != 5 && t != 11 {
+                    assert_eq!(got.to_bits(), plain.channel(name).unwrap()[t].to_bits());
+                }
+            }
+        }
+        // Texel 5 really mixes: its colour and its maps move.
+        for name in ["R", "normal.R", "roughness.Y"] {
+            assert_ne!(
+                mixed.channel(name).unwrap()[5],
+                plain.channel(name).unwrap()[5],
+                "{name}"
+            );
+        }
+        for c in ["source.u", "source.v"] {
+            assert_eq!(mixed.channel(c), plain.channel(c));
+        }
+    }
+
     #[test]
     fn unknown_match_names_are_refused() {
         let ex = material();
