@@ -1000,8 +1000,8 @@ mod tests {
             ex.bilinear(p[0], p[1], &mut v);
             v
         };
-        for t in 0..16 {
-            let own = look(source[t]);
+        for (t, &src) in source.iter().enumerate() {
+            let own = look(src);
             let mut want = own.clone();
             for (_, p, share) in (0..blend.len())
                 .map(|i| blend.entry(i))
