@@ -67,6 +67,7 @@ pub fn command(out: &Path) -> SynthCommand {
         kcoherence_k: None,
         sparse: None,
         continue_finest: None,
+        jump_blend: None,
         displace: None,
         appearance: Default::default(),
         feature_distance: 0.0,

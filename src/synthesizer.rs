@@ -1355,6 +1355,9 @@ pub struct SynthCommand {
     pub sparse: Option<bool>,
     /// `--finest-start continued|matched` (multiscale; `None`: the default).
     pub continue_finest: Option<bool>,
+    /// `--jump-blend W` (jump; 0: off; `None`: the default,
+    /// [`crate::synth::JumpParams::blend`]).
+    pub jump_blend: Option<f32>,
     /// `--displace AMOUNT`.
     pub displace: Option<f64>,
     /// `--appearance`.
@@ -1425,6 +1428,11 @@ impl SynthCommand {
         }
         if let Some(on) = self.continue_finest {
             s = s.continue_finest(on);
+        }
+        if let Some(w) = self.jump_blend {
+            let mut p = s.current_settings().jump;
+            p.blend = (w > 0.0).then_some(w);
+            s = s.jump_params(p);
         }
         if self.patch_size.is_some() {
             let mut settings = s.current_settings().clone();

@@ -171,6 +171,13 @@ pub struct SynthArgs {
     /// (faster).
     #[arg(long, value_enum, value_name = "HOW")]
     pub finest_start: Option<FinestStart>,
+    /// Jump maps: texture blending across breaks (002 §4.4). Where a neighbour's
+    /// continuation into a texel disagrees with the texel's own source (a jump, two growth
+    /// fronts meeting), the example there is mixed into the texel's value, each neighbour
+    /// weighing W against the texel's own 1; every channel alike, source.u/v unchanged.
+    /// Default 0.5; 0: off (each value is the look-up at its source).
+    #[arg(long, value_name = "W", value_parser = parse_jump_blend, allow_negative_numbers = true)]
+    pub jump_blend: Option<f32>,
     /// Texels per side of every face map.
     #[arg(long, value_name = "N", default_value_t = 32, value_parser = parse_resolution, allow_negative_numbers = true)]
     pub resolution: usize,
@@ -278,6 +285,16 @@ fn parse_feature_distance(s: &str) -> Result<f32, String> {
     Ok(v)
 }
 
+fn parse_jump_blend(s: &str) -> Result<f32, String> {
+    let v: f32 = s.parse().map_err(|_| format!("'{s}' is not a number"))?;
+    if !(0.0..=4.0).contains(&v) {
+        return Err(format!(
+            "jump-blend weight {v} is out of range: use 0 (off) to 4"
+        ));
+    }
+    Ok(v)
+}
+
 pub fn run(mut a: SynthArgs) -> anyhow::Result<()> {
     // The handler lives in the library (surfsynth::synthesizer::run_command).
     let chosen = a.method.unwrap_or(if a.btf.is_some() {
@@ -309,6 +326,9 @@ pub fn run(mut a: SynthArgs) -> anyhow::Result<()> {
         return super::usage(
             "--neighbourhood-samples and --finest-start apply to --method multiscale only",
         );
+    }
+    if a.jump_blend.is_some() && chosen != Method::Jump {
+        return super::usage("--jump-blend applies to --method jump only");
     }
     if a.kcoherence_k.is_some() && matches!(a.search, Some(Search::Ann)) {
         return super::usage("--kcoherence-k applies to --search kcoherence only");
@@ -417,6 +437,7 @@ pub fn run(mut a: SynthArgs) -> anyhow::Result<()> {
             .neighbourhood_samples
             .map(|n| n == NeighbourhoodSamples::Sparse),
         continue_finest: a.finest_start.map(|f| f == FinestStart::Continued),
+        jump_blend: a.jump_blend,
         displace: a.displace,
         appearance: match a.appearance {
             Appearance::Pca => surfsynth::synthesizer::AppearanceMode::Pca,

@@ -47,8 +47,15 @@
 //!   rare event that there are still no valid entries, a random valid address is
 //!   assigned" (after [`MAX_DRAWS`] draws), as is the seed texel of every component.
 //!
+//! - **Texture blending** (§4.4, [`JumpParams::blend`]): where a neighbour's
+//!   continuation into a texel disagrees with the texel's source (a jump, two fronts
+//!   meeting), the example there is mixed into the texel's value ([`super::Blend`],
+//!   mixed in by [`super::face_maps_blended`]), so a break ramps over the two texels
+//!   beside it instead of cutting between them; inside a continued copy nothing changes.
+//!
 //! Randomness is the counter-based hash of (seed, texel, draw) of coherent synthesis.
 
+use super::blend::Blend;
 use super::coherent::random2;
 use super::footprint::LevelTexels;
 use super::matching::jumpmap::JumpMap;
@@ -81,6 +88,15 @@ pub struct JumpParams {
     /// 1.13 → 0.85, open cube 1.12 → 0.92 (docs/jump.md, "Consensus"). `None`: 002's table
     /// as it is.
     pub consensus: Option<f32>,
+    /// Texture blending across breaks (002 §4.4, "All results use texture blending";
+    /// [`super::blend`]): each neighbour's continuation into a texel weighs this much
+    /// against the texel's own source's 1 (a cross neighbour's twice as much) where the
+    /// two disagree ([`blend`]). Default 0.5: seed 1–3 means, seam ratio bunny N = 16
+    /// with reptile scales 1.28 → 1.18 (under issue 14's 1.2), pf1 −30–40%, pf4/pf8
+    /// −1–4% on the bunny, Spot, the double torus and Blub (docs/jump.md, "Texture
+    /// blending"). `None`: every texel's value is the look-up at its source, byte for
+    /// byte as before.
+    pub blend: Option<f32>,
 }
 
 impl Default for JumpParams {
@@ -90,9 +106,15 @@ impl Default for JumpParams {
             border: 0.1,
             map: Default::default(),
             consensus: Some(CONSENSUS_PX),
+            blend: Some(BLEND_WEIGHT),
         }
     }
 }
+
+/// [`JumpParams::blend`]'s default: each neighbour's continuation weighs half the texel's
+/// own source (0.25 and 1 measured: the same seams within ±0.03, pf1 lower the more it
+/// blends; docs/jump.md, "Texture blending").
+pub const BLEND_WEIGHT: f32 = 0.5;
 
 /// [`JumpParams::consensus`]'s default: continuations closer than this (example pixels)
 /// agree (1 and 3 measured: the bunny's seam ratio, seed 1, 1.24 and 1.25 against 1.23).
@@ -161,6 +183,13 @@ pub struct Stats {
     pub seconds: f64,
     /// `texels / seconds`.
     pub texels_per_second: f64,
+    /// Texels whose value is blended ([`JumpParams::blend`]): some neighbour's
+    /// continuation into them disagrees with their own source.
+    pub blended: u64,
+    /// Extra sources of those texels ([`super::Blend::len`]).
+    pub blend_entries: u64,
+    /// Seconds spent finding them (after the texel pass, not in [`Stats::seconds`]).
+    pub blend_seconds: f64,
 }
 
 /// What the jump method's [`Plan`] needs from the texels alone, before any orientation
@@ -599,7 +628,7 @@ pub fn run(
     params: &JumpParams,
     seed: u64,
     progress: &(dyn Fn(usize, usize) + Sync),
-) -> (Vec<[f32; 2]>, Stats) {
+) -> (Vec<[f32; 2]>, Option<Blend>, Stats) {
     let started = std::time::Instant::now();
     let total = level.len();
     assert_eq!(plan.len(), total);
@@ -732,15 +761,117 @@ pub fn run(
             random_valid(MAX_DRAWS + 1)
         });
     }
+    stats.seconds = started.elapsed().as_secs_f64();
+    stats.texels_per_second = stats.texels as f64 / stats.seconds.max(1e-9);
+    let blend = params.blend.map(|weight| {
+        let t0 = std::time::Instant::now();
+        let b = blend(level, plan, &src, weight, [w, h]);
+        stats.blended = b.texels() as u64;
+        stats.blend_entries = b.len() as u64;
+        stats.blend_seconds = t0.elapsed().as_secs_f64();
+        b
+    });
     let mut by_texel = vec![[0.0f32; 2]; total];
     for (&t, a) in plan.order.iter().zip(&src) {
         by_texel[t as usize] = *a;
     }
     let src = by_texel;
     progress(total, total);
-    stats.seconds = started.elapsed().as_secs_f64();
-    stats.texels_per_second = stats.texels as f64 / stats.seconds.max(1e-9);
-    (src, stats)
+    (src, blend, stats)
+}
+
+/// Proposals closer than this to a texel's own source (example pixels) agree with it and
+/// leave its value alone: inside a continued copy, continuations along different paths
+/// differ by a fraction of a pixel where the field turns, and mixing those only blurs
+/// (3 px measured: the same seams within ±0.01).
+pub const BLEND_AGREE_PX: f32 = 1.0;
+
+/// A cross neighbour's ([`cross_neighbours`]) weight in the blend, in edge neighbours'.
+/// The seam ratio's excess is between texels close in space across face borders that no
+/// edge joins (docs/jump.md, "Where the bunny's excess is"); weighing the cross
+/// neighbours as edges left those breaks blended less than the ones inside faces (Spot
+/// with scales, seed 2: seams 1.02 → 1.23); 2 and 4 measured alike (1.20, 1.19), the
+/// bunny 1.18 and 1.19 (docs/jump.md, "Texture blending").
+pub const BLEND_CROSS: f32 = 2.0;
+
+/// The blend of a synthesized texel set ([`JumpParams::blend`], [`super::blend`]): the
+/// 1-ring kernel of the texel graph and the cross neighbours. For every edge of the plan
+/// (an earlier neighbour s of k, offset d), s proposes src_s + d to k and k proposes
+/// src_k − d to s, with weight w (× [`BLEND_CROSS`] for a cross neighbour); the
+/// receiver's own source weighs 1. A proposal more than [`BLEND_AGREE_PX`] from the
+/// receiver's own source becomes an extra source with share w / (1 + the receiver's
+/// summed weights); agreeing ones only count in the sum (they stand for its own value).
+/// Proposals outside the example's pixel-centre rectangle are left out (a clamped
+/// look-up smears the border). A break between two texels becomes a ramp over both.
+///
+/// The kernel applied twice (two rings: a break ramps over four texels, and texels two
+/// graph steps apart — diagonal pairs across borders — mix) lowered the bunny's seams
+/// further (seed 1: 1.13 against 1.18) but made 4.7x as many entries (2 a texel on the
+/// bunny: +340 MB at its peak), so one ring it is (docs/jump.md, "Texture blending").
+///
+/// Serial over the plan in rank order, then a sort of the entries by their contents: the
+/// same for any thread count. Memory while it runs: 4 B a texel for the weights and 16 B
+/// per entry (entries ∝ the broken edges: 0.43 a texel on the bunny).
+fn blend(level: &LevelTexels, plan: &Plan, src: &[[f32; 2]], weight: f32, size: [f32; 2]) -> Blend {
+    let n = plan.len();
+    let inv_global = (1.0 / level.step) as f32;
+    let uniform = plan.unscale * inv_global;
+    let to_px = |k: usize| match &level.factor {
+        None => uniform,
+        Some(_) => plan.unscale * level.inv_step_at(plan.order[k] as usize),
+    };
+    let inside =
+        |p: [f32; 2]| p[0] >= 0.5 && p[0] <= size[0] - 0.5 && p[1] >= 0.5 && p[1] <= size[1] - 0.5;
+    let agree2 = BLEND_AGREE_PX * BLEND_AGREE_PX;
+    // Per rank: the summed weight of the proposals it receives.
+    let mut received = vec![0.0f32; n];
+    // Room for one entry a texel (~2x what breaks make) without moving it while it grows;
+    // pages never written are never resident.
+    let mut entries: Vec<(u32, [f32; 2], f32)> = Vec::with_capacity(n);
+    // Offers `p` to rank `r` with weight `w`: counted in `received[r]`, kept when it
+    // disagrees with r's own source.
+    let mut offer = |received: &mut [f32], r: usize, p: [f32; 2], w: f32| {
+        if !inside(p) {
+            return;
+        }
+        received[r] += w;
+        let (dx, dy) = (p[0] - src[r][0], p[1] - src[r][1]);
+        if dx * dx + dy * dy > agree2 {
+            entries.push((r as u32, p, w));
+        }
+    };
+    for (k, earlier) in plan.by_rank().enumerate() {
+        let (a_k, to_k) = (src[k], to_px(k));
+        for e in earlier {
+            let s = e.rank();
+            let (a_s, d, to_s) = (src[s], e.d(), to_px(s));
+            let w = if e.cross() {
+                weight * BLEND_CROSS
+            } else {
+                weight
+            };
+            // s → k: a_s + d at k's step; k → s: a_k − d at s's step.
+            offer(
+                &mut received,
+                k,
+                [a_s[0] + d[0] * to_k, a_s[1] + d[1] * to_k],
+                w,
+            );
+            offer(
+                &mut received,
+                s,
+                [a_k[0] - d[0] * to_s, a_k[1] - d[1] * to_s],
+                w,
+            );
+        }
+    }
+    for e in &mut entries {
+        let r = e.0 as usize;
+        e.2 /= 1.0 + received[r];
+        e.0 = plan.order[r];
+    }
+    drop(received);
+    Blend::from_entries(entries)
 }
 
 #[cfg(test)]
@@ -819,6 +950,134 @@ mod tests {
         ];
         assert!(keep_consensus(&mut table, CONSENSUS_PX, &mut counts));
         assert_eq!(cont(&table), [0.0, 1.0, 1.0]);
+    }
+
+    /// A flat grid (4x4 faces, N = 8, one example pixel per texel) with its plan, and
+    /// sources by rank continued from the first texel along the plan: a continued copy.
+    fn continued_copy() -> (LevelTexels, Plan, Vec<[f32; 2]>) {
+        let surface = Surface::new(ControlMesh::grid(4));
+        let field =
+            crate::field::OrientationField::compute(&surface, &crate::field::Orientation::Auto)
+                .unwrap();
+        let level = LevelTexels::new(&surface, &field, 8, 0.125);
+        let growth = Growth::compute(level.edges(), level.layout(), &level.geometry.pos);
+        let plan = Plan::new(&level, growth);
+        let to_px = plan.unscale * (1.0 / level.step) as f32;
+        let mut src = vec![[40.0f32, 64.0]; plan.len()];
+        for (k, earlier) in plan.by_rank().enumerate().skip(1) {
+            let e = earlier[0];
+            let (a, d) = (src[e.rank()], e.d());
+            src[k] = [a[0] + d[0] * to_px, a[1] + d[1] * to_px];
+        }
+        (level, plan, src)
+    }
+
+    /// 256² grey example: 0 left of column 90, 1 from it on.
+    fn step_example() -> crate::example::Example {
+        let rgb = (0..256 * 256)
+            .map(|i| if i % 256 >= 90 { [1.0; 3] } else { [0.0; 3] })
+            .collect();
+        crate::example::Example::from_linear(256, 256, rgb)
+    }
+
+    fn by_texel(plan: &Plan, src: &[[f32; 2]]) -> Vec<[f32; 2]> {
+        let mut out = vec![[0.0f32; 2]; src.len()];
+        for (&t, a) in plan.order.iter().zip(src) {
+            out[t as usize] = *a;
+        }
+        out
+    }
+
+    /// Inside a continued copy every proposal agrees: no entry, and the face maps are
+    /// those without blending, bit for bit.
+    #[test]
+    fn blending_leaves_a_continued_copy_exactly_as_looked_up() {
+        let (level, plan, src) = continued_copy();
+        let b = blend(&level, &plan, &src, 0.5, [256.0, 256.0]);
+        assert!(b.is_empty(), "{} entries in a continued copy", b.len());
+        let ex = step_example();
+        let s = by_texel(&plan, &src);
+        let layout = &level.geometry.layout;
+        let plain = crate::synth::face_maps(&ex, &s, layout);
+        let blended = crate::synth::face_maps_blended(&ex, &s, Some(&b), layout);
+        assert_eq!(plain.channels, blended.channels);
+    }
+
+    /// Across a break (the right half's sources moved 100 px) the values ramp over the
+    /// two texels beside it — 1/6 and 5/6 where one of four neighbours is across — and
+    /// every other texel, and every source.u/v, stays as it was.
+    #[test]
+    fn blending_ramps_values_across_a_break() {
+        let (level, plan, mut src) = continued_copy();
+        let pos = &level.geometry.pos;
+        let right = |t: usize| pos[t].x > 2.0;
+        for (k, &t) in plan.order.iter().enumerate() {
+            if right(t as usize) {
+                src[k][0] += 100.0;
+            }
+        }
+        let b = blend(&level, &plan, &src, 0.5, [256.0, 256.0]);
+        assert!(!b.is_empty());
+        let ex = step_example();
+        let s = by_texel(&plan, &src);
+        let layout = &level.geometry.layout;
+        let plain = crate::synth::face_maps(&ex, &s, layout);
+        let blended = crate::synth::face_maps_blended(&ex, &s, Some(&b), layout);
+        let (r0, r1) = (plain.channel("R").unwrap(), blended.channel("R").unwrap());
+        let edges = level.edges();
+        let mut ramped = 0;
+        for t in 0..level.len() {
+            let want = if right(t) { 1.0 } else { 0.0 };
+            assert_eq!(r0[t], want, "texel {t}: the break is between 0 and 1");
+            let nb = edges.of(t);
+            let across = nb
+                .iter()
+                .filter(|&&n| right(n as usize) != right(t))
+                .count();
+            if across == 0 {
+                assert_eq!(
+                    r1[t].to_bits(),
+                    r0[t].to_bits(),
+                    "texel {t} away from the break"
+                );
+                continue;
+            }
+            ramped += 1;
+            // Its own source weighs 1, each of its neighbours 0.5 (no cross neighbours on
+            // a flat grid): 0.5 across / (1 + 0.5 · count).
+            let share = across as f32 * 0.5 / (1.0 + 0.5 * nb.len() as f32);
+            let expect = if right(t) { 1.0 - share } else { share };
+            assert!(
+                (r1[t] - expect).abs() < 1e-5,
+                "texel {t}: {} vs {expect}",
+                r1[t]
+            );
+        }
+        assert!(ramped >= 2 * 32, "{ramped} texels beside the break");
+        for c in ["source.u", "source.v"] {
+            assert_eq!(plain.channel(c), blended.channel(c));
+        }
+    }
+
+    /// The blend is the same for any thread count (a serial pass and a stable sort).
+    #[test]
+    fn blending_is_thread_count_independent() {
+        let (level, plan, mut src) = continued_copy();
+        for (k, a) in src.iter_mut().enumerate() {
+            if k % 7 == 3 {
+                a[1] += 30.0;
+            }
+        }
+        let run = |threads| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| blend(&level, &plan, &src, 0.5, [256.0, 256.0]))
+        };
+        let one = run(1);
+        assert!(one.len() > 100);
+        assert_eq!(one, run(2));
     }
 
     #[test]

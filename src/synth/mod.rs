@@ -32,6 +32,7 @@
 
 pub mod analysis;
 pub mod bench;
+pub mod blend;
 pub mod coherent;
 pub mod footprint;
 pub mod jump;
@@ -47,6 +48,7 @@ pub mod texel_table;
 pub mod textons;
 
 pub use analysis::Analyses;
+pub use blend::Blend;
 pub use coherent::{CoherentParams, DomainOrder, Order};
 pub use jump::JumpParams;
 pub use multiscale::MultiscaleParams;
@@ -294,6 +296,9 @@ pub enum Details {
 #[derive(Clone, Debug)]
 pub struct Output {
     pub source: Vec<[f32; 2]>,
+    /// Extra sources mixed into some texels' values across breaks ([`blend`]; jump maps
+    /// with [`JumpParams::blend`]); `None`: every value is the look-up at its source.
+    pub blend: Option<Blend>,
     pub appearance: AppearanceInfo,
     pub details: Details,
 }
@@ -397,9 +402,11 @@ pub fn synthesize(
                 )
             });
             let plan = target.derived.jump_plan(target.texels);
-            let (source, stats) = jump::run(&map, target.texels, plan, &p, target.seed, progress);
+            let (source, blend, stats) =
+                jump::run(&map, target.texels, plan, &p, target.seed, progress);
             Ok(Output {
                 source,
+                blend,
                 appearance: map.appearance,
                 details: Details::Jump { params: p, stats },
             })
@@ -427,6 +434,7 @@ pub fn synthesize(
                 })?;
             Ok(Output {
                 source: out.source,
+                blend: None,
                 appearance: out.stats.appearance,
                 details: Details::Multiscale(out.stats),
             })
@@ -448,6 +456,7 @@ pub fn synthesize(
                 textons::run(sample, target, &p, &settings.multiscale, analyses, progress)?;
             Ok(Output {
                 source,
+                blend: None,
                 appearance: stats.synthesis.appearance,
                 details: Details::Textons { params: p, stats },
             })
@@ -523,6 +532,7 @@ fn coherent_output<const K: usize>(
     let out = coherent::run(&features, inputs, params, &|d| progress(d, faces));
     Output {
         source: out.source,
+        blend: None,
         appearance: app.info,
         details: Details::Coherent {
             params: params.clone(),
@@ -551,6 +561,7 @@ fn run_patches<const K: usize>(
     );
     Output {
         source: out.source,
+        blend: None,
         appearance: ex.info,
         details: Details::Patches {
             params: settings.patches,
@@ -574,6 +585,7 @@ fn run_optimise<const K: usize>(
     );
     Output {
         source: out.source,
+        blend: None,
         appearance,
         details: Details::Optimise {
             params: settings.optimise.clone(),
@@ -813,6 +825,19 @@ pub fn face_maps(
     source: &[[f32; 2]],
     layout: &std::sync::Arc<crate::layout::TexelLayout>,
 ) -> FaceMaps {
+    face_maps_blended(example, source, None, layout)
+}
+
+/// [`face_maps`] with texture blending: a texel with entries in `blend` gets
+/// v + Σ share_i (E(p_i) − v), v the look-up at its own source and E(p_i) at its extra
+/// sources, every channel with the same shares (the maps stay aligned with the colour);
+/// every other texel, and `source.u/v` of every texel, as [`face_maps`].
+pub fn face_maps_blended(
+    example: &Example,
+    source: &[[f32; 2]],
+    blend: Option<&Blend>,
+    layout: &std::sync::Arc<crate::layout::TexelLayout>,
+) -> FaceMaps {
     let names = output_channels(example);
     let k = example.num_channels();
     // The height alias: the channel of the height map, copied.
@@ -849,9 +874,31 @@ pub fn face_maps(
         .for_each(|(f, mut ch)| {
             let r = layout.range(f);
             let mut v = vec![0.0f32; k];
+            let (mut own, mut extra) = (vec![0.0f32; k], vec![0.0f32; k]);
+            let mut entries = blend.map_or(0..0, |b| b.range(r.clone()));
             for i in 0..r.len() {
                 let s = source[r.start + i];
                 example.bilinear(s[0], s[1], &mut v);
+                if let Some(b) = blend {
+                    // v + Σ share (E(p) − v), each difference from the value as looked up
+                    // (the shares are of the texel's own value).
+                    let mut first = true;
+                    while entries.start < entries.end {
+                        let (t, p, share) = b.entry(entries.start);
+                        if t != r.start + i {
+                            break;
+                        }
+                        if first {
+                            own.copy_from_slice(&v);
+                            first = false;
+                        }
+                        example.bilinear(p[0], p[1], &mut extra);
+                        for c in 0..k {
+                            v[c] += share * (extra[c] - own[c]);
+                        }
+                        entries.start += 1;
+                    }
+                }
                 for c in 0..k {
                     ch[c][i] = v[c];
                 }
@@ -930,6 +977,60 @@ mod tests {
         }
         assert_eq!(w1.per_channel(&ex), [1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.0]);
         assert_eq!(w1.matched(&ex).num_channels(), 6);
+    }
+
+    /// Blended face maps mix every channel — colour and every map — with the same shares,
+    /// keep source.u/v, and leave texels without entries as [`face_maps`] writes them.
+    #[test]
+    fn blending_mixes_every_channel_with_the_same_shares() {
+        let ex = material();
+        let layout = std::sync::Arc::new(crate::layout::TexelLayout::uniform(1, 4));
+        let source: Vec<[f32; 2]> = (0..16).map(|i| [1.5 + i as f32 * 0.7, 3.25]).collect();
+        let blend = Blend::from_entries(vec![
+            (5, [12.5, 9.5], 0.25),
+            (5, [2.5, 14.5], 0.125),
+            (11, [7.5, 1.5], 0.2),
+        ]);
+        let plain = face_maps(&ex, &source, &layout);
+        let mixed = face_maps_blended(&ex, &source, Some(&blend), &layout);
+        let k = ex.num_channels();
+        let names = output_channels(&ex);
+        let look = |p: [f32; 2]| {
+            let mut v = vec![0.0f32; k];
+            ex.bilinear(p[0], p[1], &mut v);
+            v
+        };
+        for (t, &src) in source.iter().enumerate() {
+            let own = look(src);
+            let mut want = own.clone();
+            for (_, p, share) in (0..blend.len())
+                .map(|i| blend.entry(i))
+                .filter(|e| e.0 == t)
+            {
+                let e = look(p);
+                for c in 0..k {
+                    want[c] += share * (e[c] - own[c]);
+                }
+            }
+            for (c, name) in names.iter().take(k).enumerate() {
+                let got = mixed.channel(name).unwrap()[t];
+                assert_eq!(got.to_bits(), want[c].to_bits(), "texel {t} {name}");
+                if t != 5 && t != 11 {
+                    assert_eq!(got.to_bits(), plain.channel(name).unwrap()[t].to_bits());
+                }
+            }
+        }
+        // Texel 5 really mixes: its colour and its maps move.
+        for name in ["R", "normal.R", "roughness.Y"] {
+            assert_ne!(
+                mixed.channel(name).unwrap()[5],
+                plain.channel(name).unwrap()[5],
+                "{name}"
+            );
+        }
+        for c in ["source.u", "source.v"] {
+            assert_eq!(mixed.channel(c), plain.channel(c));
+        }
     }
 
     #[test]

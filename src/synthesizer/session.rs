@@ -865,15 +865,20 @@ impl Session {
         let out = out?;
         let cache = self.analyses.report(self.analyses.take_events());
         let mut source = out.source;
+        let mut blend = out.blend;
         if params.handedness == Handedness::Tiles {
             let h = example.height as f32;
             for s in &mut source {
                 s[1] = h - s[1];
             }
+            if let Some(b) = &mut blend {
+                b.flip_v(h);
+            }
         }
         let synthesis_s = t0.elapsed().as_secs_f64();
         Ok(Synthesized {
             source,
+            blend,
             // Filled by the caller (run, run_once), which decides what is held beside them.
             tangents: Vec::new(),
             local_scale: self.local_scale(),
@@ -921,8 +926,10 @@ impl Session {
 
         progress(Stage::Maps, 0, 1);
         let t0 = Instant::now();
-        let mut maps = crate::synth::face_maps(&example, &s.source, layout);
+        let mut maps =
+            crate::synth::face_maps_blended(&example, &s.source, s.blend.as_ref(), layout);
         drop(s.source);
+        drop(s.blend);
         // facemaps.exr keeps the normal map in the field's frame (T, N x T, N): the file's
         // green axis is image up, which is +v2 when rows run along -v2 (outside) and -v2
         // for tiles; DirectX files have green pointing down.
@@ -1054,6 +1061,8 @@ impl Session {
 /// What the synthesis stage hands to the maps stage.
 struct Synthesized {
     source: Vec<[f32; 2]>,
+    /// Extra sources mixed into some texels' values ([`crate::synth::Blend`]).
+    blend: Option<crate::synth::Blend>,
     /// The field's v1 per texel (taken while the frames are there: a one-shot run frees
     /// them before the maps stage).
     tangents: Vec<[f32; 3]>,
