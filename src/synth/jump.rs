@@ -763,6 +763,15 @@ pub fn run(
     }
     stats.seconds = started.elapsed().as_secs_f64();
     stats.texels_per_second = stats.texels as f64 / stats.seconds.max(1e-9);
+    let mut by_texel = vec![[0.0f32; 2]; total];
+    for (&t, a) in plan.order.iter().zip(&src) {
+        by_texel[t as usize] = *a;
+    }
+    // The blend reads the sources by texel, so that the rank-ordered copy is gone before
+    // its proposals are gathered (the end of this pass was the jump run's peak: 4 B a texel
+    // less there, Spot N = 128).
+    drop(src);
+    let src = by_texel;
     let blend = params.blend.map(|weight| {
         let t0 = std::time::Instant::now();
         let b = blend(level, plan, &src, weight, [w, h]);
@@ -771,11 +780,6 @@ pub fn run(
         stats.blend_seconds = t0.elapsed().as_secs_f64();
         b
     });
-    let mut by_texel = vec![[0.0f32; 2]; total];
-    for (&t, a) in plan.order.iter().zip(&src) {
-        by_texel[t as usize] = *a;
-    }
-    let src = by_texel;
     progress(total, total);
     (src, blend, stats)
 }
@@ -792,7 +796,10 @@ pub const BLEND_AGREE_PX: f32 = 1.0;
 /// neighbours as edges left those breaks blended less than the ones inside faces (Spot
 /// with scales, seed 2: seams 1.02 → 1.23); 2 and 4 measured alike (1.20, 1.19), the
 /// bunny 1.18 and 1.19 (docs/jump.md, "Texture blending").
-pub const BLEND_CROSS: f32 = 2.0;
+pub const BLEND_CROSS: f32 = CROSS_UNITS as f32;
+
+/// [`BLEND_CROSS`] as the whole number of edge weights the blend counts it as.
+const CROSS_UNITS: u16 = 2;
 
 /// The blend of a synthesized texel set ([`JumpParams::blend`], [`super::blend`]): the
 /// 1-ring kernel of the texel graph and the cross neighbours. For every edge of the plan
@@ -812,7 +819,13 @@ pub const BLEND_CROSS: f32 = 2.0;
 /// Serial over the plan in rank order, then a sort of the entries by their contents: the
 /// same for any thread count. Memory while it runs: 4 B a texel for the weights and 16 B
 /// per entry (entries ∝ the broken edges: 0.43 a texel on the bunny).
-fn blend(level: &LevelTexels, plan: &Plan, src: &[[f32; 2]], weight: f32, size: [f32; 2]) -> Blend {
+fn blend(
+    level: &LevelTexels,
+    plan: &Plan,
+    by_texel: &[[f32; 2]],
+    weight: f32,
+    size: [f32; 2],
+) -> Blend {
     let n = plan.len();
     let inv_global = (1.0 / level.step) as f32;
     let uniform = plan.unscale * inv_global;
@@ -823,33 +836,36 @@ fn blend(level: &LevelTexels, plan: &Plan, src: &[[f32; 2]], weight: f32, size: 
     let inside =
         |p: [f32; 2]| p[0] >= 0.5 && p[0] <= size[0] - 0.5 && p[1] >= 0.5 && p[1] <= size[1] - 0.5;
     let agree2 = BLEND_AGREE_PX * BLEND_AGREE_PX;
-    // Per rank: the summed weight of the proposals it receives.
-    let mut received = vec![0.0f32; n];
+    // The source of rank k.
+    let src = |k: usize| by_texel[plan.order[k] as usize];
+    // Per rank: the weight of the proposals it receives, in units of `weight` (an edge
+    // neighbour's one, a cross neighbour's [`CROSS_UNITS`]): 2 B a texel where an f32 sum
+    // took 4 (the blend is the jump run's peak), and the same number in any order. For
+    // the default weight (½) units × weight is the f32 sum bit for bit.
+    let mut received = vec![0u16; n];
     // Room for one entry a texel (~2x what breaks make) without moving it while it grows;
     // pages never written are never resident.
     let mut entries: Vec<(u32, [f32; 2], f32)> = Vec::with_capacity(n);
     // Offers `p` to rank `r` with weight `w`: counted in `received[r]`, kept when it
     // disagrees with r's own source.
-    let mut offer = |received: &mut [f32], r: usize, p: [f32; 2], w: f32| {
+    let mut offer = |received: &mut [u16], r: usize, p: [f32; 2], units: u16| {
         if !inside(p) {
             return;
         }
-        received[r] += w;
-        let (dx, dy) = (p[0] - src[r][0], p[1] - src[r][1]);
+        received[r] = received[r].saturating_add(units);
+        let w = units as f32 * weight;
+        let a_r = src(r);
+        let (dx, dy) = (p[0] - a_r[0], p[1] - a_r[1]);
         if dx * dx + dy * dy > agree2 {
             entries.push((r as u32, p, w));
         }
     };
     for (k, earlier) in plan.by_rank().enumerate() {
-        let (a_k, to_k) = (src[k], to_px(k));
+        let (a_k, to_k) = (src(k), to_px(k));
         for e in earlier {
             let s = e.rank();
-            let (a_s, d, to_s) = (src[s], e.d(), to_px(s));
-            let w = if e.cross() {
-                weight * BLEND_CROSS
-            } else {
-                weight
-            };
+            let (a_s, d, to_s) = (src(s), e.d(), to_px(s));
+            let w = if e.cross() { CROSS_UNITS } else { 1 };
             // s → k: a_s + d at k's step; k → s: a_k − d at s's step.
             offer(
                 &mut received,
@@ -867,7 +883,7 @@ fn blend(level: &LevelTexels, plan: &Plan, src: &[[f32; 2]], weight: f32, size: 
     }
     for e in &mut entries {
         let r = e.0 as usize;
-        e.2 /= 1.0 + received[r];
+        e.2 /= 1.0 + received[r] as f32 * weight;
         e.0 = plan.order[r];
     }
     drop(received);
@@ -993,7 +1009,7 @@ mod tests {
     #[test]
     fn blending_leaves_a_continued_copy_exactly_as_looked_up() {
         let (level, plan, src) = continued_copy();
-        let b = blend(&level, &plan, &src, 0.5, [256.0, 256.0]);
+        let b = blend(&level, &plan, &by_texel(&plan, &src), 0.5, [256.0, 256.0]);
         assert!(b.is_empty(), "{} entries in a continued copy", b.len());
         let ex = step_example();
         let s = by_texel(&plan, &src);
@@ -1016,7 +1032,7 @@ mod tests {
                 src[k][0] += 100.0;
             }
         }
-        let b = blend(&level, &plan, &src, 0.5, [256.0, 256.0]);
+        let b = blend(&level, &plan, &by_texel(&plan, &src), 0.5, [256.0, 256.0]);
         assert!(!b.is_empty());
         let ex = step_example();
         let s = by_texel(&plan, &src);
@@ -1073,7 +1089,7 @@ mod tests {
                 .num_threads(threads)
                 .build()
                 .unwrap()
-                .install(|| blend(&level, &plan, &src, 0.5, [256.0, 256.0]))
+                .install(|| blend(&level, &plan, &by_texel(&plan, &src), 0.5, [256.0, 256.0]))
         };
         let one = run(1);
         assert!(one.len() > 100);
