@@ -68,12 +68,12 @@ fn assert_clean_failure(o: &Output, out: &Path, names: Option<&Path>, problem: &
     line.to_string()
 }
 
-/// Writes `obj` to a temporary file, bakes it, and checks the failure.
-fn bad_obj(obj: &str, problem: &[&str]) -> String {
-    let dir = tempfile::tempdir().unwrap();
-    let mesh = dir.path().join("bad.obj");
+/// Writes `obj` to `dir/name`, bakes it at N = 4 into `dir/out`: the run, the mesh, the
+/// output directory.
+fn bake_obj(dir: &Path, name: &str, obj: &str) -> (Output, PathBuf, PathBuf) {
+    let mesh = dir.join(name);
     std::fs::write(&mesh, obj).unwrap();
-    let out = dir.path().join("out");
+    let out = dir.join("out");
     let o = run(&[
         "bake".as_ref(),
         "--mesh".as_ref(),
@@ -83,6 +83,13 @@ fn bad_obj(obj: &str, problem: &[&str]) -> String {
         "--out".as_ref(),
         out.as_os_str(),
     ]);
+    (o, mesh, out)
+}
+
+/// Writes `obj` to a temporary file, bakes it, and checks the failure.
+fn bad_obj(obj: &str, problem: &[&str]) -> String {
+    let dir = tempfile::tempdir().unwrap();
+    let (o, mesh, out) = bake_obj(dir.path(), "bad.obj", obj);
     assert_clean_failure(&o, &out, Some(&mesh), problem)
 }
 
@@ -131,18 +138,7 @@ fn non_manifold_meshes_are_baked_with_a_note() {
         (bow_tie, "1 non-manifold vertex"),
     ] {
         let dir = tempfile::tempdir().unwrap();
-        let mesh = dir.path().join("nm.obj");
-        std::fs::write(&mesh, obj).unwrap();
-        let out = dir.path().join("out");
-        let o = run(&[
-            "bake".as_ref(),
-            "--mesh".as_ref(),
-            mesh.as_os_str(),
-            "--resolution".as_ref(),
-            "4".as_ref(),
-            "--out".as_ref(),
-            out.as_os_str(),
-        ]);
+        let (o, mesh, out) = bake_obj(dir.path(), "nm.obj", &obj);
         let err = String::from_utf8_lossy(&o.stderr);
         assert!(o.status.success(), "{err}");
         assert!(out.join("geometry.exr").is_file());

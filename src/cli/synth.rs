@@ -276,20 +276,19 @@ fn parse_kcoherence_k(s: &str) -> Result<usize, String> {
 }
 
 fn parse_feature_distance(s: &str) -> Result<f32, String> {
-    let v: f32 = s.parse().map_err(|_| format!("'{s}' is not a number"))?;
-    if !(0.0..=16.0).contains(&v) {
-        return Err(format!(
-            "feature-distance weight {v} is out of range: use 0 (off) to 16"
-        ));
-    }
-    Ok(v)
+    parse_weight(s, "feature-distance", 16.0)
 }
 
 fn parse_jump_blend(s: &str) -> Result<f32, String> {
+    parse_weight(s, "jump-blend", 4.0)
+}
+
+/// A weight from 0 (off) to `max`, named `what` in the message.
+fn parse_weight(s: &str, what: &str, max: f32) -> Result<f32, String> {
     let v: f32 = s.parse().map_err(|_| format!("'{s}' is not a number"))?;
-    if !(0.0..=4.0).contains(&v) {
+    if !(0.0..=max).contains(&v) {
         return Err(format!(
-            "jump-blend weight {v} is out of range: use 0 (off) to 4"
+            "{what} weight {v} is out of range: use 0 (off) to {max}"
         ));
     }
     Ok(v)

@@ -879,7 +879,6 @@ unsafe fn measure8_avx2<const K: usize>(
     zs: &[[f32; 2]; 8],
     bound: f32,
 ) -> [f32; 8] {
-    use super::matching::search::transpose8;
     use std::arch::x86_64::*;
     let bv = _mm256_set1_ps(bound);
     let mut e = _mm256_setzero_ps();
@@ -900,12 +899,7 @@ unsafe fn measure8_avx2<const K: usize>(
             let dv = _mm256_sub_ps(q, v);
             sq[j] = _mm256_mul_ps(dv, dv);
         }
-        let tr = transpose8(&sq);
-        let mut d2 = tr[0];
-        for v in &tr[1..] {
-            d2 = _mm256_add_ps(d2, *v);
-        }
-        e = _mm256_add_ps(e, d2);
+        e = _mm256_add_ps(e, dist2_lanes(&sq));
         if _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_GT_OQ>(e, bv)) == 0xFF {
             break;
         }
@@ -913,6 +907,22 @@ unsafe fn measure8_avx2<const K: usize>(
     let mut out = [0.0f32; 8];
     _mm256_storeu_ps(out.as_mut_ptr(), e);
     out
+}
+
+/// Lane j of the result: the sum over k, in order, of `sq[j]`'s lane k — [`dist2`] of
+/// position j, given its eight squared differences, in `dist2`'s order (so the kernels'
+/// errors are the scalar ones bit for bit).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn dist2_lanes(sq: &[std::arch::x86_64::__m256; 8]) -> std::arch::x86_64::__m256 {
+    use std::arch::x86_64::_mm256_add_ps;
+    let tr = super::matching::search::transpose8(sq);
+    let mut d2 = tr[0];
+    for v in &tr[1..] {
+        d2 = _mm256_add_ps(d2, *v);
+    }
+    d2
 }
 
 /// The coarse search of [`choose`]: the `keep` positions of the grid of step `g` over
@@ -1028,7 +1038,7 @@ fn grid_row_scalar<const K: usize>(
 
 /// [`grid_row_scalar`] for 8 values per pixel, eight positions at a time: each position's
 /// sum is kept in one lane, and one sample's eight squared differences per position are
-/// transposed ([`transpose8`]) so that their sum runs over the values in [`dist2`]'s order
+/// summed by [`dist2_lanes`] so that their sum runs over the values in [`dist2`]'s order
 /// — every lane's total is the scalar one, bit for bit. A group stops once all eight
 /// totals are at or above the bound `top` had when it began; the totals are then offered
 /// to `top` one by one, in scan order, as the scalar scan does. A total cut short that way
@@ -1050,7 +1060,6 @@ unsafe fn grid_row8_avx2(
     keep: usize,
     top: &mut Vec<(f32, [f32; 2])>,
 ) {
-    use super::matching::search::transpose8;
     use std::arch::x86_64::*;
     let n = gsub.len();
     // Each sample's row start (in values), as the scalar scan clamps it.
@@ -1087,12 +1096,7 @@ unsafe fn grid_row8_avx2(
                 let d = _mm256_sub_ps(q, _mm256_loadu_ps(flat[a..a + 8].as_ptr()));
                 sq[j] = _mm256_mul_ps(d, d);
             }
-            let tr = transpose8(&sq);
-            let mut d2 = tr[0];
-            for v in &tr[1..] {
-                d2 = _mm256_add_ps(d2, *v);
-            }
-            e = _mm256_add_ps(e, d2);
+            e = _mm256_add_ps(e, dist2_lanes(&sq));
             if _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_GE_OQ>(e, bv)) == 0xFF {
                 break;
             }

@@ -111,18 +111,17 @@ pub fn split(positions: &[glam::DVec3], face_start: &[u32], face_verts: &[u32]) 
         .collect();
     keys.sort_unstable();
     // Per half-edge: its twin across a manifold edge (two opposite uses), or NONE; and
-    // whether its edge is non-manifold (three or more uses).
+    // whether its edge is non-manifold (three or more uses). Per vertex, for OpenSubdiv's
+    // rule (counted on the input mesh): its distinct edges, and the boundary and the
+    // non-manifold ones among them.
     const NONE: u32 = u32::MAX;
     let mut twin = vec![NONE; nh];
     let mut nonman = vec![false; nh];
     let mut edges = 0;
-    let mut i = 0;
-    while i < keys.len() {
-        let mut j = i + 1;
-        while j < keys.len() && (keys[j].0, keys[j].1) == (keys[i].0, keys[i].1) {
-            j += 1;
-        }
-        let g = &keys[i..j];
+    let mut edge_count = vec![0u32; nv];
+    let mut boundary_edges = vec![0u32; nv];
+    let mut nm_edges = vec![0u32; nv];
+    for g in keys.chunk_by(|a, b| (a.0, a.1) == (b.0, b.1)) {
         if g.len() == 2 && face_verts[g[0].2 as usize] != face_verts[g[1].2 as usize] {
             twin[g[0].2 as usize] = g[1].2;
             twin[g[1].2 as usize] = g[0].2;
@@ -132,7 +131,14 @@ pub fn split(positions: &[glam::DVec3], face_start: &[u32], face_verts: &[u32]) 
                 nonman[k.2 as usize] = true;
             }
         }
-        i = j;
+        for v in [g[0].0 as usize, g[0].1 as usize] {
+            edge_count[v] += 1;
+            match g.len() {
+                1 => boundary_edges[v] += 1,
+                n if n >= 3 => nm_edges[v] += 1,
+                _ => {}
+            }
+        }
     }
     // Sectors: corners (half-edges by their start vertex) joined across manifold edges. At
     // corner h (vertex v), the edges at v are h (v → next) and prev(h) (prev → v); across h
@@ -145,7 +151,6 @@ pub fn split(positions: &[glam::DVec3], face_start: &[u32], face_verts: &[u32]) 
         }
     }
     // Corners of each vertex, and the sectors among them.
-    let mut first_sector: Vec<u32> = vec![NONE; nv];
     let mut sectors = vec![0u32; nv];
     let mut corners_of = vec![0u32; nv];
     let mut nm_vertex = vec![false; nv];
@@ -166,8 +171,8 @@ pub fn split(positions: &[glam::DVec3], face_start: &[u32], face_verts: &[u32]) 
         let r = sets.find(h);
         if sector_vertex[r as usize] == NONE {
             sectors[v as usize] += 1;
-            sector_vertex[r as usize] = if first_sector[v as usize] == NONE {
-                first_sector[v as usize] = r;
+            // The first sector keeps the vertex; each further one gets a copy.
+            sector_vertex[r as usize] = if sectors[v as usize] == 1 {
                 v
             } else {
                 out_positions.push(positions[v as usize]);
@@ -186,45 +191,17 @@ pub fn split(positions: &[glam::DVec3], face_start: &[u32], face_verts: &[u32]) 
     if edges == 0 && vertices == 0 {
         return None;
     }
-    // OpenSubdiv's vertex rule, counted on the input mesh: distinct edges at v, the
-    // non-manifold and the boundary ones among them.
-    let mut nm_edges = vec![0u32; nv];
-    let mut boundary_edges = vec![0u32; nv];
-    let mut edge_count = vec![0u32; nv];
-    let mut i = 0;
-    while i < keys.len() {
-        let mut j = i + 1;
-        while j < keys.len() && (keys[j].0, keys[j].1) == (keys[i].0, keys[i].1) {
-            j += 1;
-        }
-        for v in [keys[i].0, keys[i].1] {
-            let v = v as usize;
-            edge_count[v] += 1;
-            match j - i {
-                1 => boundary_edges[v] += 1,
-                n if n >= 3 => nm_edges[v] += 1,
-                _ => {}
-            }
-        }
-        i = j;
-    }
-    let mut corners = Vec::new();
-    for v in 0..nv {
-        if !nm_vertex[v] {
-            continue;
-        }
-        let crease = nm_edges[v] == 2 && boundary_edges[v] == 0 && corners_of[v] > edge_count[v];
-        if !crease {
-            corners.push(v as u32);
-        }
-    }
-    // Copies share their vertex's sharpness.
-    let sharp: std::collections::HashSet<u32> = corners.iter().copied().collect();
-    for (c, &o) in origin.iter().enumerate().skip(nv) {
-        if sharp.contains(&o) {
-            corners.push(c as u32);
-        }
-    }
+    // Corners: every copy of a non-manifold vertex that is not on an interior crease.
+    let corner: Vec<bool> = (0..nv)
+        .map(|v| {
+            let crease =
+                nm_edges[v] == 2 && boundary_edges[v] == 0 && corners_of[v] > edge_count[v];
+            nm_vertex[v] && !crease
+        })
+        .collect();
+    let corners: Vec<u32> = (0..origin.len() as u32)
+        .filter(|&c| corner[origin[c as usize] as usize])
+        .collect();
     // Non-manifold edges whose uses still share both (new) endpoints.
     let mut meet: Vec<(u32, u32)> = (0..nh)
         .filter(|&h| nonman[h])

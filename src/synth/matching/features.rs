@@ -109,13 +109,14 @@ impl<const K: usize> Features<K> {
         self.data.as_flattened()
     }
 
-    /// [`Features::sample`]'s lookup at (x, y): the indices of its four pixels (x0 y0,
-    /// x1 y0, x0 y1, x1 y1) and its weights tx, ty, computed as it computes them, for
-    /// kernels that blend the four vectors themselves.
+    /// The bilinear lookup at (x, y) that [`Features::sample`] blends: the indices of its
+    /// four pixels (x0 y0, x1 y0, x0 y1, x1 y1) and its weights tx, ty — also for kernels
+    /// that blend the four vectors themselves, so that they read what `sample` reads.
     #[inline(always)]
     pub fn taps(&self, x: f32, y: f32) -> ([usize; 4], f32, f32) {
         let fx = (x - 0.5).clamp(0.0, self.max_x);
         let fy = (y - 0.5).clamp(0.0, self.max_y);
+        // `as usize` of a NaN is 0, so a NaN position reads pixel 0 instead of garbage.
         let x0 = fx as usize;
         let y0 = fy as usize;
         let tx = fx - x0 as f32;
@@ -131,20 +132,13 @@ impl<const K: usize> Features<K> {
     /// why clamping, not wrapping).
     #[inline(always)]
     pub fn sample(&self, x: f32, y: f32) -> [f32; K] {
-        let fx = (x - 0.5).clamp(0.0, self.max_x);
-        let fy = (y - 0.5).clamp(0.0, self.max_y);
-        // `as usize` of a NaN is 0, so a NaN position reads pixel 0 instead of garbage.
-        let x0 = fx as usize;
-        let y0 = fy as usize;
-        let tx = fx - x0 as f32;
-        let ty = fy - y0 as f32;
-        let x1 = (x0 + 1).min(self.width - 1);
-        let y1 = (y0 + 1).min(self.height - 1);
-        let w = self.width;
-        let a = &self.data[y0 * w + x0];
-        let b = &self.data[y0 * w + x1];
-        let c = &self.data[y1 * w + x0];
-        let d = &self.data[y1 * w + x1];
+        let ([ia, ib, ic, id], tx, ty) = self.taps(x, y);
+        let (a, b, c, d) = (
+            &self.data[ia],
+            &self.data[ib],
+            &self.data[ic],
+            &self.data[id],
+        );
         let mut out = [0.0f32; K];
         for k in 0..K {
             let top = a[k] + tx * (b[k] - a[k]);
