@@ -9,8 +9,8 @@
 //!
 //! Three runs: gravel (a stochastic example) into `DIR/`, a brick wall (a structured one:
 //! what the default method is for — courses that stay level and continuous, joints that
-//! meet) into `DIR/bricks/`, and a BTF with surface textons into `DIR/btf/`; each with a
-//! preview picture.
+//! meet) into `DIR/bricks/`, and a BTF (one relief under many lights, every image matched
+//! at once by the default method) into `DIR/btf/`; each with a preview picture.
 
 use crate::error::Error;
 use crate::io::atomic::{prepare_out_dir, write_bytes_atomic};
@@ -141,8 +141,9 @@ pub const BTF_PREVIEW_LIGHTS: [(&str, [f64; 3]); 2] = [
 
 /// The BTF part of the demo (paper 003): a procedural relief ray-traced under
 /// [`BTF_LIGHTS`] lights into `DIR/inputs/btf/` (as `surfsynth bench btf-sample` writes
-/// it), synthesized onto Spot with surface textons into `DIR/btf/`, rendered under two
-/// lights: the shadows of the relief move with the light.
+/// it), synthesized onto Spot with the default method (every image matched at once in
+/// appearance space: one source per texel for all of them; docs/btf.md) into `DIR/btf/`,
+/// rendered under two lights: the shadows of the relief move with the light.
 pub fn btf(out: &Path) -> anyhow::Result<()> {
     use crate::btf::generate;
     let inputs = out.join("inputs");
@@ -157,7 +158,6 @@ pub fn btf(out: &Path) -> anyhow::Result<()> {
     let mut c = command(&dir);
     c.mesh = inputs.join(MESH_NAME);
     c.btf = Some(json);
-    c.method = Method::Textons;
     c.resolution = BTF_RESOLUTION;
     run_command(&c)?;
     for (name, l) in BTF_PREVIEW_LIGHTS {

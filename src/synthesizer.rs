@@ -207,7 +207,8 @@ pub enum ExampleSource {
     Path(PathBuf),
     Example(Box<Example>),
     /// A BTF sample's btf.json ([`crate::btf`]): the example is its default image, and
-    /// texton synthesis ([`Method::Textons`]) analyses every image.
+    /// every method but multiscale matches all its images at once ([`Method::Textons`]
+    /// over textons, the others in appearance space: `synth::matching::reflectance`).
     Btf(PathBuf),
 }
 

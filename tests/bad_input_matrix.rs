@@ -958,7 +958,7 @@ fn g03_the_estimate_is_calibrated_for_every_method() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let g = gravel();
     let sample = btf.join("btf.json");
-    let cases: [(&str, [&dyn AsRef<OsStr>; 6]); 4] = [
+    let cases: [(&str, [&dyn AsRef<OsStr>; 6]); 5] = [
         (
             "coherent",
             [
@@ -999,6 +999,18 @@ fn g03_the_estimate_is_calibrated_for_every_method() {
                 &sample,
                 &"--method",
                 &"textons",
+                &"--resolution",
+                &"16",
+            ],
+        ),
+        (
+            // The default over the sample: every image in appearance space.
+            "btf-optimise",
+            [
+                &"--btf",
+                &sample,
+                &"--method",
+                &"optimise",
                 &"--resolution",
                 &"16",
             ],

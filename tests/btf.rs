@@ -274,6 +274,35 @@ fn bad_btf_inputs_are_one_line_errors_naming_the_file_and_leave_no_output() {
         );
         assert!(!out.exists(), "{name}: {} was created", out.display());
     }
+    // Multiscale matches one image: refused before any work, naming the way out.
+    let good = d.join("good.json");
+    std::fs::write(
+        &good,
+        r#"{"images": [{"file": "a.png", "light": [0, 0, 1]}]}"#,
+    )
+    .unwrap();
+    let out = d.join("out-multiscale");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_surfsynth"))
+        .args(["synth", "--mesh"])
+        .arg(data(SPOT))
+        .arg("--btf")
+        .arg(&good)
+        .args([
+            "--method",
+            "multiscale",
+            "--resolution",
+            "4",
+            "--no-cache",
+            "--out",
+        ])
+        .arg(&out)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_ne!(o.status.code(), Some(0), "{err}");
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(err.contains("--method textons"), "{err}");
+    assert!(!out.exists(), "{} was created", out.display());
 }
 
 #[test]
@@ -414,6 +443,233 @@ fn texton_dims_per_light_measured() {
                         p8 / plain[k].1
                     );
                 }
+            }
+        }
+    }
+}
+
+/// The shadow test of [`relit_textons_differ_under_shadows_and_match_each_light_like_a_plain_synthesis`]
+/// for any result: where a source pixel is shadowed under light `a` and lit under `b` (or
+/// the reverse), the two relit results differ much more than where both light it. Returns
+/// (mean difference in shadow-changing texels, mean difference in lit texels).
+fn shadow_contrast(
+    maps: &FaceMaps,
+    sample: &BtfSample,
+    shadows: &[Vec<bool>],
+    (a, b): (usize, usize),
+) -> (f64, f64) {
+    let (ma, mb) = (relit(maps, sample, a), relit(maps, sample, b));
+    let su = maps.channel("source.u").unwrap();
+    let sv = maps.channel("source.v").unwrap();
+    let lum = |m: &FaceMaps, t: usize| {
+        m.channel("R").unwrap()[t] + m.channel("G").unwrap()[t] + m.channel("B").unwrap()[t]
+    };
+    let (mut sd, mut sn, mut ld, mut ln) = (0f64, 0usize, 0f64, 0usize);
+    for t in 0..su.len() {
+        let (x, y) = (su[t] as usize, sv[t] as usize);
+        let p = y.min(SIZE - 1) * SIZE + x.min(SIZE - 1);
+        let d = (lum(&ma, t) - lum(&mb, t)).abs() as f64;
+        match (shadows[a][p], shadows[b][p]) {
+            (true, false) | (false, true) => {
+                sd += d;
+                sn += 1
+            }
+            (false, false) => {
+                ld += d;
+                ln += 1
+            }
+            _ => {}
+        }
+    }
+    assert!(sn > su.len() / 20, "too few shadowed texels: {sn}");
+    (sd / sn as f64, ld / ln as f64)
+}
+
+/// Texture optimisation over a BTF sample (`--btf --method optimise`: every image matched
+/// at once in the reflectance space, `synth::matching::reflectance`): one mesostructure
+/// under every light (the shadow test above), and under each light pf4 within 1.2x of a
+/// plain texture optimisation of that light's image alone — and no worse than texton
+/// synthesis of the same sample.
+#[test]
+fn optimise_over_a_btf_keeps_one_structure_under_every_light() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (json, shadows) = krita_sample(tmp.path());
+    let sample = BtfSample::load(&json).unwrap();
+    let run = |method: Method| {
+        Synthesizer::new(data(SPOT), ExampleSource::Btf(json.clone()))
+            .method(method)
+            .resolution(N)
+            .seed(2)
+            .cache(CacheDir::Off)
+            .run()
+            .unwrap()
+    };
+    let r = run(Method::Optimise);
+    assert_eq!(r.report.method, Method::Optimise);
+    let geometry = r.geometry_maps();
+    let scale = r.report.scale;
+    let (a, b) = (0, LIGHTS / 4);
+    let (sd, ld) = shadow_contrast(&r.maps, &sample, &shadows, (a, b));
+    assert!(
+        sd > 2.0 * ld && sd > 0.1,
+        "shadow difference {sd} vs lit {ld}"
+    );
+    let textons = run(Method::Textons);
+    for i in [a, b] {
+        let ex = sample.images[i].clone();
+        let ours = pf4(&relit(&r.maps, &sample, i), &geometry, &ex, scale);
+        let plain = Synthesizer::new(data(SPOT), ex.clone())
+            .method(Method::Optimise)
+            .resolution(N)
+            .seed(2)
+            .cache(CacheDir::Off)
+            .run()
+            .unwrap();
+        let theirs = pf4(&plain.maps, &geometry, &ex, scale);
+        let tex = pf4(&relit(&textons.maps, &sample, i), &geometry, &ex, scale);
+        eprintln!("light {i}: optimise over the BTF pf4 {ours:.3}, plain optimise {theirs:.3}, textons {tex:.3}");
+        assert!(
+            ours <= 1.2 * theirs,
+            "light {i}: pf4 {ours} > 1.2 x {theirs}"
+        );
+        assert!(ours <= tex, "light {i}: pf4 {ours} > textons' {tex}");
+    }
+}
+
+/// Every appearance-space method over a BTF sample gives the same bits for any thread
+/// count; a sample of one image is matched exactly as that image alone; multiscale, whose
+/// pyramid sees one image, is refused with a pointer to textons.
+#[test]
+fn methods_over_a_btf_are_deterministic_and_one_image_is_the_plain_example() {
+    let tmp = tempfile::tempdir().unwrap();
+    let hf = HeightField::bumps(32, 4.0, 3);
+    let (s, _) = generate::sample(&hf, &generate::light_directions(8));
+    let json = generate::write(&tmp.path().join("s"), &s, serde_json::json!({})).unwrap();
+    let run = |source: ExampleSource, method: Method, threads: usize| {
+        Synthesizer::new(data(SPOT), source)
+            .method(method)
+            .resolution(8)
+            .seed(5)
+            .threads(threads)
+            .cache(CacheDir::Off)
+            .run()
+    };
+    for method in [
+        Method::Optimise,
+        Method::Patches,
+        Method::Coherent,
+        Method::Jump,
+    ] {
+        let one = run(ExampleSource::Btf(json.clone()), method, 1).unwrap();
+        let two = run(ExampleSource::Btf(json.clone()), method, 2).unwrap();
+        assert_eq!(
+            one.maps.channels, two.maps.channels,
+            "{method:?}: 1 vs 2 threads"
+        );
+        let info = one.report.appearance.reflectance.expect("reported");
+        assert_eq!((info.images, info.dims), (8, 8), "{method:?}");
+        assert!(info.kept_variance > 0.9, "{method:?}: {info:?}");
+    }
+    // One image: its reflectance is its colour, so the run is the plain example's.
+    let single = BtfSample::from_images(vec![s.images[3].clone()], vec![s.lights[3]]).unwrap();
+    let json1 = generate::write(&tmp.path().join("one"), &single, serde_json::json!({})).unwrap();
+    let btf = run(ExampleSource::Btf(json1.clone()), Method::Optimise, 2).unwrap();
+    let plain = run(
+        ExampleSource::from(BtfSample::load(&json1).unwrap().example()),
+        Method::Optimise,
+        2,
+    )
+    .unwrap();
+    let src = |m: &FaceMaps| {
+        (
+            m.channel("source.u").unwrap().to_vec(),
+            m.channel("source.v").unwrap().to_vec(),
+        )
+    };
+    assert_eq!(src(&btf.maps), src(&plain.maps));
+    let err = run(ExampleSource::Btf(json), Method::Multiscale, 2)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("--method textons"), "{err}");
+    assert!(!err.contains('\n'), "{err}");
+}
+
+/// Measurement, not a check (`--ignored`): every method over a BTF sample (`BTF_METHODS`,
+/// default all five), relit under lights 0 and L/4, against a plain synthesis of that
+/// light's image with the same method (textons: multiscale), on Spot and the double torus
+/// (seed `BTF_SEED`, default 1). The sample: `BTF_HEIGHT` (a grayscale texture of
+/// ../shared, default the krita relief) cropped to `BTF_SIZE` (64), `BTF_DEPTH` pixels deep
+/// (5), `BTF_LIGHTS` lights (32); N = `BTF_N` (32). docs/btf.md has the table.
+#[test]
+#[ignore]
+fn btf_methods_per_light_measured() {
+    let methods: Vec<String> = std::env::var("BTF_METHODS")
+        .unwrap_or_else(|_| "optimise,patches,coherent,jump,textons".into())
+        .split(',')
+        .map(|s| s.trim().to_string())
+        .collect();
+    let height =
+        std::env::var("BTF_HEIGHT").unwrap_or_else(|_| "textures/krita_bump_relief.png".into());
+    let size = common::env_or("BTF_SIZE", 64usize);
+    let depth = common::env_or("BTF_DEPTH", 5.0f32);
+    let lights = common::env_or("BTF_LIGHTS", 32usize);
+    let n = common::env_or("BTF_N", 32usize);
+    let seed = common::env_or("BTF_SEED", 1u64);
+    let tmp = tempfile::tempdir().unwrap();
+    let hf = HeightField::load(&data(&height), Some(size), depth).unwrap();
+    let (s, _) = generate::sample(&hf, &generate::light_directions(lights));
+    let json = generate::write(&tmp.path().join("sample"), &s, serde_json::json!({})).unwrap();
+    let sample = BtfSample::load(&json).unwrap();
+    let pair = [0, lights / 4];
+    let parse = |m: &str| match m {
+        "optimise" => Method::Optimise,
+        "patches" => Method::Patches,
+        "coherent" => Method::Coherent,
+        "jump" => Method::Jump,
+        "textons" => Method::Textons,
+        _ => panic!("unknown method {m}"),
+    };
+    for mesh in [SPOT, "meshes/double_torus_genus2.obj"] {
+        for m in &methods {
+            let method = parse(m);
+            let t0 = std::time::Instant::now();
+            let r = Synthesizer::new(data(mesh), ExampleSource::Btf(json.clone()))
+                .method(method)
+                .resolution(n)
+                .seed(seed)
+                .cache(CacheDir::Off)
+                .run()
+                .unwrap();
+            let secs = t0.elapsed().as_secs_f64();
+            let g = r.geometry_maps();
+            for &i in &pair {
+                let ex = sample.images[i].clone();
+                let plain_method = if method == Method::Textons {
+                    Method::Multiscale
+                } else {
+                    method
+                };
+                let p = Synthesizer::new(data(mesh), ex.clone())
+                    .method(plain_method)
+                    .resolution(n)
+                    .seed(seed)
+                    .cache(CacheDir::Off)
+                    .run()
+                    .unwrap();
+                let pp = surfsynth::eval::patch_fidelities(&p.maps, &g, &ex, Some(r.report.scale));
+                let pf = surfsynth::eval::patch_fidelities(
+                    &relit(&r.maps, &sample, i),
+                    &g,
+                    &ex,
+                    Some(r.report.scale),
+                );
+                let (p4, p8) = (pf.pf4.unwrap(), pf.pf8.unwrap());
+                let (q4, q8) = (pp.pf4.unwrap(), pp.pf8.unwrap());
+                println!(
+                    "{mesh} {m} light {i}: pf4 {p4:.3} pf8 {p8:.3} | plain {q4:.3} {q8:.3} | ratio pf4 {:.2} pf8 {:.2} | {secs:.1} s",
+                    p4 / q4,
+                    p8 / q8
+                );
             }
         }
     }

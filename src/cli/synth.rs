@@ -20,8 +20,9 @@ pub enum Method {
     Optimise,
     /// Jump maps: region growing, continuations and weighted jumps, no matching (002).
     Jump,
-    /// BTF synthesis with surface textons: every image of --btf at once (003; the default
-    /// with --btf).
+    /// BTF synthesis with surface textons: every image of --btf at once, multiscale over
+    /// textons (003). The other methods but multiscale take a BTF too, matching every image
+    /// in appearance space.
     Textons,
 }
 
@@ -115,7 +116,7 @@ pub struct SynthArgs {
     )]
     pub example: Option<PathBuf>,
     /// BTF sample: a btf.json naming images of one patch under several light directions
-    /// (docs/btf.md); synthesized with surface textons unless --method says otherwise.
+    /// (docs/btf.md); every image matched at once (one source per texel for all of them).
     #[arg(long, value_name = "B.json", conflicts_with_all = ["height", "maps"])]
     pub btf: Option<PathBuf>,
     /// Height example of the same size (grayscale, synthesized jointly; the same as
@@ -135,7 +136,7 @@ pub struct SynthArgs {
     /// (+Y down, Unreal).
     #[arg(long, value_enum, default_value_t = NormalConvention::Opengl)]
     pub normal_convention: NormalConvention,
-    /// Synthesis method (default: optimise; textons with --btf).
+    /// Synthesis method (default: optimise, also with --btf).
     #[arg(long, value_enum)]
     pub method: Option<Method>,
     /// What neighbourhoods are compared in: appearance space (pca) or raw channels (rgb).
@@ -296,13 +297,14 @@ fn parse_weight(s: &str, what: &str, max: f32) -> Result<f32, String> {
 
 pub fn run(mut a: SynthArgs) -> anyhow::Result<()> {
     // The handler lives in the library (surfsynth::synthesizer::run_command).
-    let chosen = a.method.unwrap_or(if a.btf.is_some() {
-        Method::Textons
-    } else {
-        Method::Optimise
-    });
+    let chosen = a.method.unwrap_or(Method::Optimise);
     if chosen == Method::Textons && a.btf.is_none() {
         return super::usage("--method textons needs a BTF sample: pass --btf B.json");
+    }
+    if chosen == Method::Multiscale && a.btf.is_some() {
+        return super::usage(
+            "--method multiscale matches one image: with --btf use --method textons (multiscale over every image) or optimise, patches, coherent, jump",
+        );
     }
     if a.search.is_some() && !matches!(chosen, Method::Multiscale | Method::Textons) {
         return super::usage(format!(

@@ -239,8 +239,10 @@ pub struct Settings {
     /// (not textons, whose BTF sample has its own analysis).
     pub feature_distance: f32,
     /// The BTF sample of a `--btf` run (images under several lights; the example is its
-    /// default image). Texton synthesis analyses every image; other methods use the
-    /// example only.
+    /// default image, which the outputs show). Every method finds one source per texel
+    /// for all its images: texton synthesis over its textons, optimise, patches, coherent
+    /// and jump over its reflectance vectors in appearance space
+    /// ([`matching::reflectance`]); multiscale refuses a sample.
     pub btf: Option<std::sync::Arc<crate::btf::BtfSample>>,
 }
 
@@ -341,7 +343,22 @@ pub fn synthesize(
     // from the sources they find ([`face_maps`]).
     let matched = settings.weights.matched(example);
     let example = &matched;
-    let weighted = weighted_image(example, &settings.weights);
+    // A BTF sample: the appearance-space methods compare pixels by their look under every
+    // image (`matching::reflectance`); multiscale's own pyramid sees one image, so over a
+    // sample it is texton synthesis.
+    let (weighted, reflectance) = match (&settings.btf, settings.method) {
+        (Some(sample), Method::Optimise | Method::Patches | Method::Coherent | Method::Jump) => {
+            let (img, info) =
+                matching::reflectance::reflectance(sample, matching::reflectance::DIMS);
+            (img, Some(info))
+        }
+        (Some(_), Method::Multiscale) => {
+            return Err(crate::Error::invalid(
+                "with a BTF sample, --method multiscale would match its default image only: use --method textons (multiscale over every image) or optimise, patches, coherent, jump (every image in appearance space)",
+            ));
+        }
+        _ => (weighted_image(example, &settings.weights), None),
+    };
     let mode = settings.appearance;
     let fd = settings.feature_distance;
     if !(fd.is_finite() && fd >= 0.0) {
@@ -474,6 +491,7 @@ pub fn synthesize(
     };
     out.map(|mut o| {
         o.appearance.feature_distance = fd;
+        o.appearance.reflectance = reflectance;
         o
     })
 }

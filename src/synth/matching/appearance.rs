@@ -69,6 +69,10 @@ pub struct AppearanceInfo {
     /// Weight of the feature-distance channel among the matched channels
     /// ([`super::feature_distance`], `--feature-distance`); 0: none.
     pub feature_distance: f32,
+    /// With a BTF sample, the reflectance vectors the neighbourhoods are made of
+    /// ([`super::reflectance`]); `None`: the example's weighted channels.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reflectance: Option<super::reflectance::ReflectanceInfo>,
 }
 
 /// An example level transformed to appearance space: `width x height` pixels of `dims`
@@ -93,6 +97,7 @@ impl Appearance {
                     window: 1,
                     kept_variance: 1.0,
                     feature_distance: 0.0,
+                    reflectance: None,
                 },
             },
             AppearanceMode::Pca => Self::pca(weighted, window, dims),
@@ -145,6 +150,7 @@ impl Appearance {
                 window,
                 kept_variance: pca.kept_variance(),
                 feature_distance: 0.0,
+                reflectance: None,
             },
         }
     }
@@ -164,6 +170,7 @@ impl crate::cache::Persist for Appearance {
             window: r.usize()?,
             kept_variance: r.f64()?,
             feature_distance: 0.0,
+            reflectance: None,
         };
         (info.dims == image.channels && image.data.iter().all(|v| v.is_finite()))
             .then_some(Self { image, info })

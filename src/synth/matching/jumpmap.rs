@@ -377,6 +377,7 @@ impl Persist for JumpMap {
             window: r.usize()?,
             kept_variance: r.f64()?,
             feature_distance: 0.0,
+            reflectance: None,
         };
         let stats = JumpMapStats {
             mean_jumps: r.f64()?,

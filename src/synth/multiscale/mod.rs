@@ -569,6 +569,7 @@ pub fn run_with(
                 window: 1,
                 kept_variance: 1.0,
                 feature_distance: 0.0,
+                reflectance: None,
             });
             Ok(Model {
                 model: ExampleModel::from_pyramid(pyramid, params.model)?,
@@ -1765,6 +1766,7 @@ impl crate::cache::Persist for Model {
             window: r.usize()?,
             kept_variance: r.f64()?,
             feature_distance: 0.0,
+            reflectance: None,
         };
         let n = r.usize_max(64)?;
         let mut levels = Vec::with_capacity(n);

@@ -134,6 +134,7 @@ pub fn run(
             window: 1,
             kept_variance: kept.first().copied().unwrap_or(1.0),
             feature_distance: 0.0,
+            reflectance: None,
         };
         analyses.try_get("texton-model", key.finish(), || {
             Ok(Model {
