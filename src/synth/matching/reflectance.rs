@@ -17,7 +17,7 @@
 //!
 //! A sample of one image is its RGB unchanged: the same matching as the plain example.
 
-use super::search::pca::Pca;
+use super::search::pca::{Pca, MAX_ROWS};
 use crate::btf::BtfSample;
 use crate::pyramid::Image;
 use rayon::prelude::*;
@@ -46,21 +46,21 @@ pub fn reflectance(sample: &BtfSample, dims: usize) -> (Image, ReflectanceInfo) 
     let c = 3 * l;
     // Each image weighted 1/L in squared distance: values scaled by 1/√L.
     let s = 1.0 / (l as f32).sqrt();
-    let mut full = vec![0.0f32; w * h * c];
-    full.par_chunks_mut(c).enumerate().for_each(|(p, v)| {
+    let vector = |p: usize, v: &mut [f32]| {
         for (i, im) in sample.images.iter().enumerate() {
             for k in 0..3 {
                 v[3 * i + k] = im.rgb[p][k] * s;
             }
         }
-    });
+    };
+    let n = w * h;
     if c <= dims {
-        let image = Image {
-            width: w,
-            height: h,
-            channels: c,
-            data: full,
-        };
+        let mut image = Image::new(w, h, c);
+        image
+            .data
+            .par_chunks_mut(c)
+            .enumerate()
+            .for_each(|(p, v)| vector(p, v));
         let info = ReflectanceInfo {
             images: l,
             dims: c,
@@ -68,13 +68,28 @@ pub fn reflectance(sample: &BtfSample, dims: usize) -> (Image, ReflectanceInfo) 
         };
         return (image, info);
     }
-    let pca = Pca::fit(&full, c, dims);
+    // The rows `Pca::fit` would pick (all, or MAX_ROWS evenly spaced), made alone: the
+    // vectors of every pixel are never held at once (3L floats a pixel: a sample of many
+    // images is already most of a run's memory).
+    let rows: Vec<usize> = if n <= MAX_ROWS {
+        (0..n).collect()
+    } else {
+        (0..MAX_ROWS).map(|i| i * n / MAX_ROWS).collect()
+    };
+    let mut fit = vec![0.0f32; rows.len() * c];
+    fit.par_chunks_mut(c)
+        .zip(&rows)
+        .for_each(|(v, &p)| vector(p, v));
+    let pca = Pca::fit(&fit, c, dims);
+    drop(fit);
     let mut image = Image::new(w, h, dims);
-    image
-        .data
-        .par_chunks_mut(dims)
-        .zip(full.par_chunks(c))
-        .for_each(|(o, v)| pca.project(v, o));
+    image.data.par_chunks_mut(dims).enumerate().for_each_init(
+        || vec![0.0f32; c],
+        |v, (p, o)| {
+            vector(p, v);
+            pca.project(v, o);
+        },
+    );
     let info = ReflectanceInfo {
         images: l,
         dims,
