@@ -129,8 +129,9 @@ pub fn bricks(out: &Path) -> anyhow::Result<()> {
     preview_and_eval(&dir)
 }
 
-/// Texels per side of the demo's BTF run (252 domains x 16² texels).
-pub const BTF_RESOLUTION: usize = 16;
+/// Texels per side of the demo's BTF run (252 domains x 32² texels: the gravel's; the
+/// default method over the sample takes a few seconds).
+pub const BTF_RESOLUTION: usize = 32;
 /// Lights of the demo's BTF sample.
 pub const BTF_LIGHTS: usize = 32;
 /// The two lights of the demo's BTF previews (world directions towards the light).
