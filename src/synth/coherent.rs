@@ -241,7 +241,19 @@ pub fn run<const K: usize>(
     // the texels at N = 128) are kept past their domain's task, not every texel's (issue 14
     // item 6, compact per-texel state). The values read are the same.
     let shared = shared_texels(inputs.graph);
-    let mut shared_feat = vec![[0.0f32; K]; shared.len()];
+    // Where each domain's shared texels start in `shared` (they are ascending, so a
+    // domain's are one run): a lookup searches only its domain's run.
+    let shared_start: Vec<u32> = (0..=faces)
+        .map(|d| {
+            let t = if d == faces { total } else { layout.start(d) };
+            shared.partition_point(|&s| (s as usize) < t) as u32
+        })
+        .collect();
+    let shared = Shared {
+        texels: &shared,
+        start: &shared_start,
+    };
+    let mut shared_feat = vec![[0.0f32; K]; shared.texels.len()];
     let mut done = vec![false; faces];
     let mut stats = Stats::default();
     let mut finished = 0;
@@ -250,16 +262,15 @@ pub fn run<const K: usize>(
     for wave in &schedule.waves {
         let results: Vec<DomainOut<K>> = wave
             .par_iter()
-            .map(|&d| synth_domain(&ctx, &src, (&shared, &shared_feat), &done, d as usize))
+            .map(|&d| synth_domain(&ctx, &src, (shared, &shared_feat), &done, d as usize))
             .collect();
         for (&d, r) in wave.iter().zip(results) {
             let d = d as usize;
             let range = layout.range(d);
             src[range.clone()].copy_from_slice(&r.src);
             kind[range.clone()].copy_from_slice(&r.kind);
-            let lo = shared.partition_point(|&t| (t as usize) < range.start);
-            let hi = shared.partition_point(|&t| (t as usize) < range.end);
-            for (k, &t) in (lo..hi).zip(&shared[lo..hi]) {
+            let (lo, hi) = (shared.start[d] as usize, shared.start[d + 1] as usize);
+            for (k, &t) in (lo..hi).zip(&shared.texels[lo..hi]) {
                 shared_feat[k] = r.feat[t as usize - range.start];
             }
             done[d] = true;
@@ -417,11 +428,31 @@ fn shared_texels(graph: &TexelGraph) -> Vec<u32> {
     all
 }
 
+/// The shared texels ([`shared_texels`]) and where each domain's run of them starts (one
+/// entry per domain + 1).
+#[derive(Clone, Copy)]
+struct Shared<'a> {
+    texels: &'a [u32],
+    start: &'a [u32],
+}
+
+impl Shared<'_> {
+    /// The index in `texels` of texel `j` of domain `d`.
+    #[inline]
+    fn index(&self, d: usize, j: u32) -> usize {
+        let lo = self.start[d] as usize;
+        let run = &self.texels[lo..self.start[d + 1] as usize];
+        lo + run
+            .binary_search(&j)
+            .expect("a neighbour in another domain is a shared texel")
+    }
+}
+
 /// `shared`: [`shared_texels`] and their features (filled as their domains finish).
 fn synth_domain<const K: usize>(
     c: &Ctx<'_, K>,
     src_g: &[[f32; 2]],
-    (shared, feat_g): (&[u32], &[[f32; K]]),
+    (shared, feat_g): (Shared<'_>, &[[f32; K]]),
     done_g: &[bool],
     d: usize,
 ) -> DomainOut<K> {
@@ -474,13 +505,11 @@ fn synth_domain<const K: usize>(
                 }
                 (out.src[lj], &out.feat[lj])
             } else {
-                if !done_g[geom.layout.domain_of(j)] {
+                let e = geom.layout.domain_of(j);
+                if !done_g[e] {
                     continue;
                 }
-                let k = shared
-                    .binary_search(&(j as u32))
-                    .expect("a neighbour in another domain is a shared texel");
-                (src_g[j], &feat_g[k])
+                (src_g[j], &feat_g[shared.index(e, j as u32)])
             };
             let dp = geom.pos[j] - p;
             let e = [dp.dot(v1) * inv_scale, -dp.dot(v2) * inv_scale];
