@@ -406,26 +406,42 @@ fn front_order<const K: usize>(c: &Ctx<'_, K>, done_g: &[bool], d: usize) -> Opt
 /// named by a border list outside their own domain (interior texels' neighbours are all
 /// in their domain).
 fn shared_texels(graph: &TexelGraph) -> Vec<u32> {
+    use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
+    // A bit per texel, set by every domain for the texels its lists name outside it: a
+    // set, so the order the domains run in does not matter. Most texels are named many
+    // times; a load first skips the write for those already set.
     let l = &graph.layout;
-    let per: Vec<Vec<u32>> = (0..l.faces())
-        .into_par_iter()
-        .map(|d| {
-            let r = l.range(d);
-            let mut v: Vec<u32> = r
-                .clone()
-                .flat_map(|t| graph.border_list(t))
-                .copied()
-                .filter(|&j| !r.contains(&(j as usize)))
-                .collect();
-            v.sort_unstable();
-            v.dedup();
-            v
-        })
+    let bits: Vec<AtomicU64> = (0..l.len().div_ceil(64))
+        .map(|_| AtomicU64::new(0))
         .collect();
-    let mut all: Vec<u32> = per.into_iter().flatten().collect();
-    all.par_sort_unstable();
-    all.dedup();
-    all
+    (0..l.faces()).into_par_iter().for_each(|d| {
+        let r = l.range(d);
+        for t in r.clone() {
+            for &j in graph.border_list(t) {
+                let j = j as usize;
+                if r.contains(&j) {
+                    continue;
+                }
+                let (w, m) = (&bits[j / 64], 1u64 << (j % 64));
+                if w.load(Relaxed) & m == 0 {
+                    w.fetch_or(m, Relaxed);
+                }
+            }
+        }
+    });
+    bits.par_iter()
+        .enumerate()
+        .flat_map_iter(|(w, b)| {
+            let mut x = b.load(Relaxed);
+            std::iter::from_fn(move || {
+                (x != 0).then(|| {
+                    let i = x.trailing_zeros();
+                    x &= x - 1;
+                    (w * 64) as u32 + i
+                })
+            })
+        })
+        .collect()
 }
 
 /// The shared texels ([`shared_texels`]) and where each domain's run of them starts (one
