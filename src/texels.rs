@@ -467,43 +467,69 @@ pub struct TexelGraph {
 impl TexelGraph {
     /// Builds the graph (in parallel per domain; the result does not depend on the number
     /// of threads).
+    ///
+    /// In blocks of domains (~2^18 texels each): a block's lists are made in parallel and
+    /// copied in parallel onto the end of the joined list, then dropped, so the lists are
+    /// held twice only one block at a time. Making every domain's lists first and joining
+    /// them after held them twice in full (bunny N = 16: ~230 MB more at the set-up's
+    /// peak). The list grows by reallocation, which moves no bytes for an allocation this
+    /// large (glibc remaps it).
     pub fn build(surface: &Surface, geom: &TexelGeometry) -> Self {
+        const BLOCK_TEXELS: usize = 1 << 18;
         let layout = geom.layout.clone();
         let faces = layout.faces();
         assert_eq!(faces, surface.num_domains());
-        let per_domain: Vec<(Vec<u32>, Vec<u32>)> = (0..faces)
-            .into_par_iter()
-            .map(|d| domain_lists(surface, geom, d))
-            .collect();
-        let total: usize = per_domain.iter().map(|(_, l)| l.len()).sum();
-        assert!(
-            total < u32::MAX as usize,
-            "texel graph larger than 2^32 entries"
-        );
-        // Joined in parallel, each domain's part written in place from its offsets: the
-        // lists are ~40 B per texel at N = 16, and joining them on one thread was a serial
-        // stretch of ~0.5 s on the bunny (5 M texels).
         let mut start = vec![0u32; layout.len() + 1];
-        let mut list = vec![0u32; total];
-        let mut parts = Vec::with_capacity(faces);
-        let (mut start_rest, mut list_rest) = (&mut start[1..], &mut list[..]);
-        let mut base = 0u32;
-        for (counts, l) in &per_domain {
-            let (s, sr) = std::mem::take(&mut start_rest).split_at_mut(counts.len());
-            let (o, lr) = std::mem::take(&mut list_rest).split_at_mut(l.len());
-            (start_rest, list_rest) = (sr, lr);
-            parts.push((s, o, counts, l, base));
-            base += l.len() as u32;
-        }
-        parts.into_par_iter().for_each(|(s, o, counts, l, base)| {
-            let mut last = base;
-            for (out, c) in s.iter_mut().zip(counts) {
-                last += c;
-                *out = last;
+        let mut list: Vec<u32> = Vec::new();
+        let mut starts_rest = &mut start[1..];
+        let mut d0 = 0;
+        while d0 < faces {
+            let mut d1 = d0;
+            let mut texels = 0;
+            while d1 < faces && (d1 == d0 || texels + layout.count(d1) <= BLOCK_TEXELS) {
+                texels += layout.count(d1);
+                d1 += 1;
             }
-            o.copy_from_slice(l);
-        });
-        drop(per_domain);
+            let per_domain: Vec<(Vec<u32>, Vec<u32>)> = (d0..d1)
+                .into_par_iter()
+                .map(|d| domain_lists(surface, geom, d))
+                .collect();
+            let block: usize = per_domain.iter().map(|(_, l)| l.len()).sum();
+            assert!(
+                list.len() + block < u32::MAX as usize,
+                "texel graph larger than 2^32 entries"
+            );
+            list.reserve(block);
+            // Each domain's part written in place from its offsets, in parallel: joining
+            // the lists (~40 B per texel at N = 16) on one thread was a serial stretch of
+            // ~0.5 s on the bunny (5 M texels).
+            let mut parts = Vec::with_capacity(d1 - d0);
+            let mut base = list.len() as u32;
+            let mut spare = &mut list.spare_capacity_mut()[..block];
+            for (counts, l) in &per_domain {
+                let (st, sr) = std::mem::take(&mut starts_rest).split_at_mut(counts.len());
+                let (o, lr) = std::mem::take(&mut spare).split_at_mut(l.len());
+                (starts_rest, spare) = (sr, lr);
+                parts.push((st, o, counts, l, base));
+                base += l.len() as u32;
+            }
+            parts.into_par_iter().for_each(|(st, o, counts, l, base)| {
+                let mut last = base;
+                for (out, c) in st.iter_mut().zip(counts) {
+                    last += c;
+                    *out = last;
+                }
+                for (o, &v) in o.iter_mut().zip(l) {
+                    o.write(v);
+                }
+            });
+            // SAFETY: the parts cover the block's `block` spare slots after `len` (their
+            // lengths sum to it) and each was written in full (`o` and `l` have the same
+            // length), within the capacity reserved above.
+            unsafe { list.set_len(list.len() + block) };
+            d0 = d1;
+        }
+        list.shrink_to_fit();
         Self {
             layout,
             start,
@@ -564,14 +590,18 @@ impl TexelGraph {
             .into_par_iter()
             .map(|d| {
                 let r = l.range(d);
-                let mut v: Vec<u32> = self.list
-                    [self.start[r.start] as usize..self.start[r.end] as usize]
-                    .iter()
-                    .map(|&t| l.domain_of(t as usize) as u32)
-                    .filter(|&e| e as usize != d)
-                    .collect();
+                // A domain names a handful of others, in runs: a linear set beats sorting
+                // its ~10 entries per border texel.
+                let mut v: Vec<u32> = Vec::with_capacity(16);
+                let mut last = d as u32;
+                for &t in &self.list[self.start[r.start] as usize..self.start[r.end] as usize] {
+                    let e = l.domain_of(t as usize) as u32;
+                    if e != last && e as usize != d && !v.contains(&e) {
+                        v.push(e);
+                    }
+                    last = e;
+                }
                 v.sort_unstable();
-                v.dedup();
                 v
             })
             .collect();
@@ -834,9 +864,11 @@ fn domain_lists(surface: &Surface, geom: &TexelGeometry, d: usize) -> (Vec<u32>,
     let (iu, iv) = (1.0 / nu as f64, 1.0 / nv as f64);
     let fans: [Vec<(usize, usize)>; 4] = std::array::from_fn(|c| corner_fan(surface, d, c));
     let mut counts = vec![0u32; nu * nv];
-    let mut list = Vec::new();
+    // ~24 neighbours per border texel (a few more at corners).
+    let border = nu * nv - nu.saturating_sub(4) * nv.saturating_sub(4);
+    let mut list = Vec::with_capacity(border * 25);
     let mut buf: Vec<u32> = Vec::with_capacity(64);
-    let mut keyed: Vec<(f32, u32)> = Vec::with_capacity(64);
+    let mut keyed: Vec<u64> = Vec::with_capacity(64);
     for y in 0..nv {
         for x in 0..nu {
             if TexelGraph::is_interior(nu, nv, x, y) {
@@ -882,18 +914,18 @@ fn domain_lists(surface: &Surface, geom: &TexelGeometry, d: usize) -> (Vec<u32>,
             // Nearest first, ties by index, each neighbour once: a repeated index has the
             // same key, so the repeats end up side by side and are dropped after the one
             // sort; the kept keys are distinct (the indices are), so any sort gives this
-            // one order.
+            // one order. The key is one u64, the distance's `total_key` above the index:
+            // its integer order is (distance by `f32::total_cmp`, index).
             let p = geom.pos[t];
             keyed.clear();
-            keyed.extend(
-                buf.iter()
-                    .filter(|&&u| u as usize != t)
-                    .map(|&u| (p.distance_squared(geom.pos[u as usize]), u)),
-            );
-            keyed.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-            keyed.dedup_by_key(|k| k.1);
+            keyed.extend(buf.iter().filter(|&&u| u as usize != t).map(|&u| {
+                let d2 = p.distance_squared(geom.pos[u as usize]);
+                (total_key(d2) as u64) << 32 | u as u64
+            }));
+            keyed.sort_unstable();
+            keyed.dedup();
             counts[y * nu + x] = keyed.len() as u32;
-            list.extend(keyed.iter().map(|&(_, u)| u));
+            list.extend(keyed.iter().map(|&k| k as u32));
         }
     }
     (counts, list)

@@ -198,6 +198,8 @@ struct Ctx<'a, const K: usize> {
     inp: Inputs<'a>,
     params: &'a CoherentParams,
     inv_scale: f32,
+    /// Whether the candidates are measured by [`measure8_avx2`] (8 values, AVX2 present).
+    avx2: bool,
     /// Valid candidate centres: [lo, hi] per axis.
     lo: f32,
     hi_x: f32,
@@ -229,6 +231,7 @@ pub fn run<const K: usize>(
         inp: inputs,
         params,
         inv_scale: (1.0 / inputs.scale) as f32,
+        avx2: has_avx2() && K == 8,
         lo: 0.5,
         hi_x: features.width as f32 - 0.5,
         hi_y: features.height as f32 - 0.5,
@@ -241,7 +244,19 @@ pub fn run<const K: usize>(
     // the texels at N = 128) are kept past their domain's task, not every texel's (issue 14
     // item 6, compact per-texel state). The values read are the same.
     let shared = shared_texels(inputs.graph);
-    let mut shared_feat = vec![[0.0f32; K]; shared.len()];
+    // Where each domain's shared texels start in `shared` (they are ascending, so a
+    // domain's are one run): a lookup searches only its domain's run.
+    let shared_start: Vec<u32> = (0..=faces)
+        .map(|d| {
+            let t = if d == faces { total } else { layout.start(d) };
+            shared.partition_point(|&s| (s as usize) < t) as u32
+        })
+        .collect();
+    let shared = Shared {
+        texels: &shared,
+        start: &shared_start,
+    };
+    let mut shared_feat = vec![[0.0f32; K]; shared.texels.len()];
     let mut done = vec![false; faces];
     let mut stats = Stats::default();
     let mut finished = 0;
@@ -250,16 +265,15 @@ pub fn run<const K: usize>(
     for wave in &schedule.waves {
         let results: Vec<DomainOut<K>> = wave
             .par_iter()
-            .map(|&d| synth_domain(&ctx, &src, (&shared, &shared_feat), &done, d as usize))
+            .map(|&d| synth_domain(&ctx, &src, (shared, &shared_feat), &done, d as usize))
             .collect();
         for (&d, r) in wave.iter().zip(results) {
             let d = d as usize;
             let range = layout.range(d);
             src[range.clone()].copy_from_slice(&r.src);
             kind[range.clone()].copy_from_slice(&r.kind);
-            let lo = shared.partition_point(|&t| (t as usize) < range.start);
-            let hi = shared.partition_point(|&t| (t as usize) < range.end);
-            for (k, &t) in (lo..hi).zip(&shared[lo..hi]) {
+            let (lo, hi) = (shared.start[d] as usize, shared.start[d + 1] as usize);
+            for (k, &t) in (lo..hi).zip(&shared.texels[lo..hi]) {
                 shared_feat[k] = r.feat[t as usize - range.start];
             }
             done[d] = true;
@@ -395,33 +409,69 @@ fn front_order<const K: usize>(c: &Ctx<'_, K>, done_g: &[bool], d: usize) -> Opt
 /// named by a border list outside their own domain (interior texels' neighbours are all
 /// in their domain).
 fn shared_texels(graph: &TexelGraph) -> Vec<u32> {
+    use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
+    // A bit per texel, set by every domain for the texels its lists name outside it: a
+    // set, so the order the domains run in does not matter. Most texels are named many
+    // times; a load first skips the write for those already set.
     let l = &graph.layout;
-    let per: Vec<Vec<u32>> = (0..l.faces())
-        .into_par_iter()
-        .map(|d| {
-            let r = l.range(d);
-            let mut v: Vec<u32> = r
-                .clone()
-                .flat_map(|t| graph.border_list(t))
-                .copied()
-                .filter(|&j| !r.contains(&(j as usize)))
-                .collect();
-            v.sort_unstable();
-            v.dedup();
-            v
-        })
+    let bits: Vec<AtomicU64> = (0..l.len().div_ceil(64))
+        .map(|_| AtomicU64::new(0))
         .collect();
-    let mut all: Vec<u32> = per.into_iter().flatten().collect();
-    all.par_sort_unstable();
-    all.dedup();
-    all
+    (0..l.faces()).into_par_iter().for_each(|d| {
+        let r = l.range(d);
+        for t in r.clone() {
+            for &j in graph.border_list(t) {
+                let j = j as usize;
+                if r.contains(&j) {
+                    continue;
+                }
+                let (w, m) = (&bits[j / 64], 1u64 << (j % 64));
+                if w.load(Relaxed) & m == 0 {
+                    w.fetch_or(m, Relaxed);
+                }
+            }
+        }
+    });
+    bits.par_iter()
+        .enumerate()
+        .flat_map_iter(|(w, b)| {
+            let mut x = b.load(Relaxed);
+            std::iter::from_fn(move || {
+                (x != 0).then(|| {
+                    let i = x.trailing_zeros();
+                    x &= x - 1;
+                    (w * 64) as u32 + i
+                })
+            })
+        })
+        .collect()
+}
+
+/// The shared texels ([`shared_texels`]) and where each domain's run of them starts (one
+/// entry per domain + 1).
+#[derive(Clone, Copy)]
+struct Shared<'a> {
+    texels: &'a [u32],
+    start: &'a [u32],
+}
+
+impl Shared<'_> {
+    /// The index in `texels` of texel `j` of domain `d`.
+    #[inline]
+    fn index(&self, d: usize, j: u32) -> usize {
+        let lo = self.start[d] as usize;
+        let run = &self.texels[lo..self.start[d + 1] as usize];
+        lo + run
+            .binary_search(&j)
+            .expect("a neighbour in another domain is a shared texel")
+    }
 }
 
 /// `shared`: [`shared_texels`] and their features (filled as their domains finish).
 fn synth_domain<const K: usize>(
     c: &Ctx<'_, K>,
     src_g: &[[f32; 2]],
-    (shared, feat_g): (&[u32], &[[f32; K]]),
+    (shared, feat_g): (Shared<'_>, &[[f32; K]]),
     done_g: &[bool],
     d: usize,
 ) -> DomainOut<K> {
@@ -474,13 +524,11 @@ fn synth_domain<const K: usize>(
                 }
                 (out.src[lj], &out.feat[lj])
             } else {
-                if !done_g[geom.layout.domain_of(j)] {
+                let e = geom.layout.domain_of(j);
+                if !done_g[e] {
                     continue;
                 }
-                let k = shared
-                    .binary_search(&(j as u32))
-                    .expect("a neighbour in another domain is a shared texel");
-                (src_g[j], &feat_g[k])
+                (src_g[j], &feat_g[shared.index(e, j as u32)])
             };
             let dp = geom.pos[j] - p;
             let e = [dp.dot(v1) * inv_scale, -dp.dot(v2) * inv_scale];
@@ -521,13 +569,7 @@ fn synth_domain<const K: usize>(
             let mut best = f32::INFINITY;
             let mut bi = 0;
             for (ci, q) in cands.iter().enumerate() {
-                let mut sum = 0.0f32;
-                for (e, f) in es.iter().zip(&fs) {
-                    sum += dist2(&c.feat.sample(q[0] + e[0], q[1] + e[1]), f);
-                    if sum >= best {
-                        break;
-                    }
-                }
+                let sum = measure(c, &es, &fs, *q, best);
                 if sum < best {
                     best = sum;
                     bi = ci;
@@ -549,9 +591,159 @@ fn synth_domain<const K: usize>(
     out
 }
 
+fn has_avx2() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx2")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// The distance of candidate `q` (step 4): the sum over the neighbours in order of
+/// [`dist2`] between the example sampled at `q + e_i` and the neighbour's feature `f_i` —
+/// exactly, or some partial sum once it reaches `best` (the candidate then loses: the
+/// terms are not negative, so the whole sum would not be below `best` either, and which
+/// partial sum is returned decides nothing).
+#[inline]
+fn measure<const K: usize>(
+    c: &Ctx<'_, K>,
+    es: &[[f32; 2]],
+    fs: &[[f32; K]],
+    q: [f32; 2],
+    best: f32,
+) -> f32 {
+    #[cfg(target_arch = "x86_64")]
+    if c.avx2 {
+        // SAFETY: `c.avx2` is set only when AVX2 is present and K == 8.
+        return unsafe { measure8_avx2(c.feat, es, fs.as_flattened(), q, best) };
+    }
+    measure_scalar(c.feat, es, fs, q, best)
+}
+
+/// [`measure`] one neighbour at a time, cut as soon as the sum reaches `best`.
+#[inline]
+fn measure_scalar<const K: usize>(
+    feat: &Features<K>,
+    es: &[[f32; 2]],
+    fs: &[[f32; K]],
+    q: [f32; 2],
+    best: f32,
+) -> f32 {
+    let mut sum = 0.0f32;
+    for (e, f) in es.iter().zip(fs) {
+        sum += dist2(&feat.sample(q[0] + e[0], q[1] + e[1]), f);
+        if sum >= best {
+            break;
+        }
+    }
+    sum
+}
+
+/// [`measure`] for 8 values per pixel, eight neighbours side by side: each neighbour's
+/// bilinear lookup is [`Features::sample`]'s (taps and weights from [`Features::taps`],
+/// the same arithmetic per value, no fused multiply-add), its eight squared differences
+/// summed in [`dist2`]'s order by the transposed lane sum (`patches::dist2_lanes`), and the
+/// neighbours' distances added to the sum one by one in their order: the scalar sum bit
+/// for bit. The test for `best` comes after every eight neighbours instead of every one
+/// (a later cut, the same winner; see [`measure`]). `fs` holds 8 values per neighbour.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn measure8_avx2<const K: usize>(
+    f: &Features<K>,
+    es: &[[f32; 2]],
+    fs: &[f32],
+    q: [f32; 2],
+    best: f32,
+) -> f32 {
+    use std::arch::x86_64::*;
+    let flat = f.flat();
+    let load = |i: usize| _mm256_loadu_ps(flat[i * 8..i * 8 + 8].as_ptr());
+    let n = es.len();
+    let mut sum = 0.0f32;
+    let mut sq = [_mm256_setzero_ps(); 8];
+    let mut d2 = [0.0f32; 8];
+    let mut g = 0;
+    while g < n {
+        let m = (n - g).min(8);
+        for (j, s) in sq.iter_mut().enumerate() {
+            // Unused lanes repeat the group's last neighbour.
+            let i = g + j.min(m - 1);
+            let e = es[i];
+            let ([a, b, c, d], tx, ty) = f.taps(q[0] + e[0], q[1] + e[1]);
+            let (a, b, c, d) = (load(a), load(b), load(c), load(d));
+            let txv = _mm256_set1_ps(tx);
+            let top = _mm256_add_ps(a, _mm256_mul_ps(txv, _mm256_sub_ps(b, a)));
+            let bot = _mm256_add_ps(c, _mm256_mul_ps(txv, _mm256_sub_ps(d, c)));
+            let v = _mm256_add_ps(
+                top,
+                _mm256_mul_ps(_mm256_set1_ps(ty), _mm256_sub_ps(bot, top)),
+            );
+            let dv = _mm256_sub_ps(v, _mm256_loadu_ps(fs[i * 8..i * 8 + 8].as_ptr()));
+            *s = _mm256_mul_ps(dv, dv);
+        }
+        _mm256_storeu_ps(d2.as_mut_ptr(), super::patches::dist2_lanes(&sq));
+        for &x in &d2[..m] {
+            sum += x;
+        }
+        if sum >= best {
+            break;
+        }
+        g += m;
+    }
+    sum
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The AVX2 kernel's sum is the scalar one bit for bit when not cut, and both reach
+    /// `best` when either is cut (so the same candidate wins), for any neighbour count,
+    /// positions inside, on and beyond the example's border.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn measure8_avx2_is_the_scalar_sum() {
+        if !has_avx2() {
+            return;
+        }
+        let mut img = crate::pyramid::Image::new(13, 9, 8);
+        for (i, v) in img.data.iter_mut().enumerate() {
+            *v = ((i * 7919) % 101) as f32 * 0.0173 - 0.6;
+        }
+        let f = Features::<8>::from_image(&img);
+        for n in 0..27usize {
+            let es: Vec<[f32; 2]> = (0..n)
+                .map(|i| {
+                    let (a, b) = random2(3, i as u64, n as u64);
+                    [a * 9.0 - 4.5, b * 9.0 - 4.5]
+                })
+                .collect();
+            let fs: Vec<[f32; 8]> = (0..n)
+                .map(|i| std::array::from_fn(|k| ((i * 31 + k * 17) % 23) as f32 * 0.05 - 0.3))
+                .collect();
+            for (k, q) in [[6.3f32, 4.1f32], [0.5, 0.5], [12.9, 8.2], [-1.0, 3.0]]
+                .into_iter()
+                .enumerate()
+            {
+                let full = measure_scalar(&f, &es, &fs, q, f32::INFINITY);
+                // SAFETY: AVX2 is present (checked above).
+                let v = unsafe { measure8_avx2(&f, &es, fs.as_flattened(), q, f32::INFINITY) };
+                assert_eq!(v.to_bits(), full.to_bits(), "n {n} q {k}");
+                for best in [full * 0.3, full * 0.9, full, full * 1.1] {
+                    let s = measure_scalar(&f, &es, &fs, q, best);
+                    // SAFETY: as above.
+                    let v = unsafe { measure8_avx2(&f, &es, fs.as_flattened(), q, best) };
+                    assert_eq!(s < best, v < best, "n {n} q {k} best {best}");
+                    if s < best {
+                        assert_eq!(v.to_bits(), s.to_bits());
+                    }
+                }
+            }
+        }
+    }
 
     #[test]
     fn random2_is_uniform_and_counter_based() {

@@ -915,7 +915,7 @@ unsafe fn measure8_avx2<const K: usize>(
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[inline]
-unsafe fn dist2_lanes(sq: &[std::arch::x86_64::__m256; 8]) -> std::arch::x86_64::__m256 {
+pub(super) unsafe fn dist2_lanes(sq: &[std::arch::x86_64::__m256; 8]) -> std::arch::x86_64::__m256 {
     use std::arch::x86_64::_mm256_add_ps;
     let tr = super::matching::search::transpose8(sq);
     let mut d2 = tr[0];

@@ -461,7 +461,13 @@ impl Session {
         // On a uniform layout the early frames do not evaluate the surface again: the
         // geometry pass keeps the exact normals in the frames' array, and the frames are
         // made from them where the field's branch and the texel side meet (`FrameMeet`).
-        let meet = (early && early_frames && layout.uniform_n().is_some())
+        // Coherent synthesis meets there too (its frames were the second evaluation,
+        // after the join: ~8% of a bunny run's CPU); the slots, the frames' own array, are
+        // then held beside its texel graph's making, whose lists are built in blocks to
+        // leave room for them (docs/benchmarks.md, "The bunny's coherent run, sixth
+        // session").
+        let meet_frames = early_frames || method == Some(Method::Coherent);
+        let meet = (early && meet_frames && layout.uniform_n().is_some())
             .then(|| FrameMeet::new(&surface));
         let (early_field, texel_side) = rayon::join(
             || {
