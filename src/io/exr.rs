@@ -530,12 +530,15 @@ where
     let tile_bytes = names.len() * tw * th * 4;
     let threads = rayon::current_num_threads().max(1);
     // Two batches are in flight (one being written, one being computed).
-    let batch = (batch_bytes / tile_bytes.max(1))
-        .clamp(threads, 4096)
-        .max(1);
+    let batch_of = |bytes: usize| (bytes / tile_bytes.max(1)).clamp(threads, 4096).max(1);
+    let batch = batch_of(batch_bytes);
     let total = layout.tile_count();
 
     if compression == Compression::Uncompressed && cfg!(target_endian = "little") && !via_crate {
+        // A quarter of the batch: the two buffers are fresh memory held for the whole
+        // file (two files at once at the end of `synth`), where the crate's vectors of
+        // small tiles were reused from memory the allocator already held.
+        let batch = batch_of(batch_bytes / 4);
         return write_uncompressed_tiles(path, &headers, &layout, &order, batch, fill, progress);
     }
 
