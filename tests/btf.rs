@@ -570,6 +570,16 @@ fn methods_over_a_btf_are_deterministic_and_one_image_is_the_plain_example() {
         assert_eq!((info.images, info.dims), (8, 8), "{method:?}");
         assert!(info.kept_variance > 0.9, "{method:?}: {info:?}");
     }
+    // `--appearance rgb` compares the leading 5 values of the reflectance vectors.
+    let rgb = Synthesizer::new(data(SPOT), ExampleSource::Btf(json.clone()))
+        .method(Method::Optimise)
+        .appearance(surfsynth::synthesizer::AppearanceMode::Rgb)
+        .resolution(8)
+        .seed(5)
+        .cache(CacheDir::Off)
+        .run()
+        .unwrap();
+    assert_eq!(rgb.report.appearance.reflectance.map(|r| r.dims), Some(5));
     // One image: its reflectance is its colour, so the run is the plain example's.
     let single = BtfSample::from_images(vec![s.images[3].clone()], vec![s.lights[3]]).unwrap();
     let json1 = generate::write(&tmp.path().join("one"), &single, serde_json::json!({})).unwrap();

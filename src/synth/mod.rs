@@ -348,8 +348,12 @@ pub fn synthesize(
     // sample it is texton synthesis.
     let (weighted, reflectance) = match (&settings.btf, settings.method) {
         (Some(sample), Method::Optimise | Method::Patches | Method::Coherent | Method::Jump) => {
-            let (img, info) =
-                matching::reflectance::reflectance(sample, matching::reflectance::DIMS);
+            // `--appearance rgb` compares the values themselves, at most 5 of them.
+            let dims = match settings.appearance {
+                AppearanceMode::Pca => matching::reflectance::DIMS,
+                AppearanceMode::Rgb => 5,
+            };
+            let (img, info) = matching::reflectance::reflectance(sample, dims);
             (img, Some(info))
         }
         (Some(_), Method::Multiscale) => {
