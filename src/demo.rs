@@ -148,7 +148,7 @@ pub const BTF_PREVIEW_LIGHTS: [(&str, [f64; 3]); 2] = [
 pub fn btf(out: &Path) -> anyhow::Result<()> {
     use crate::btf::generate;
     let inputs = out.join("inputs");
-    let hf = generate::HeightField::bumps(64, 6.0, SEED);
+    let hf = generate::HeightField::bumps(128, 6.0, SEED);
     let (sample, _) = generate::sample(&hf, &generate::light_directions(BTF_LIGHTS));
     let json = generate::write(
         &inputs.join("btf"),
