@@ -63,7 +63,7 @@ pub use choice::{bent_fraction, level_fraction, Choice, Why};
 
 /// Example pixels over which `straight` wants the field straight: half the extent of BRIEF's
 /// pf8 window (7 samples 8 px apart plus the discs), so a window centred anywhere sees rows
-/// bend by at most [`choice::TURN`] on either side.
+/// bend by at most `choice::TURN` on either side.
 pub const STRUCTURE_PIXELS: f64 = 28.0;
 
 /// How the field is chosen.

@@ -301,7 +301,7 @@ pub fn write(dir: &Path, sample: &BtfSample, source: serde_json::Value) -> Resul
 
 /// `surfsynth bench btf-sample`: the height field of `height` (or [`HeightField::bumps`]),
 /// `size`² pixels, `depth` pixels deep, under [`light_directions`]`(lights)`, written into
-/// `out` by [`write`].
+/// `out` by [`write()`].
 pub fn write_sample_cli(
     height: Option<&Path>,
     lights: usize,

@@ -648,7 +648,7 @@ pub(crate) struct BankCore {
 /// each) 17.9 s, 30.0 s and 6.7 s.
 const MAX_SAVED_BANK: usize = 256 << 20;
 
-/// Cache kind of [`BankCore`].
+/// Cache kind of `BankCore`.
 pub const BANK_KIND: &str = "pf-bank";
 /// Bump when [`BankCore::compute`] changes what it computes (2: the blocks saved in
 /// [`coherent_order`], with their slots).

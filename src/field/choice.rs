@@ -78,12 +78,12 @@ pub enum Why {
         length: f64,
     },
     /// `upright`: the share of the surface's area that is level against the axis
-    /// (normal within [`LEVEL_ANGLE_DEG`] of it).
+    /// (normal within `LEVEL_ANGLE_DEG` of it).
     Level { fraction: f64 },
 }
 
 /// Fraction of (sampled) vertices of `field`'s limit mesh where the field turns by more
-/// than [`TURN`] over `length` (module doc).
+/// than `TURN` over `length` (module doc).
 pub fn bent_fraction(field: &OrientationField, length: f64) -> f64 {
     let lm = field.limit_mesh();
     let v1 = field.vertex_v1();
@@ -180,7 +180,7 @@ pub const LEVEL_ANGLE_DEG: f64 = 30.0;
 /// `upright` keeps `up` while at most this share of the surface's area is level.
 pub const LEVEL_SHARE_MAX: f64 = 0.5;
 
-/// Share of the surface's area whose normal lies within [`LEVEL_ANGLE_DEG`] of `axis` (either
+/// Share of the surface's area whose normal lies within `LEVEL_ANGLE_DEG` of `axis` (either
 /// way: floors and ceilings), on the limit mesh of `level`: each face weighs its area,
 /// level when the mean of its corners' limit normals is.
 pub fn level_fraction(surface: &Surface, axis: DVec3, level: u32) -> f64 {

@@ -4,7 +4,7 @@
 //! temporary `DIR/.NAME.tmp-PID` beside the target, are flushed and fsynced, and only then
 //! renamed to `DIR/NAME`. Inside a transaction's staging folder ([`crate::io::txn`]) the
 //! fsync runs on a background thread instead and the transaction waits for all of them
-//! before anything becomes visible ([`defer_syncs_in`]): the writer goes on with the next
+//! before anything becomes visible (`defer_syncs_in`): the writer goes on with the next
 //! file while the kernel flushes this one. A reader (a renderer, a DCC tool watching the
 //! directory, our own `render`) therefore never sees a half-written file, a crash or error
 //! leaves the previous version intact, and an error removes the temporary (via `Drop`,

@@ -26,8 +26,8 @@ const ALIGN: usize = 4096;
 /// byte, small enough to stay in cache.
 const CAPACITY: usize = 8 << 20;
 
-/// A `Write + Seek` writer of one newly created file, writing through [`ALIGN`]-aligned
-/// blocks of [`CAPACITY`] bytes.
+/// A `Write + Seek` writer of one newly created file, writing through `ALIGN`-aligned
+/// blocks of `CAPACITY` bytes.
 #[derive(Debug)]
 pub struct DirectWriter {
     /// The file opened the ordinary way (unaligned writes, read-backs, fsync).
@@ -47,7 +47,7 @@ pub struct DirectWriter {
 impl DirectWriter {
     /// Wraps `plain`, a file just created (empty) at `path`, opening `path` a second time
     /// for direct writes where possible. `capacity` is rounded up to a multiple of
-    /// [`ALIGN`] (tests use small ones).
+    /// `ALIGN` (tests use small ones).
     pub fn new(plain: File, path: &Path) -> Self {
         Self::with_capacity(plain, open_direct(path), CAPACITY)
     }

@@ -7,7 +7,7 @@
 //!
 //! - everything that would be *partial* if the process stopped now — temporary files
 //!   ([`crate::io::atomic::AtomicFile`]), staging folders ([`crate::io::txn::OutputTxn`]),
-//!   parent folders a run created, scratch folders of benchmarks — is [`register`]ed while
+//!   parent folders a run created, scratch folders of benchmarks — is `register`ed while
 //!   it exists;
 //! - [`install`] (called first thing by the command line) starts one thread that waits for
 //!   the signals (signal-hook's self-pipe iterator: nothing runs inside the signal handler

@@ -14,7 +14,7 @@
 //!    (`PARENT/.NAME.surfsynth-staging-PID`), creating missing parents (which are removed
 //!    again if the run fails).
 //! 2. Writers write the whole result into [`OutputTxn::dir`], each file atomically; the
-//!    fsyncs run in the background ([`crate::io::atomic::defer_syncs_in`]) and the commit
+//!    fsyncs run in the background (`crate::io::atomic::defer_syncs_in`) and the commit
 //!    waits for them first.
 //! 3. [`OutputTxn::commit`] moves them into place. A new `--out` is the staging folder
 //!    renamed (one atomic step). An existing one is swapped file by file, with the previous

@@ -91,7 +91,7 @@ pub struct JumpParams {
     /// Texture blending across breaks (002 §4.4, "All results use texture blending";
     /// [`super::blend`]): each neighbour's continuation into a texel weighs this much
     /// against the texel's own source's 1 (a cross neighbour's twice as much) where the
-    /// two disagree ([`blend`]). Default 0.5: seed 1–3 means, seam ratio bunny N = 16
+    /// two disagree (`blend`). Default 0.5: seed 1–3 means, seam ratio bunny N = 16
     /// with reptile scales 1.28 → 1.18 (under issue 14's 1.2), pf1 −30–40%, pf4/pf8
     /// −1–4% on the bunny, Spot, the double torus and Blub (docs/jump.md, "Texture
     /// blending"). `None`: every texel's value is the look-up at its source, byte for
@@ -194,7 +194,7 @@ pub struct Stats {
 
 /// What the jump method's [`Plan`] needs from the texels alone, before any orientation
 /// field: the growth order ([`growth_order`]) and the cross neighbours
-/// ([`cross_neighbours`]). A prepared session computes it beside the field.
+/// (`cross_neighbours`). A prepared session computes it beside the field.
 #[derive(Debug)]
 pub struct Growth {
     /// Texel indices in synthesis order.
@@ -221,7 +221,7 @@ impl Growth {
 /// by shortest-path distance from each component's seed ([`growth_order`]'s module docs).
 ///
 /// Distances are Euclidean edge lengths summed along paths over `edges`; the queue is a
-/// bucket queue of width [`BUCKET`] × the median edge length (Dial's algorithm), first in
+/// bucket queue of width `BUCKET` × the median edge length (Dial's algorithm), first in
 /// first out inside a bucket, stale entries skipped: O(1) per texel and edge, and the same
 /// order for any thread count. A texel is taken from the lowest bucket holding its current
 /// distance, so the order is Dijkstra's up to ties within a bucket.
@@ -796,7 +796,7 @@ pub fn run(
 /// (3 px measured: the same seams within ±0.01).
 pub const BLEND_AGREE_PX: f32 = 1.0;
 
-/// A cross neighbour's ([`cross_neighbours`]) weight in the blend, in edge neighbours'.
+/// A cross neighbour's (`cross_neighbours`) weight in the blend, in edge neighbours'.
 /// The seam ratio's excess is between texels close in space across face borders that no
 /// edge joins (docs/jump.md, "Where the bunny's excess is"); weighing the cross
 /// neighbours as edges left those breaks blended less than the ones inside faces (Spot

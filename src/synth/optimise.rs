@@ -248,7 +248,7 @@ const MIN_RESOLUTION: usize = 2;
 /// Runs texture optimisation of `weighted` (the example's channels premultiplied by the
 /// square roots of their weights) over `target`. `K` is the matching dimension of
 /// `mode`. `progress(done, total)` counts EM iterations and the final assembly in
-/// [`PROGRESS_STEP`]ths of an iteration.
+/// `PROGRESS_STEP`ths of an iteration.
 pub fn run<const K: usize>(
     weighted: &Image,
     mode: super::matching::appearance::AppearanceMode,

@@ -355,7 +355,7 @@ fn paste_waves<const K: usize>(
 /// and cut into what is already there, so patches meet along seams of least error
 /// instead of along the boundaries of whichever patch weighs most. Texels no footprint
 /// covers keep `fallback`'s source. With `blend`, joins between patches that nearly
-/// continue each other are smoothed ([`blend_joins`]). `progress(done, total)` counts
+/// continue each other are smoothed (`blend_joins`). `progress(done, total)` counts
 /// patches pasted, once per wave.
 #[allow(clippy::too_many_arguments)]
 pub fn assemble<const K: usize>(

@@ -286,7 +286,7 @@ pub fn normal_by_refinement(m: &PolyMesh, v: VertexId, limit: DVec3, k: usize) -
 const NEAR_LEVELS: usize = 30;
 
 /// The unit normal of the face of `h` at its corner `origin(h)`, as the limit of the face's
-/// own normals: the quad (of an all-quad mesh) refined [`NEAR_LEVELS`] times toward that
+/// own normals: the quad (of an all-quad mesh) refined `NEAR_LEVELS` times toward that
 /// corner, then the normal of the regular patch diagonally next to the corner's quad, at its
 /// corner nearest the vertex.
 ///
@@ -327,7 +327,7 @@ pub fn normal_near_corner(m: &PolyMesh, h: u32) -> DVec3 {
 const POSITION_STEPS: usize = 64;
 
 /// The limit position of `v` as the limit of its own vertex points: the 1-ring refined
-/// [`POSITION_STEPS`] times (for rules without a closed-form mask here: darts).
+/// `POSITION_STEPS` times (for rules without a closed-form mask here: darts).
 pub fn position_by_refinement(m: &PolyMesh, v: VertexId) -> DVec3 {
     let mut ring = one_ring(m, v);
     for _ in 0..POSITION_STEPS {

@@ -17,7 +17,7 @@
 //!   an evenly spaced subset of the pixels ([`super::search::pca`]). Projection is
 //!   orthonormal, so appearance distances are lower bounds of the neighbourhood distances
 //!   and equal to them up to the dropped variance, which is reported
-//!   ([`Appearance::kept_variance`]; 5x5 RGB neighbourhoods of the bundled examples keep
+//!   (`Appearance::kept_variance`; 5x5 RGB neighbourhoods of the bundled examples keep
 //!   ~90–97% in 8 dimensions).
 //! - **Pyramids**: multi-resolution methods build one appearance space per pyramid level
 //!   from that level's pixels (its own PCA), so a coarse level's vectors summarise its own

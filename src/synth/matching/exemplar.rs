@@ -11,7 +11,7 @@ use crate::pyramid::Image;
 /// [`super::similar`]).
 pub const SIMILAR_EXCLUDE: usize = 2;
 
-/// Lists are built for every second pixel in each direction (see [`Similar::build`]).
+/// Lists are built for every second pixel in each direction (see `Similar::build`).
 pub const SIMILAR_STRIDE: usize = 2;
 
 /// An example level ready for matching: `K` values per pixel.

@@ -101,7 +101,7 @@ pub struct MultiscaleParams {
     /// measured there).
     pub sparse: bool,
     /// The finest level starts pass 2 from its texels' continuations of the coarser level
-    /// ([`continued`]) instead of pass 1's matches. On by default for the same reason and
+    /// (`continued`) instead of pass 1's matches. On by default for the same reason and
     /// measured the same way: pass 1 at the finest level was a fifth of a run, and
     /// bricks came out better without it (pf4 on Spot 0.081 → 0.073, double torus
     /// 0.098 → 0.084), scales and gravel within the spread. Textons keep pass 1.
@@ -754,7 +754,7 @@ pub fn run_on_model(
 /// `continuous_sources`.
 pub const PATCH_TOLERANCE: f32 = 1.5;
 
-/// Smoothing steps of [`continuous_sources`] after the tree layout.
+/// Smoothing steps of `continuous_sources` after the tree layout.
 pub const CONTINUATION_ITERATIONS: usize = 4;
 
 /// Continuous source positions for the finest level.

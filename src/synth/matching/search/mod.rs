@@ -329,7 +329,7 @@ pub struct Prepared {
     /// entry), 0 where missing.
     pub w2: Vec<f32>,
     /// Empty, or for a sparse query ([`Query::gain`]) the offsets (as
-    /// [`Features::offsets`]) of its present samples only, in storage order; `raw` and
+    /// `Features::offsets`) of its present samples only, in storage order; `raw` and
     /// `w2` then hold those samples only, `w2` times the query's gain.
     pub offs: Vec<isize>,
 }
@@ -354,7 +354,7 @@ pub struct Prepared {
 /// is a pixel of the level itself or, for the coarse block, a pixel of the coarser level
 /// *upsampled* to this level's pixels (the bilinear value at `(x + 0.5) / 2 + dx` is the
 /// upsampled image at `x + 2dx`: the same float arithmetic), so `2 x channels` floats per
-/// pixel ([`Self::source`]) and one offset and weight per dimension give every vector. The
+/// pixel (`Self::source`) and one offset and weight per dimension give every vector. The
 /// gathered values are the stored ones bit for bit (the same products), and distances are
 /// summed in the same blocks and lanes, so searches return exactly what they did. Reading
 /// a few small images instead of streaming 3.4 KB rows also made the k-coherence lists
