@@ -92,33 +92,7 @@ fn relit_textons_differ_under_shadows_and_match_each_light_like_a_plain_synthesi
 
     // Where a source pixel is shadowed under one light and lit under the other, the two
     // relit results differ much more than where both light it.
-    let su = r.maps.channel("source.u").unwrap();
-    let sv = r.maps.channel("source.v").unwrap();
-    let lum = |m: &FaceMaps, t: usize| {
-        m.channel("R").unwrap()[t] + m.channel("G").unwrap()[t] + m.channel("B").unwrap()[t]
-    };
-    let (mut shadow_diff, mut shadow_n, mut lit_diff, mut lit_n) = (0f64, 0usize, 0f64, 0usize);
-    for t in 0..su.len() {
-        let (x, y) = (su[t] as usize, sv[t] as usize);
-        let p = y.min(SIZE - 1) * SIZE + x.min(SIZE - 1);
-        let d = (lum(&ma, t) - lum(&mb, t)).abs() as f64;
-        match (shadows[a][p], shadows[b][p]) {
-            (true, false) | (false, true) => {
-                shadow_diff += d;
-                shadow_n += 1
-            }
-            (false, false) => {
-                lit_diff += d;
-                lit_n += 1
-            }
-            _ => {}
-        }
-    }
-    assert!(
-        shadow_n > su.len() / 20,
-        "too few shadowed texels: {shadow_n}"
-    );
-    let (sd, ld) = (shadow_diff / shadow_n as f64, lit_diff / lit_n as f64);
+    let (sd, ld) = shadow_contrast(&r.maps, &sample, &shadows, (a, b));
     assert!(
         sd > 2.0 * ld && sd > 0.1,
         "shadow difference {sd} vs lit {ld}"
@@ -448,8 +422,7 @@ fn texton_dims_per_light_measured() {
     }
 }
 
-/// The shadow test of [`relit_textons_differ_under_shadows_and_match_each_light_like_a_plain_synthesis`]
-/// for any result: where a source pixel is shadowed under light `a` and lit under `b` (or
+/// The shadow test of every BTF result: where a source pixel is shadowed under light `a` and lit under `b` (or
 /// the reverse), the two relit results differ much more than where both light it. Returns
 /// (mean difference in shadow-changing texels, mean difference in lit texels).
 fn shadow_contrast(

@@ -659,8 +659,6 @@ unsafe fn measure8_avx2<const K: usize>(
     best: f32,
 ) -> f32 {
     use std::arch::x86_64::*;
-    let flat = f.flat();
-    let load = |i: usize| _mm256_loadu_ps(flat[i * 8..i * 8 + 8].as_ptr());
     let n = es.len();
     let mut sum = 0.0f32;
     let mut sq = [_mm256_setzero_ps(); 8];
@@ -672,15 +670,7 @@ unsafe fn measure8_avx2<const K: usize>(
             // Unused lanes repeat the group's last neighbour.
             let i = g + j.min(m - 1);
             let e = es[i];
-            let ([a, b, c, d], tx, ty) = f.taps(q[0] + e[0], q[1] + e[1]);
-            let (a, b, c, d) = (load(a), load(b), load(c), load(d));
-            let txv = _mm256_set1_ps(tx);
-            let top = _mm256_add_ps(a, _mm256_mul_ps(txv, _mm256_sub_ps(b, a)));
-            let bot = _mm256_add_ps(c, _mm256_mul_ps(txv, _mm256_sub_ps(d, c)));
-            let v = _mm256_add_ps(
-                top,
-                _mm256_mul_ps(_mm256_set1_ps(ty), _mm256_sub_ps(bot, top)),
-            );
+            let v = f.sample8_avx2(q[0] + e[0], q[1] + e[1]);
             let dv = _mm256_sub_ps(v, _mm256_loadu_ps(fs[i * 8..i * 8 + 8].as_ptr()));
             *s = _mm256_mul_ps(dv, dv);
         }

@@ -849,7 +849,7 @@ fn measure<const K: usize>(
         // Unused lanes repeat the last position.
         let z8: [[f32; 2]; 8] = std::array::from_fn(|j| zs[j.min(zs.len() - 1)]);
         // SAFETY: AVX2 is available (checked just above) and K == 8.
-        let e = unsafe { measure8_avx2(f.flat(), f, app.as_flattened(), pts, &z8, bound) };
+        let e = unsafe { measure8_avx2(f, app.as_flattened(), pts, &z8, bound) };
         out.extend_from_slice(&e[..zs.len()]);
         return;
     }
@@ -865,14 +865,12 @@ fn measure<const K: usize>(
     }
 }
 
-/// [`measure`] for 8 values per pixel and eight positions; `flat` is [`Features::flat`]
-/// and `app` the texels' appearance, 8 values each. The bilinear lookup is
-/// [`Features::sample`]'s (its taps and weights from [`Features::taps`], the same
-/// arithmetic per value, no fused multiply-add), so every sum is the scalar one.
+/// [`measure`] for 8 values per pixel and eight positions; `app` is the texels'
+/// appearance, 8 values each. The bilinear lookup is [`Features::sample8_avx2`],
+/// `Features::sample`'s values bit for bit, so every sum is the scalar one.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 unsafe fn measure8_avx2<const K: usize>(
-    flat: &[f32],
     f: &Features<K>,
     app: &[f32],
     pts: &[(usize, [f32; 2])],
@@ -883,19 +881,10 @@ unsafe fn measure8_avx2<const K: usize>(
     let bv = _mm256_set1_ps(bound);
     let mut e = _mm256_setzero_ps();
     let mut sq = [_mm256_setzero_ps(); 8];
-    let load = |i: usize| _mm256_loadu_ps(flat[i * 8..i * 8 + 8].as_ptr());
     for &(t, l) in pts {
         let q = _mm256_loadu_ps(app[t * 8..t * 8 + 8].as_ptr());
         for j in 0..8 {
-            let ([a, b, c, d], tx, ty) = f.taps(zs[j][0] + l[0], zs[j][1] + l[1]);
-            let (a, b, c, d) = (load(a), load(b), load(c), load(d));
-            let txv = _mm256_set1_ps(tx);
-            let top = _mm256_add_ps(a, _mm256_mul_ps(txv, _mm256_sub_ps(b, a)));
-            let bot = _mm256_add_ps(c, _mm256_mul_ps(txv, _mm256_sub_ps(d, c)));
-            let v = _mm256_add_ps(
-                top,
-                _mm256_mul_ps(_mm256_set1_ps(ty), _mm256_sub_ps(bot, top)),
-            );
+            let v = f.sample8_avx2(zs[j][0] + l[0], zs[j][1] + l[1]);
             let dv = _mm256_sub_ps(q, v);
             sq[j] = _mm256_mul_ps(dv, dv);
         }

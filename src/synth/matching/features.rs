@@ -127,6 +127,32 @@ impl<const K: usize> Features<K> {
         ([y0 * w + x0, y0 * w + x1, y1 * w + x0, y1 * w + x1], tx, ty)
     }
 
+    /// [`Features::sample`] at (x, y) for 8 values, in one AVX2 register: the same taps
+    /// ([`Features::taps`]) and the same arithmetic per value (no fused multiply-add), so
+    /// the lanes are `sample`'s values bit for bit — what the 8-value kernels of patch
+    /// sampling and coherent synthesis measure with.
+    ///
+    /// # Safety
+    /// AVX2 must be available, and `K` must be 8.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    pub unsafe fn sample8_avx2(&self, x: f32, y: f32) -> std::arch::x86_64::__m256 {
+        use std::arch::x86_64::*;
+        debug_assert_eq!(K, 8);
+        let flat = self.flat();
+        let load = |i: usize| _mm256_loadu_ps(flat[i * 8..i * 8 + 8].as_ptr());
+        let ([a, b, c, d], tx, ty) = self.taps(x, y);
+        let (a, b, c, d) = (load(a), load(b), load(c), load(d));
+        let txv = _mm256_set1_ps(tx);
+        let top = _mm256_add_ps(a, _mm256_mul_ps(txv, _mm256_sub_ps(b, a)));
+        let bot = _mm256_add_ps(c, _mm256_mul_ps(txv, _mm256_sub_ps(d, c)));
+        _mm256_add_ps(
+            top,
+            _mm256_mul_ps(_mm256_set1_ps(ty), _mm256_sub_ps(bot, top)),
+        )
+    }
+
     /// Bilinear feature at continuous position (x, y) (pixel centres at +0.5), clamped to
     /// the image: outside it the border pixels repeat (see [`Example::bilinear_taps`] for
     /// why clamping, not wrapping).
