@@ -47,6 +47,8 @@
 //! foreign neighbours is scanned first, lines parallel to it move away from it, and each
 //! line starts at the end whose perpendicular side has more synthesized texture.
 
+#[cfg(target_arch = "x86_64")]
+use super::matching::features::dist2_lanes;
 use super::matching::features::{dist2, Features};
 use super::matching::pixel_grid;
 use super::schedule::{inward_order, Schedule};
@@ -645,7 +647,7 @@ fn measure_scalar<const K: usize>(
 /// [`measure`] for 8 values per pixel, eight neighbours side by side: each neighbour's
 /// bilinear lookup is [`Features::sample`]'s (taps and weights from [`Features::taps`],
 /// the same arithmetic per value, no fused multiply-add), its eight squared differences
-/// summed in [`dist2`]'s order by the transposed lane sum (`patches::dist2_lanes`), and the
+/// summed in [`dist2`]'s order by the transposed lane sum ([`dist2_lanes`]), and the
 /// neighbours' distances added to the sum one by one in their order: the scalar sum bit
 /// for bit. The test for `best` comes after every eight neighbours instead of every one
 /// (a later cut, the same winner; see [`measure`]). `fs` holds 8 values per neighbour.
@@ -674,7 +676,7 @@ unsafe fn measure8_avx2<const K: usize>(
             let dv = _mm256_sub_ps(v, _mm256_loadu_ps(fs[i * 8..i * 8 + 8].as_ptr()));
             *s = _mm256_mul_ps(dv, dv);
         }
-        _mm256_storeu_ps(d2.as_mut_ptr(), super::patches::dist2_lanes(&sq));
+        _mm256_storeu_ps(d2.as_mut_ptr(), dist2_lanes(&sq));
         for &x in &d2[..m] {
             sum += x;
         }

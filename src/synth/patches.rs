@@ -41,6 +41,8 @@
 
 use super::footprint::{centres, spread, turned, Footprints, LevelTexels, Turn};
 use super::matching::exemplar::Exemplar;
+#[cfg(target_arch = "x86_64")]
+use super::matching::features::dist2_lanes;
 use super::matching::features::{dist2, Features};
 use super::matching::pixel_grid;
 use super::matching::search::hash;
@@ -896,22 +898,6 @@ unsafe fn measure8_avx2<const K: usize>(
     let mut out = [0.0f32; 8];
     _mm256_storeu_ps(out.as_mut_ptr(), e);
     out
-}
-
-/// Lane j of the result: the sum over k, in order, of `sq[j]`'s lane k — [`dist2`] of
-/// position j, given its eight squared differences, in `dist2`'s order (so the kernels'
-/// errors are the scalar ones bit for bit).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-#[inline]
-pub(super) unsafe fn dist2_lanes(sq: &[std::arch::x86_64::__m256; 8]) -> std::arch::x86_64::__m256 {
-    use std::arch::x86_64::_mm256_add_ps;
-    let tr = super::matching::search::transpose8(sq);
-    let mut d2 = tr[0];
-    for v in &tr[1..] {
-        d2 = _mm256_add_ps(d2, *v);
-    }
-    d2
 }
 
 /// The coarse search of [`choose`]: the `keep` positions of the grid of step `g` over

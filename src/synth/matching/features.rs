@@ -175,6 +175,26 @@ impl<const K: usize> Features<K> {
     }
 }
 
+/// Lane j of the result: the sum over k, in order, of `sq[j]`'s lane k — [`dist2`] of
+/// position j, given its eight squared differences, in `dist2`'s order (so the kernels'
+/// errors are the scalar ones bit for bit): the sum of the 8-value kernels of patch
+/// sampling and coherent synthesis.
+///
+/// # Safety
+/// AVX2 must be available.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+pub(crate) unsafe fn dist2_lanes(sq: &[std::arch::x86_64::__m256; 8]) -> std::arch::x86_64::__m256 {
+    use std::arch::x86_64::_mm256_add_ps;
+    let tr = super::search::transpose8(sq);
+    let mut d2 = tr[0];
+    for v in &tr[1..] {
+        d2 = _mm256_add_ps(d2, *v);
+    }
+    d2
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
