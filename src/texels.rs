@@ -595,6 +595,12 @@ impl TexelGraph {
                 let mut v: Vec<u32> = Vec::with_capacity(16);
                 let mut last = d as u32;
                 for &t in &self.list[self.start[r.start] as usize..self.start[r.end] as usize] {
+                    // Most entries are the domain's own texels: a range test, not a
+                    // division (or a search with per-face resolutions), for those.
+                    if r.contains(&(t as usize)) {
+                        last = d as u32;
+                        continue;
+                    }
                     let e = l.domain_of(t as usize) as u32;
                     if e != last && e as usize != d && !v.contains(&e) {
                         v.push(e);
