@@ -27,7 +27,9 @@
 //!   different resolution (`--texel-size`) meet the same way at any ratio: the walk is a
 //!   step of the starting domain's texels, and lands on the nearest texel of the other
 //!   domain's own grid.
-//!   Walks that leave through an open boundary simply yield nothing.
+//!   Walks that leave through an open boundary simply yield nothing. Many walks of a
+//!   domain aim at the same cell beside one of its sides; where the crossing is rigid
+//!   (see `Landings`) the first walk's texel is kept for the others: the same lists.
 //! - **Corners**: straight walks around an extraordinary vertex (valence k != 4) reach only
 //!   some of the k domains, because the parameter plane covers 4 right angles. So a texel
 //!   in the 2x2 corner block of its domain also gets, from *every* domain sharing that corner
