@@ -27,7 +27,9 @@
 //!   different resolution (`--texel-size`) meet the same way at any ratio: the walk is a
 //!   step of the starting domain's texels, and lands on the nearest texel of the other
 //!   domain's own grid.
-//!   Walks that leave through an open boundary simply yield nothing.
+//!   Walks that leave through an open boundary simply yield nothing. Many walks of a
+//!   domain aim at the same cell beside one of its sides; where the crossing is rigid
+//!   (see `Landings`) the first walk's texel is kept for the others: the same lists.
 //! - **Corners**: straight walks around an extraordinary vertex (valence k != 4) reach only
 //!   some of the k domains, because the parameter plane covers 4 right angles. So a texel
 //!   in the 2x2 corner block of its domain also gets, from *every* domain sharing that corner
@@ -595,6 +597,12 @@ impl TexelGraph {
                 let mut v: Vec<u32> = Vec::with_capacity(16);
                 let mut last = d as u32;
                 for &t in &self.list[self.start[r.start] as usize..self.start[r.end] as usize] {
+                    // Most entries are the domain's own texels: a range test, not a
+                    // division (or a search with per-face resolutions), for those.
+                    if r.contains(&(t as usize)) {
+                        last = d as u32;
+                        continue;
+                    }
                     let e = l.domain_of(t as usize) as u32;
                     if e != last && e as usize != d && !v.contains(&e) {
                         v.push(e);
@@ -856,12 +864,130 @@ impl EdgeGraph {
     }
 }
 
+/// Where the 5x5 block's walks out of one domain land ([`domain_lists`]), found once per
+/// landing cell instead of once per walk.
+///
+/// Offset (a, b) of texel (x, y) aims at the cell (X, Y) = (x + a, y + b) of the domain's
+/// texel lattice. When exactly one of X, Y is outside 0..N (a cell beside one side, not
+/// diagonally off a corner), every straight walk to it from a texel centre of the domain
+/// crosses that one side, strictly between its corners (the other coordinate stays within
+/// the centres' range), and ends at most 1.5 texels deep in the neighbour, inside it for
+/// N ≥ 2. Where the neighbour is of the same kind (two quads: whole edges; two sub-faces:
+/// whole half-edges or sibling edges) and, with one N everywhere, the same resolution, the
+/// change of coordinates is rigid and maps the lattice of texel centres onto the
+/// neighbour's: in exact arithmetic every such walk ends at the same texel centre, half a
+/// texel from any texel border, so the rounded walk's nearest texel is that texel whichever
+/// centre it started from. The first walk to the cell is made as before and its texel
+/// kept for the others. Off a corner, across a T-junction (quad and sub-face: the
+/// parameter scales by 2, centres land on texel borders), with per-face resolutions or
+/// N < 4 every walk is made. An open boundary (no neighbour) is the same for every walk
+/// across that side: kept as none.
+struct Landings {
+    /// One N, ≥ 4, for the cells to be kept.
+    n: Option<usize>,
+    d: usize,
+    quad: bool,
+    /// Per cell (X + 2, Y + 2) of the (N + 4)² lattice around the domain: [`Self::UNKNOWN`],
+    /// [`Self::NONE`], [`Self::WALK`] or the texel.
+    cells: Vec<u64>,
+}
+
+impl Landings {
+    const UNKNOWN: u64 = u64::MAX;
+    const NONE: u64 = u64::MAX - 1;
+    const WALK: u64 = u64::MAX - 2;
+
+    fn new(surface: &Surface, layout: &TexelLayout, d: usize) -> Self {
+        let n = layout.uniform_n().filter(|&n| n >= 4);
+        let quad = matches!(
+            surface.domain(DomainId::from_idx(d)),
+            subdiv::Domain::Quad { .. }
+        );
+        let cells = n.map_or_else(Vec::new, |n| vec![Self::UNKNOWN; (n + 4) * (n + 4)]);
+        Self { n, d, quad, cells }
+    }
+
+    /// The texel the walk from texel `(x, y)` by `(a, b)` texels lands on (`None`: out
+    /// through an open boundary), as [`Surface::walk`] and [`TexelLayout::texel_at`] give it.
+    #[inline]
+    fn texel(
+        &mut self,
+        surface: &Surface,
+        layout: &TexelLayout,
+        (x, y): (usize, usize),
+        (a, b): (i32, i32),
+    ) -> Option<u32> {
+        let walk = || {
+            let (nu, nv) = layout.dims(self.d);
+            let (iu, iv) = (1.0 / nu as f64, 1.0 / nv as f64);
+            let from = DomainLocation {
+                domain: DomainId::from_idx(self.d),
+                u: (x as f64 + 0.5) * iu,
+                v: (y as f64 + 0.5) * iv,
+            };
+            surface.walk(from, a as f64 * iu, b as f64 * iv).map(|to| {
+                (
+                    to.domain,
+                    layout.texel_at(to.domain.idx(), to.u, to.v) as u32,
+                )
+            })
+        };
+        let Some(n) = self.n else {
+            return walk().map(|(_, t)| t);
+        };
+        let (cx, cy) = (x as i64 + a as i64, y as i64 + b as i64);
+        let inside = |c: i64| (0..n as i64).contains(&c);
+        if inside(cx) == inside(cy)
+            || !(-2..n as i64 + 2).contains(&cx)
+            || !(-2..n as i64 + 2).contains(&cy)
+        {
+            return walk().map(|(_, t)| t);
+        }
+        let k = (cy + 2) as usize * (n + 4) + (cx + 2) as usize;
+        match self.cells[k] {
+            Self::UNKNOWN => {
+                let r = walk();
+                self.cells[k] = match r {
+                    None => Self::NONE,
+                    Some((e, t)) => {
+                        let same =
+                            matches!(surface.domain(e), subdiv::Domain::Quad { .. }) == self.quad;
+                        if same {
+                            t as u64
+                        } else {
+                            Self::WALK
+                        }
+                    }
+                };
+                r.map(|(_, t)| t)
+            }
+            Self::NONE => None,
+            Self::WALK => walk().map(|(_, t)| t),
+            t => Some(t as u32),
+        }
+    }
+}
+
 /// Per-texel counts and the concatenated lists of domain `d` (interior texels: count 0).
 fn domain_lists(surface: &Surface, geom: &TexelGeometry, d: usize) -> (Vec<u32>, Vec<u32>) {
+    domain_lists_with(
+        surface,
+        geom,
+        d,
+        &mut Landings::new(surface, &geom.layout, d),
+    )
+}
+
+/// [`domain_lists`] with the walks' landings found by `landings`.
+fn domain_lists_with(
+    surface: &Surface,
+    geom: &TexelGeometry,
+    d: usize,
+    landings: &mut Landings,
+) -> (Vec<u32>, Vec<u32>) {
     let layout = &geom.layout;
     let (nu, nv) = layout.dims(d);
     let base = layout.start(d);
-    let (iu, iv) = (1.0 / nu as f64, 1.0 / nv as f64);
     let fans: [Vec<(usize, usize)>; 4] = std::array::from_fn(|c| corner_fan(surface, d, c));
     let mut counts = vec![0u32; nu * nv];
     // ~24 neighbours per border texel (a few more at corners).
@@ -882,13 +1008,8 @@ fn domain_lists(surface: &Surface, geom: &TexelGeometry, d: usize) -> (Vec<u32>,
                     buf.push((base + yb as usize * nu + xa as usize) as u32);
                     continue;
                 }
-                let from = DomainLocation {
-                    domain: DomainId::from_idx(d),
-                    u: (x as f64 + 0.5) * iu,
-                    v: (y as f64 + 0.5) * iv,
-                };
-                if let Some(to) = surface.walk(from, a as f64 * iu, b as f64 * iv) {
-                    buf.push(layout.texel_at(to.domain.idx(), to.u, to.v) as u32);
+                if let Some(u) = landings.texel(surface, layout, (x, y), (a, b)) {
+                    buf.push(u);
                 }
             }
             // Corner fans: see the module docs.
@@ -1449,6 +1570,57 @@ mod tests {
                 let far = 3.5 * step(d).max(step(layout.domain_of(j as usize)));
                 let dist = g.pos[j as usize].distance(g.pos[t]);
                 assert!(dist < far, "{t} -> {j}: {dist} > {far}");
+            }
+        }
+    }
+
+    /// Every domain's lists with the landings kept per cell ([`Landings`]) are the lists
+    /// walking every offset: triangles, quads and an n-gon (T-junctions, where nothing is
+    /// kept), an open boundary, extraordinary corners, odd and even N (with odd N a
+    /// quad's centre line holds texel centres), and shared meshes of every kind.
+    #[test]
+    fn kept_landings_are_the_walks() {
+        let fan = ControlMesh::parse_obj(
+            "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 2 0 0\nv 2 1 0\nv 0.5 0.5 1\n\
+             v 3 0 0\nv 3 1 0\nv 2.5 1.5 0.3\nv 3.5 -0.5 0.2\n\
+             f 1 2 7\nf 2 3 7\nf 3 4 7\nf 4 1 7\nf 2 5 6 3\nf 5 8 9 10 6\nf 5 11 8\n",
+        )
+        .unwrap();
+        let mut meshes = vec![
+            (Surface::new(fan), vec![1usize, 2, 3, 4, 5, 7, 8]),
+            (grid(3), vec![4, 5]),
+            (cube(), vec![4, 7]),
+        ];
+        for m in [
+            "spot_control_mesh.obj",
+            "spot_triangulated.obj",
+            "cube_no_bottom.obj",
+            "hand_lowres.obj",
+        ] {
+            meshes.push((shared(m), vec![4, 5]));
+        }
+        for (s, ns) in &meshes {
+            for &n in ns {
+                let g = TexelGeometry::compute(s, n);
+                let mut kept = 0;
+                for d in 0..s.num_domains() {
+                    let mut walking = Landings {
+                        n: None,
+                        ..Landings::new(s, &g.layout, d)
+                    };
+                    let mut keeping = Landings::new(s, &g.layout, d);
+                    assert_eq!(
+                        domain_lists_with(s, &g, d, &mut keeping),
+                        domain_lists_with(s, &g, d, &mut walking),
+                        "N = {n}, domain {d}"
+                    );
+                    kept += keeping
+                        .cells
+                        .iter()
+                        .filter(|&&c| c < Landings::WALK)
+                        .count();
+                }
+                assert_eq!(kept > 0, n >= 4, "N = {n}");
             }
         }
     }
