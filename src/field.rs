@@ -1434,6 +1434,19 @@ pub const TEXELS_PER_FACE: u64 = 64;
 /// texel-count level.
 pub const SMOOTH_MAX_LEVEL: u32 = 4;
 
+/// The level [`OrientationField::compute_with`] puts the field of `orientation` on with
+/// `opts` (the smoothest field's cap included), without computing it.
+pub fn planned_level(surface: &Surface, orientation: &Orientation, opts: &FieldOptions) -> u32 {
+    if *orientation == Orientation::Auto && opts.level.is_none() && opts.texels.is_some() {
+        let capped = FieldOptions {
+            max_level: opts.max_level.min(SMOOTH_MAX_LEVEL),
+            ..opts.clone()
+        };
+        return final_level(surface, &capped);
+    }
+    final_level(surface, opts)
+}
+
 /// The level the field lives on: [`FieldOptions::level`], or the automatic one.
 fn final_level(surface: &Surface, opts: &FieldOptions) -> u32 {
     match opts.level {

@@ -470,15 +470,42 @@ impl Session {
         let meet_frames = early_frames || method == Some(Method::Coherent);
         let meet = (early && meet_frames && layout.uniform_n().is_some())
             .then(|| FrameMeet::new(&surface));
+        // Multiscale and textons sample their patterns along a finer field than the
+        // prepared one ([`Session::field_for`]); named here, it is computed beside the
+        // prepared field and the texel side instead of alone at the start of the synthesis
+        // (Spot N = 32: ~0.5 s, much of it one core's work). The same call as
+        // `field_for`'s (the structure length it passes is read by `straight` only, which
+        // is not early): the same field.
+        let fine_level =
+            crate::field::auto_level(surface.num_base_quads(), &FieldOptions::default());
+        let fine_early = early
+            && matches!(method, Some(Method::Multiscale | Method::Textons))
+            && crate::field::planned_level(&surface, &settings.orientation, &options_at(None))
+                < fine_level;
         let (early_field, texel_side) = rayon::join(
             || {
-                early.then(|| match &meet {
-                    Some(meet) => {
-                        meet.field_ready(compute_field(&options_at(None)));
-                        None
-                    }
-                    None => Some(field_and_frames(&options_at(None), early_frames)),
-                })
+                let prepared = || {
+                    early.then(|| match &meet {
+                        Some(meet) => {
+                            meet.field_ready(compute_field(&options_at(None)));
+                            None
+                        }
+                        None => Some(field_and_frames(&options_at(None), early_frames)),
+                    })
+                };
+                if !fine_early {
+                    return (prepared(), None);
+                }
+                let t0 = Instant::now();
+                let (f, fine) = rayon::join(prepared, || {
+                    OrientationField::compute_with(
+                        &surface,
+                        &settings.orientation,
+                        &field_options(1.0, unit),
+                    )
+                    .ok()
+                });
+                (f, fine.map(|fine| (fine, t0.elapsed().as_secs_f64())))
             },
             || {
                 let t0 = Instant::now();
@@ -524,6 +551,7 @@ impl Session {
             },
         );
         let (geometry, geometry_s, spacing, edges, growth, graph, mut graph_s) = texel_side;
+        let (early_field, fine_field) = early_field;
         let early_field = match (early_field, meet) {
             (Some(None), Some(meet)) => Some(meet.into_field_and_frames()),
             (f, _) => f.flatten(),
@@ -547,6 +575,13 @@ impl Session {
             None => field_and_frames(&options_at(Some(scale)), false),
         };
         let (field, frames) = field?;
+        // The field stage lasted as long as the finer field beside it, when there was one.
+        let fine_field = fine_field
+            .filter(|(f, _)| f.level() > field.level())
+            .map(|(f, s)| {
+                field_s = field_s.max(s);
+                f
+            });
         let t0 = Instant::now();
         let frames =
             frames.unwrap_or_else(|| crate::synth::layout_frames(&field, &surface, &layout));
@@ -580,7 +615,7 @@ impl Session {
             orientation: settings.orientation.clone(),
             surface: Arc::new(surface),
             field,
-            fine_field: OnceLock::new(),
+            fine_field: fine_field.map_or_else(OnceLock::new, OnceLock::from),
             texels,
             derived,
             spacing,
