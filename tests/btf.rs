@@ -69,6 +69,24 @@ fn pf4(
         .unwrap()
 }
 
+/// pf4 of a plain synthesis (`method`, seed 2) of one light's image `ex` alone: what a BTF
+/// result relit under that light is held against.
+fn plain_pf4(
+    method: Method,
+    ex: &surfsynth::example::Example,
+    geometry: &FaceMaps,
+    scale: f64,
+) -> f64 {
+    let plain = Synthesizer::new(data(SPOT), ex.clone())
+        .method(method)
+        .resolution(N)
+        .seed(2)
+        .cache(CacheDir::Off)
+        .run()
+        .unwrap();
+    pf4(&plain.maps, geometry, ex, scale)
+}
+
 #[test]
 fn relit_textons_differ_under_shadows_and_match_each_light_like_a_plain_synthesis() {
     let tmp = tempfile::tempdir().unwrap();
@@ -103,14 +121,7 @@ fn relit_textons_differ_under_shadows_and_match_each_light_like_a_plain_synthesi
     for i in [a, b] {
         let ex = sample.images[i].clone();
         let ours = pf4(if i == a { &ma } else { &mb }, &geometry, &ex, scale);
-        let plain = Synthesizer::new(data(SPOT), ex.clone())
-            .method(Method::Multiscale)
-            .resolution(N)
-            .seed(2)
-            .cache(CacheDir::Off)
-            .run()
-            .unwrap();
-        let theirs = pf4(&plain.maps, &geometry, &ex, scale);
+        let theirs = plain_pf4(Method::Multiscale, &ex, &geometry, scale);
         eprintln!("light {i}: textons pf4 {ours:.3}, plain multiscale {theirs:.3}");
         assert!(
             ours <= 1.2 * theirs,
@@ -491,14 +502,7 @@ fn optimise_over_a_btf_keeps_one_structure_under_every_light() {
     for i in [a, b] {
         let ex = sample.images[i].clone();
         let ours = pf4(&relit(&r.maps, &sample, i), &geometry, &ex, scale);
-        let plain = Synthesizer::new(data(SPOT), ex.clone())
-            .method(Method::Optimise)
-            .resolution(N)
-            .seed(2)
-            .cache(CacheDir::Off)
-            .run()
-            .unwrap();
-        let theirs = pf4(&plain.maps, &geometry, &ex, scale);
+        let theirs = plain_pf4(Method::Optimise, &ex, &geometry, scale);
         let tex = pf4(&relit(&textons.maps, &sample, i), &geometry, &ex, scale);
         eprintln!("light {i}: optimise over the BTF pf4 {ours:.3}, plain optimise {theirs:.3}, textons {tex:.3}");
         assert!(

@@ -552,18 +552,8 @@ where
                     .map_init(
                         || vec![0f32; names.len() * tw * th],
                         |buf, t| {
-                            let dims = if t < layout.faces() {
-                                layout.texels.dims(t)
-                            } else {
-                                (0, 0)
-                            };
-                            let buf = &mut buf[..names.len() * dims.0 * dims.1];
-                            buf.fill(0.0);
-                            if t < layout.faces() {
-                                fill(t, buf);
-                            }
                             let mut data = vec![0u8; tile_bytes];
-                            interleave_rows(buf, &order, dims, layout.tile, &mut data);
+                            tile_block(&layout, &order, &fill, t, buf, &mut data);
                             let block = UncompressedBlock {
                                 index: block_index(&layout, t),
                                 data,
@@ -669,17 +659,7 @@ where
                 {
                     d.copy_from_slice(&v.to_le_bytes());
                 }
-                let dims = if t < layout.faces() {
-                    layout.texels.dims(t)
-                } else {
-                    (0, 0)
-                };
-                let buf = &mut buf[..channels * dims.0 * dims.1];
-                buf.fill(0.0);
-                if t < layout.faces() {
-                    fill(t, buf);
-                }
-                interleave_rows(buf, order, dims, layout.tile, data);
+                tile_block(layout, order, &fill, t, buf, data);
             },
         );
     };
@@ -706,6 +686,32 @@ where
         }
         w.flush().map_err(io_err)
     })
+}
+
+/// Tile `t`'s pixel bytes into `out`: its domain's texels from `fill` (nothing past the
+/// last face: padding tiles are zero), in EXR block order ([`interleave_rows`]). `buf` is
+/// scratch of a whole tile's floats.
+fn tile_block<F>(
+    layout: &TileLayout,
+    order: &[usize],
+    fill: &F,
+    t: usize,
+    buf: &mut [f32],
+    out: &mut [u8],
+) where
+    F: Fn(usize, &mut [f32]),
+{
+    let dims = if t < layout.faces() {
+        layout.texels.dims(t)
+    } else {
+        (0, 0)
+    };
+    let buf = &mut buf[..order.len() * dims.0 * dims.1];
+    buf.fill(0.0);
+    if t < layout.faces() {
+        fill(t, buf);
+    }
+    interleave_rows(buf, order, dims, layout.tile, out);
 }
 
 /// EXR block byte order: for each of the tile's rows, each channel (sorted) contributes

@@ -17,7 +17,7 @@
 //!
 //! A sample of one image is its RGB unchanged: the same matching as the plain example.
 
-use super::search::pca::{Pca, MAX_ROWS};
+use super::search::pca::{fit_rows, Pca};
 use crate::btf::BtfSample;
 use crate::pyramid::Image;
 use rayon::prelude::*;
@@ -68,14 +68,10 @@ pub fn reflectance(sample: &BtfSample, dims: usize) -> (Image, ReflectanceInfo) 
         };
         return (image, info);
     }
-    // The rows `Pca::fit` would pick (all, or MAX_ROWS evenly spaced), made alone: the
-    // vectors of every pixel are never held at once (3L floats a pixel: a sample of many
-    // images is already most of a run's memory).
-    let rows: Vec<usize> = if n <= MAX_ROWS {
-        (0..n).collect()
-    } else {
-        (0..MAX_ROWS).map(|i| i * n / MAX_ROWS).collect()
-    };
+    // The rows `Pca::fit` would pick, made alone: the vectors of every pixel are never
+    // held at once (3L floats a pixel: a sample of many images is already most of a run's
+    // memory).
+    let rows = fit_rows(n);
     let mut fit = vec![0.0f32; rows.len() * c];
     fit.par_chunks_mut(c)
         .zip(&rows)

@@ -402,29 +402,26 @@ pub fn pattern(
         if scratch.anchor_of[slot] != a {
             let dst = &mut scratch.anchors[slot * kk..(slot + 1) * kk];
             let key = (a, delta.to_bits(), kk, sparse);
-            match scratch.known.as_ref().and_then(|known| known.get(a, kk)) {
-                Some(p) => dst.copy_from_slice(p),
-                None => match scratch.sampled.get(&key) {
-                    Some(p) => dst.copy_from_slice(p),
-                    None => {
-                        sample(
-                            geo,
-                            sampler,
-                            a,
-                            delta,
-                            k,
-                            kind,
-                            sparse,
-                            &mut scratch.buf,
-                            dst,
-                            st,
-                        );
-                        if let Some(r) = scratch.record.as_mut() {
-                            r.push(a, dst);
-                        }
-                        scratch.sampled.insert(key, dst.to_vec());
-                    }
-                },
+            let known = scratch.known.as_ref().and_then(|known| known.get(a, kk));
+            if let Some(p) = known.or_else(|| scratch.sampled.get(&key).map(Vec::as_slice)) {
+                dst.copy_from_slice(p);
+            } else {
+                sample(
+                    geo,
+                    sampler,
+                    a,
+                    delta,
+                    k,
+                    kind,
+                    sparse,
+                    &mut scratch.buf,
+                    dst,
+                    st,
+                );
+                if let Some(r) = scratch.record.as_mut() {
+                    r.push(a, dst);
+                }
+                scratch.sampled.insert(key, dst.to_vec());
             }
             scratch.anchor_of[slot] = a;
         }

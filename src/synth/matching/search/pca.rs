@@ -20,6 +20,18 @@
 /// basis only makes it faster.
 pub const MAX_ROWS: usize = 2048;
 
+/// The rows of `n` that [`Pca::fit`] estimates the covariance from: all of them, or
+/// [`MAX_ROWS`] evenly spaced. A caller that makes its rows on demand (e.g. the
+/// reflectance vectors of a BTF sample, `matching::reflectance`) makes only these and
+/// fits on them: the same projection.
+pub fn fit_rows(n: usize) -> Vec<usize> {
+    if n <= MAX_ROWS {
+        (0..n).collect()
+    } else {
+        (0..MAX_ROWS).map(|i| i * n / MAX_ROWS).collect()
+    }
+}
+
 /// A fitted projection onto the leading `k` principal directions.
 #[derive(Clone, Debug)]
 pub struct Pca {
@@ -41,11 +53,7 @@ impl Pca {
         assert!(dim > 0 && k > 0 && k <= dim);
         let n = data.len() / dim;
         assert!(n > 0, "PCA needs at least one row");
-        let rows: Vec<usize> = if n <= MAX_ROWS {
-            (0..n).collect()
-        } else {
-            (0..MAX_ROWS).map(|i| i * n / MAX_ROWS).collect()
-        };
+        let rows = fit_rows(n);
         let m = rows.len() as f64;
         // Mean.
         let mut mean = vec![0.0f64; dim];
