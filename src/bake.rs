@@ -19,8 +19,7 @@ use subdiv::{DomainId, LimitSample, Surface};
 /// Channel names of geometry maps, in the order [`eval_domain`] fills them.
 pub const GEOMETRY_CHANNELS: [&str; 6] = ["P.X", "P.Y", "P.Z", "N.X", "N.Y", "N.Z"];
 
-/// File name of the geometry maps inside an output directory.
-pub const GEOMETRY_FILE: &str = "geometry.exr";
+pub use crate::io::names::GEOMETRY_FILE;
 
 /// Up to this resolution a domain is evaluated with `Surface::eval_texels` into a per-thread
 /// scratch of N² f64 samples (25 MB at 512); above, texel by texel with the same

@@ -109,7 +109,7 @@ pub fn run(out: &Path) -> anyhow::Result<Report> {
 /// Renders `dir`'s `preview.png` and prints its quality measures on one line.
 fn preview_and_eval(dir: &Path) -> anyhow::Result<()> {
     // The render's summary shows its own peak beside its estimate, not the synthesis's.
-    crate::bench::reset_peak_rss();
+    crate::process::reset_peak_rss();
     crate::render::run_cli(dir, None, &crate::render::RenderOptions::default())?;
     let q = crate::eval::evaluate(dir, None)?;
     println!("{}", eval_summary(&q));
@@ -166,7 +166,7 @@ pub fn btf(out: &Path) -> anyhow::Result<()> {
             light: Some(l),
             ..Default::default()
         };
-        crate::bench::reset_peak_rss();
+        crate::process::reset_peak_rss();
         crate::render::run_cli(&dir, Some(&dir.join(name)), &opts)?;
     }
     Ok(())

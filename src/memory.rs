@@ -33,7 +33,7 @@
 //! total of the per-face layout ([`check_layout`]).
 
 use crate::error::{Error, Result};
-use crate::synth::Method;
+use crate::method::Method;
 use std::path::Path;
 use std::sync::atomic::{AtomicU64, Ordering};
 use subdiv::{ControlMesh, FaceId, Surface};

@@ -39,7 +39,7 @@ pub struct RunInfo {
 impl RunInfo {
     /// Reads DIR/report.json (a missing report: defaults, no BTF).
     pub fn read(dir: &Path) -> Result<Self> {
-        let p = dir.join(crate::report::REPORT_FILE);
+        let p = dir.join(crate::io::names::REPORT_FILE);
         let Ok(text) = std::fs::read_to_string(&p) else {
             return Ok(Self {
                 btf: None,
@@ -107,7 +107,7 @@ pub fn tangents(
     }
     let field = OrientationField::compute(surface, orientation)
         .map_err(|e| Error::invalid(format!("orientation field: {e:#}")))?;
-    Ok(crate::synth::layout_frames(&field, surface, layout)
+    Ok(crate::texel_frames::layout_frames(&field, surface, layout)
         .into_iter()
         .map(|f| f[0].as_dvec3())
         .collect())

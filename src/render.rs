@@ -882,7 +882,7 @@ pub fn run_cli(dir: &Path, out: Option<&Path>, opts: &RenderOptions) -> anyhow::
     pic.write_png(&out)?;
     // The guard's estimate beside the measured peak (VmHWM, Linux), so both can be
     // compared on any run.
-    let memory = match crate::bench::peak_rss_bytes() {
+    let memory = match crate::process::peak_rss_bytes() {
         Some(p) => format!(
             "memory: estimate {}, peak {}",
             memory::format_bytes(st.memory_estimate_bytes),

@@ -14,8 +14,7 @@ use crate::synth::{Details, Method, Weights};
 use serde::Serialize;
 use std::path::Path;
 
-/// File name inside the output directory.
-pub const REPORT_FILE: &str = "report.json";
+pub use crate::io::names::REPORT_FILE;
 
 /// Input files.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -31,7 +30,7 @@ pub struct Inputs {
     pub maps: Vec<MapInfo>,
     /// `--normal-convention`, when there is a normal map.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub normal_convention: Option<crate::synthesizer::NormalConvention>,
+    pub normal_convention: Option<crate::conventions::NormalConvention>,
 }
 
 /// One map of a material as it was read and matched.
@@ -129,8 +128,8 @@ pub struct Report {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub displace: Option<f64>,
     /// Image rows along +v2 (`tiles`) or −v2 (`outside`), see
-    /// [`crate::synthesizer::Handedness`].
-    pub handedness: crate::synthesizer::Handedness,
+    /// [`crate::conventions::Handedness`].
+    pub handedness: crate::conventions::Handedness,
     pub seconds: Seconds,
     /// Texels per second of the whole run (`texels / seconds.total`).
     pub texels_per_second: f64,
@@ -202,7 +201,7 @@ impl Report {
 
 /// Peak resident set size of this process (Linux `VmHWM`), `None` elsewhere.
 pub fn peak_memory_bytes() -> Option<u64> {
-    crate::bench::peak_rss_bytes()
+    crate::process::peak_rss_bytes()
 }
 
 /// Reads back a report's top-level JSON (for tools and tests).

@@ -21,8 +21,8 @@ mod common;
 use common::env_or;
 use glam::DVec3;
 use subdiv::DomainLocation;
+use surfsynth::bench::sampling::bench_centres;
 use surfsynth::field::{Orientation, OrientationField};
-use surfsynth::sampling::bench::bench_centres;
 use surfsynth::sampling::{median_texel_spacing, Method, Sampler, SamplerKind};
 
 #[inline(never)]
@@ -56,7 +56,7 @@ fn chart_patterns() {
     let delta = median_texel_spacing(&surface, n);
     let sampler = Sampler::new(&surface, &field);
     let mut out = vec![None; k * k];
-    // The centres of `surfsynth bench sampling` (sampling::bench), chart-sampled ones only.
+    // The centres of `surfsynth bench sampling` (bench::sampling), chart-sampled ones only.
     let only = std::env::var("CB_ONLY").unwrap_or_default();
     let centres: Vec<DomainLocation> = bench_centres(&surface, n, tried)
         .into_iter()

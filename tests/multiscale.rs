@@ -424,12 +424,15 @@ fn figures() {
             let mut params = MultiscaleParams::default();
             params.model.method = method;
             let r = match faces {
-                Some(f) => multiscale::bench::bench_torus(f, n, &ex, &params, 1).unwrap(),
+                Some(f) => {
+                    surfsynth::bench::multiscale::bench_torus(f, n, &ex, &params, 1).unwrap()
+                }
                 None => {
                     let surface =
                         surfsynth::bake::load_surface_for(data("meshes/spot_control_mesh.obj"), n)
                             .unwrap();
-                    multiscale::bench::bench_surface(&surface, n, &ex, &params, 1).unwrap()
+                    surfsynth::bench::multiscale::bench_surface(&surface, n, &ex, &params, 1)
+                        .unwrap()
                 }
             };
             let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();

@@ -254,7 +254,7 @@ fn bench_table() {
         let s = load(rel);
         let f = OrientationField::compute(&s, &Orientation::Auto).unwrap();
         for (k, t) in [(5usize, 1.0), (9, 1.0), (9, 2.0)] {
-            for r in surfsynth::sampling::bench::bench_sampling(&s, &f, 32, t, k, 4000) {
+            for r in surfsynth::bench::sampling::bench_sampling(&s, &f, 32, t, k, 4000) {
                 let split = match (
                     r.chart_sampled_samples_per_second,
                     r.marched_samples_per_second,

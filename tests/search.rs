@@ -203,7 +203,7 @@ fn patch_fidelity_of_2d_multiscale_synthesis() {
     let mut shuffled = ex.clone();
     let n = ex.width * ex.height;
     for i in 0..n {
-        let j = (surfsynth::synth::matching::search::hash(5, &[i as u64]) % n as u64) as usize;
+        let j = (surfsynth::random::hash(5, &[i as u64]) % n as u64) as usize;
         for c in 0..3 {
             shuffled.data.swap(i * 3 + c, j * 3 + c);
         }

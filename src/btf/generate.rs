@@ -60,7 +60,7 @@ impl HeightField {
     /// grid (deterministic for `seed`), `depth` pixels high — for the demo, which ships no
     /// height image.
     pub fn bumps(size: usize, depth: f32, seed: u64) -> Self {
-        let hash = |i: u64| crate::synth::matching::search::hash(seed, &[i]);
+        let hash = |i: u64| crate::random::hash(seed, &[i]);
         let unit = |i: u64| (hash(i) >> 11) as f32 / (1u64 << 53) as f32;
         let cell = (size / 6).max(4);
         let cells = size.div_ceil(cell);

@@ -272,7 +272,7 @@ fn sampling(a: BenchSamplingArgs) -> anyhow::Result<()> {
     let mut rows = Vec::new();
     for &k in &a.size {
         for &t in &a.step {
-            rows.extend(surfsynth::sampling::bench::bench_sampling(
+            rows.extend(surfsynth::bench::sampling::bench_sampling(
                 &surface,
                 &field,
                 a.resolution,
@@ -287,7 +287,8 @@ fn sampling(a: BenchSamplingArgs) -> anyhow::Result<()> {
 }
 
 fn multiscale(a: BenchMultiscaleArgs) -> anyhow::Result<()> {
-    use surfsynth::synth::multiscale::{bench, MultiscaleParams};
+    use surfsynth::bench::multiscale as bench;
+    use surfsynth::synth::multiscale::MultiscaleParams;
     if a.domains == 0 || a.domains > 10_000_000 {
         anyhow::bail!("--domains {} must be between 1 and 10000000", a.domains);
     }
@@ -376,12 +377,12 @@ fn synth(a: BenchSynthArgs) -> anyhow::Result<()> {
     surfsynth::memory::set_limit(a.max_memory);
     bench_guard(
         "bench synth",
-        &surfsynth::synth::bench::synth_bench_estimate(),
+        &surfsynth::bench::synth::synth_bench_estimate(),
         "raise --max-memory",
     )?;
-    // The benchmark lives in the library (surfsynth::synth::bench).
+    // The benchmark lives in the library (surfsynth::bench::synth).
     let dir = std::env::temp_dir().join(format!("surfsynth-bench-synth-{}", std::process::id()));
-    let rows = surfsynth::synth::bench::synth_bench(&dir, a.repeats, &|l| eprintln!("{l}"));
+    let rows = surfsynth::bench::synth::synth_bench(&dir, a.repeats, &|l| eprintln!("{l}"));
     let _ = std::fs::remove_dir_all(&dir);
     println!("{}", serde_json::to_string_pretty(&rows?)?);
     Ok(())

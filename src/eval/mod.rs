@@ -152,12 +152,7 @@ pub fn patch_fidelities(
     patch_fidelities_with(colour, geometry, example, scale, &PfOptions::default())
 }
 
-/// Colour maps file in a result directory.
-pub const FACEMAPS_FILE: &str = "facemaps.exr";
-/// Geometry maps file in a result directory.
-pub const GEOMETRY_FILE: &str = "geometry.exr";
-/// Report file (source of the default scale).
-pub const REPORT_FILE: &str = "report.json";
+pub use crate::io::names::{FACEMAPS_FILE, GEOMETRY_FILE, REPORT_FILE};
 
 /// Adjacent texels whose source positions differ by at most this many example pixels
 /// continue one patch (BRIEF).
@@ -1003,8 +998,8 @@ fn patch_fidelity(colour: &FaceMaps, ex: &Example) -> Option<f64> {
     let mut sum = 0.0;
     let (mut pa, mut pb) = (Vec::with_capacity(dims), Vec::with_capacity(dims));
     for _ in 0..PATCH_PAIRS {
-        let a = (pf::splitmix(&mut state) % (ew * eh) as u64) as usize;
-        let b = (pf::splitmix(&mut state) % (ew * eh) as u64) as usize;
+        let a = (crate::random::splitmix(&mut state) % (ew * eh) as u64) as usize;
+        let b = (crate::random::splitmix(&mut state) % (ew * eh) as u64) as usize;
         ex_patch(a % ew, a / ew, &mut pa);
         ex_patch(b % ew, b / ew, &mut pb);
         sum += pa

@@ -184,14 +184,7 @@ impl Default for PfOptions {
     }
 }
 
-/// SplitMix64: a tiny deterministic generator for sampling (no statistical demands).
-pub(crate) fn splitmix(state: &mut u64) -> u64 {
-    *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    let mut z = *state;
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
-}
+use crate::random::splitmix;
 
 /// `count` distinct indices drawn uniformly from `candidates` (all of them, in order, when
 /// there are no more): a partial Fisher–Yates shuffle with [`splitmix`], so the draw

@@ -13,6 +13,7 @@ pub mod exr;
 pub mod gltf;
 pub mod interrupt;
 pub mod materials;
+pub mod names;
 pub mod png;
 pub mod ptex;
 pub mod tangent;

@@ -18,7 +18,6 @@
 //! `Sampler` is shared by all threads (results never depend on the thread count — each
 //! pattern is computed independently of the others).
 
-pub mod bench;
 pub mod chart;
 pub mod geodesic;
 pub mod march;

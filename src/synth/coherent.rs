@@ -52,6 +52,7 @@ use super::matching::features::dist2_lanes;
 use super::matching::features::{dist2, Features};
 use super::matching::pixel_grid;
 use super::schedule::{inward_order, Schedule};
+use crate::random::random2;
 use crate::texels::{TexelGeometry, TexelGraph};
 use glam::Vec3;
 use rayon::prelude::*;
@@ -175,24 +176,6 @@ pub enum Kind {
     RandomWin = 2,
     /// No valid continuation: the best random restart.
     Restart = 3,
-}
-
-/// splitmix64's finaliser: a good 64-bit mix, used as a counter-based generator.
-#[inline]
-fn mix(mut z: u64) -> u64 {
-    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
-}
-
-/// Two uniform numbers in [0, 1) for draw `k` of texel `t`.
-#[inline]
-pub fn random2(seed: u64, t: u64, k: u64) -> (f32, f32) {
-    let h = mix(mix(mix(seed) ^ t) ^ k.wrapping_mul(0xD1B5_4A32_D192_ED03));
-    let a = (h >> 40) as f32 / (1u64 << 24) as f32;
-    let b = ((h >> 8) & 0xFF_FFFF) as f32 / (1u64 << 24) as f32;
-    (a, b)
 }
 
 struct Ctx<'a, const K: usize> {
@@ -787,20 +770,5 @@ mod tests {
                 }
             }
         }
-    }
-
-    #[test]
-    fn random2_is_uniform_and_counter_based() {
-        let mut sum = (0.0f64, 0.0f64);
-        for t in 0..10_000u64 {
-            let (a, b) = random2(7, t, 0);
-            assert!((0.0..1.0).contains(&a) && (0.0..1.0).contains(&b));
-            sum.0 += a as f64;
-            sum.1 += b as f64;
-        }
-        assert!((sum.0 / 1e4 - 0.5).abs() < 0.01 && (sum.1 / 1e4 - 0.5).abs() < 0.01);
-        assert_eq!(random2(7, 3, 1), random2(7, 3, 1));
-        assert_ne!(random2(7, 3, 1), random2(8, 3, 1));
-        assert_ne!(random2(7, 3, 1), random2(7, 3, 2));
     }
 }

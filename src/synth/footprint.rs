@@ -219,7 +219,7 @@ pub fn centres(level: &LevelTexels, pixels: f64, seed: u64, mask: Option<&[bool]
     let n = pos.len();
     let mut order: Vec<(u64, u32)> = (0..n as u32)
         .filter(|&t| mask.is_none_or(|m| m[t as usize]))
-        .map(|t| (super::matching::search::hash(seed, &[0xCE47, t as u64]), t))
+        .map(|t| (crate::random::hash(seed, &[0xCE47, t as u64]), t))
         .collect();
     order.par_sort_unstable();
     // The minimum distance at texel t; the grid's cells are the largest of them.
@@ -318,7 +318,7 @@ pub fn spread(
         let l = coords[i];
         let cx = (((l[0] + half) / cell) as usize).min(g - 1);
         let cy = (((l[1] + half) / cell) as usize).min(g - 1);
-        let h = super::matching::search::hash(key, &[i as u64]);
+        let h = crate::random::hash(key, &[i as u64]);
         let b = &mut best[cy * g + cx];
         if h < b.0 {
             *b = (h, i as u32);

@@ -56,10 +56,10 @@
 //! Randomness is the counter-based hash of (seed, texel, draw) of coherent synthesis.
 
 use super::blend::Blend;
-use super::coherent::random2;
 use super::footprint::LevelTexels;
 use super::matching::jumpmap::JumpMap;
 use crate::layout::TexelLayout;
+use crate::random::random2;
 use crate::texels::EdgeGraph;
 use glam::Vec3;
 use serde::Serialize;

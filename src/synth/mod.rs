@@ -31,7 +31,6 @@
 //! the pure computation (no files).
 
 pub mod analysis;
-pub mod bench;
 pub mod blend;
 pub mod coherent;
 pub mod footprint;
@@ -58,7 +57,7 @@ pub use textons::TextonParams;
 
 use crate::error::Result;
 use crate::example::Example;
-use crate::field::{Frame, OrientationField};
+use crate::field::OrientationField;
 use crate::io::exr::FaceMaps;
 use crate::pyramid::Image;
 use crate::texels::TexelGeometry;
@@ -71,90 +70,9 @@ use rayon::prelude::*;
 use serde::Serialize;
 use subdiv::Surface;
 
-/// Synthesis method (`--method`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Method {
-    /// Ying et al. 2001 §5: single pass, continues coherent patches (Ashikhmin).
-    Coherent,
-    /// Ying et al. 2001 §4: multiscale (Wei-Levoy), with k-coherence or ANN search.
-    Multiscale,
-    /// Paper 001 §5.2: patch sampling along the field (Liang et al.), joined by cuts.
-    Patches,
-    /// Paper 001 §4.3–4.4: texture optimisation (Kwatra et al.), multilevel.
-    Optimise,
-    /// Paper 002: jump maps (Zelinka & Garland), region growing over the texels.
-    Jump,
-    /// Paper 003: BTF synthesis with surface textons ([`Settings::btf`]; without a BTF
-    /// sample, the example as a one-image sample). Not in [`Method::ALL`], the methods of
-    /// plain examples.
-    Textons,
-}
-
-impl Method {
-    /// The method `synth` uses without `--method`: the one that keeps the example's
-    /// structure best at good speed (docs/synthesis.md has the table it was chosen from).
-    pub const DEFAULT: Method = Method::Optimise;
-
-    /// Every method, in the order of docs/synthesis.md's table.
-    pub const ALL: [Method; 5] = [
-        Method::Coherent,
-        Method::Multiscale,
-        Method::Patches,
-        Method::Optimise,
-        Method::Jump,
-    ];
-
-    /// The orientation field a run of this method gets without `--orient`.
-    ///
-    /// Texture optimisation copies whole patches, so it shows the example as it is — upright
-    /// bricks stay level only if the field keeps the example's up along the world's
-    /// (`up`, +y); with guided final assembly its seams stay within the bar there
-    /// (docs/synthesis.md, "The `up` field"). On a mostly level surface (terrain, a floor)
-    /// `up` has no up to follow and draws contour rings, so the default is `upright`: `up`
-    /// there only where the surface stands (`field::choice::upright`). The per-texel methods
-    /// keep the smoothest field (`auto`): `up` raised patch sampling's seams on the double
-    /// torus (1.31) and gains them nothing measured.
-    pub fn default_orientation(self) -> crate::field::Orientation {
-        match self {
-            Method::Optimise => crate::field::Orientation::Upright(glam::DVec3::Y),
-            _ => crate::field::Orientation::Auto,
-        }
-    }
-
-    /// The name used on the command line and in report.json.
-    pub fn name(self) -> &'static str {
-        match self {
-            Method::Coherent => "coherent",
-            Method::Multiscale => "multiscale",
-            Method::Patches => "patches",
-            Method::Optimise => "optimise",
-            Method::Jump => "jump",
-            Method::Textons => "textons",
-        }
-    }
-}
-
-impl std::str::FromStr for Method {
-    type Err = String;
-    fn from_str(s: &str) -> std::result::Result<Self, String> {
-        Method::ALL
-            .into_iter()
-            .chain([Method::Textons])
-            .find(|m| m.name() == s)
-            .ok_or_else(|| {
-                let names: Vec<_> = Method::ALL
-                    .iter()
-                    .chain(&[Method::Textons])
-                    .map(|m| m.name())
-                    .collect();
-                format!(
-                    "unknown method '{s}' (expected one of {})",
-                    names.join(", ")
-                )
-            })
-    }
-}
+pub use crate::method::Method;
+/// The field's frames at the texel centres (a module of their own, below the methods).
+pub use crate::texel_frames::{frames_f32, frames_from_slots, layout_frames, texel_frames_f32};
 
 /// The surface as every method sees it: texels at the output resolution (positions,
 /// normals, neighbourhood graph, field frames), the field itself (for methods that work on
@@ -727,104 +645,6 @@ impl Weights {
         }
         w
     }
-}
-
-/// The field's frames at every texel centre of `layout`, as the synthesizer stores them. A
-/// uniform layout takes [`texel_frames_f32`] (the same values as always); either way the
-/// frames are computed in f32 directly, without holding the f64 frames.
-pub fn layout_frames(
-    field: &OrientationField,
-    surface: &Surface,
-    layout: &crate::layout::TexelLayout,
-) -> Vec<[Vec3; 2]> {
-    if let Some(n) = layout.uniform_n() {
-        return texel_frames_f32(field, surface, n);
-    }
-    (0..layout.len())
-        .into_par_iter()
-        .map(|t| {
-            let l = layout.location(t);
-            let f = field.frame(surface, l.domain, l.u, l.v);
-            [f.v1.as_vec3(), f.v2.as_vec3()]
-        })
-        .collect()
-}
-
-/// The field's frames at every texel centre of `n`×`n` maps, as the synthesizer stores
-/// them: the same values as `frames_f32(&field.texel_frames(surface, n))` (same order,
-/// same rounding), without holding the f64 frames (48 B per texel) at the same time.
-pub fn texel_frames_f32(field: &OrientationField, surface: &Surface, n: usize) -> Vec<[Vec3; 2]> {
-    let mut out = vec![[Vec3::ZERO; 2]; surface.num_domains() * n * n];
-    each_texel_centre(
-        &mut out,
-        n,
-        subdiv::surface::LeafHint::default,
-        |hint, d, u, v, o| {
-            let f = field.frame_hinted(surface, d, u, v, hint);
-            *o = [f.v1.as_vec3(), f.v2.as_vec3()];
-        },
-    );
-    out
-}
-
-/// Calls `f(state, domain, u, v, slot)` for every texel centre of `n`×`n` maps, `out`
-/// holding one slot per texel (domain-major, then row, then column); in parallel per
-/// domain, `state` made by `init` once per domain. The centres are `(x + 0.5) · (1 / n)`,
-/// the points the geometry pass evaluates on a uniform layout (so a slot's kept normal,
-/// [`frames_from_slots`], is the one of its very centre).
-fn each_texel_centre<S>(
-    out: &mut [[Vec3; 2]],
-    n: usize,
-    init: impl Fn() -> S + Sync,
-    f: impl Fn(&mut S, subdiv::DomainId, f64, f64, &mut [Vec3; 2]) + Sync,
-) {
-    if n == 0 {
-        return;
-    }
-    let inv = 1.0 / n as f64;
-    out.par_chunks_mut(n * n)
-        .enumerate()
-        .for_each(|(d, chunk)| {
-            let d = subdiv::DomainId::from_idx(d);
-            let mut state = init();
-            for (i, o) in chunk.iter_mut().enumerate() {
-                let (x, y) = (i % n, i / n);
-                let (u, v) = ((x as f64 + 0.5) * inv, (y as f64 + 0.5) * inv);
-                f(&mut state, d, u, v, o);
-            }
-        });
-}
-
-/// [`texel_frames_f32`] from the exact normals the geometry pass kept
-/// ([`TexelGeometry::compute_keeping_normals`]): the same frames, bit for bit, without
-/// evaluating the surface again, written over the slots in place (no second array).
-pub fn frames_from_slots(
-    field: &OrientationField,
-    surface: &Surface,
-    slots: crate::texels::FrameSlots,
-) -> Vec<[Vec3; 2]> {
-    use crate::texels::FrameSlots;
-    let n = slots.resolution();
-    let mut out = slots.into_inner();
-    assert_eq!(out.len(), surface.num_domains() * n * n);
-    each_texel_centre(
-        &mut out,
-        n,
-        || (),
-        |_, d, u, v, o| {
-            let f = field.frame_with_normal(surface, d, u, v, FrameSlots::decode(o));
-            *o = [f.v1.as_vec3(), f.v2.as_vec3()];
-        },
-    );
-    out
-}
-
-/// Frames as the synthesizer stores them: (v1, v2) in f32.
-pub fn frames_f32(frames: &[Frame]) -> Vec<[Vec3; 2]> {
-    frames
-        .par_iter()
-        .map(|f| [f.v1.as_vec3(), f.v2.as_vec3()])
-        .collect()
 }
 
 /// Names of the channels of `facemaps.exr` for `example`: R G B \[A\], every map's

@@ -43,10 +43,10 @@
 use super::footprint::{centres, spread, turned, Footprints, LevelTexels, Turn};
 use super::matching::exemplar::Exemplar;
 use super::matching::features::dist2;
-use super::matching::search::hash;
 use super::patches::{self, PatchParams};
 use super::Target;
 use crate::pyramid::Image;
+use crate::random::hash;
 use rayon::prelude::*;
 use serde::Serialize;
 

@@ -45,9 +45,9 @@ use super::matching::exemplar::Exemplar;
 use super::matching::features::dist2_lanes;
 use super::matching::features::{dist2, Features};
 use super::matching::pixel_grid;
-use super::matching::search::hash;
 use super::mincut::CutGraph;
 use super::texel_table::TexelTable;
+use crate::random::hash;
 use rayon::prelude::*;
 
 use serde::Serialize;

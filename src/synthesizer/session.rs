@@ -453,7 +453,8 @@ impl Session {
             let (field, field_s) = compute_field(opts);
             let t0 = Instant::now();
             let both = field.map(|f| {
-                let frames = frames.then(|| crate::synth::layout_frames(&f, &surface, &layout));
+                let frames =
+                    frames.then(|| crate::texel_frames::layout_frames(&f, &surface, &layout));
                 (f, frames)
             });
             (both, field_s + t0.elapsed().as_secs_f64())
@@ -584,7 +585,7 @@ impl Session {
             });
         let t0 = Instant::now();
         let frames =
-            frames.unwrap_or_else(|| crate::synth::layout_frames(&field, &surface, &layout));
+            frames.unwrap_or_else(|| crate::texel_frames::layout_frames(&field, &surface, &layout));
         // The scale map is interpolated with the field (both are mesh-side data).
         let scale_field = match &settings.scale_map {
             None => None,
@@ -1196,7 +1197,7 @@ impl<'a> FrameMeet<'a> {
         };
         if let Some((Ok(field), _)) = self.field.get() {
             let t0 = Instant::now();
-            let frames = crate::synth::frames_from_slots(field, self.surface, slots);
+            let frames = crate::texel_frames::frames_from_slots(field, self.surface, slots);
             let _ = self.frames.set((frames, t0.elapsed().as_secs_f64()));
         }
     }

@@ -45,7 +45,6 @@
 //! wave started and its own texels as it writes them ([`level::View`]), so results are
 //! bit-identical for any thread count.
 
-pub mod bench;
 pub mod level;
 
 use crate::error::{Error, Result};

@@ -245,21 +245,8 @@ pub fn pick_limit(best: f32) -> f32 {
     best * (1.0 + TOLERANCE) * (1.0 + TOLERANCE)
 }
 
-/// A counter-based hash (SplitMix64 finaliser chained over the parts): the random stream of
-/// synthesis, a pure function of its inputs so that parallel schedules cannot change it.
-pub fn hash(seed: u64, parts: &[u64]) -> u64 {
-    fn mix(mut z: u64) -> u64 {
-        z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    let mut h = mix(seed);
-    for &p in parts {
-        h = mix(h ^ p);
-    }
-    h
-}
+/// The counter-based hash the searches draw their random candidates from.
+pub(crate) use crate::random::hash;
 
 /// A target neighbourhood in [`Shape`] order, raw (unweighted) values, with a presence flag
 /// per sample.

@@ -6,10 +6,10 @@
 //! and synthesis. Not a test: timings depend on the machine and its load, so they are
 //! reported, never asserted.
 
-use super::{run, Inputs, MultiscaleParams, Stats};
 use crate::error::Result;
 use crate::example::Example;
 use crate::field::{Orientation, OrientationField};
+use crate::synth::multiscale::{run, Inputs, MultiscaleParams, Stats};
 use crate::texels::TexelGeometry;
 use serde::Serialize;
 use std::time::Instant;

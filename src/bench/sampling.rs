@@ -3,8 +3,8 @@
 //! Single thread on purpose: the target is samples per second *per core*, and
 //! patterns are independent, so throughput scales with cores.
 
-use super::{Method, Sampler, SamplerKind};
 use crate::field::OrientationField;
+use crate::sampling::{Method, Sampler, SamplerKind};
 use serde::Serialize;
 use std::time::Instant;
 use subdiv::{DomainId, DomainLocation, Surface};
@@ -86,12 +86,16 @@ pub fn bench_sampling(
     k: usize,
     patterns: usize,
 ) -> Vec<SamplingRate> {
-    let delta = step_texels * super::median_texel_spacing(surface, n);
+    let delta = step_texels * crate::sampling::median_texel_spacing(surface, n);
     let centres = bench_centres(surface, n, patterns);
     let mut out = vec![None; k * k];
     let mut rates = Vec::new();
     for (name, kind, tol) in [
-        ("chart", SamplerKind::Chart, Some(super::DEFAULT_TOLERANCE)),
+        (
+            "chart",
+            SamplerKind::Chart,
+            Some(crate::sampling::DEFAULT_TOLERANCE),
+        ),
         ("chart-unchecked", SamplerKind::Chart, None),
         ("march", SamplerKind::March, None),
     ] {

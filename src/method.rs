@@ -1,0 +1,91 @@
+//! The synthesis methods by name (`--method`): what the command line, the memory guard,
+//! the report and the synthesizers share. Its own module, below all of them, so that the
+//! memory guard's per-method estimates need not import the synthesizers
+//! ([`crate::synth`] re-exports it).
+
+use serde::Serialize;
+
+/// Synthesis method (`--method`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Method {
+    /// Ying et al. 2001 §5: single pass, continues coherent patches (Ashikhmin).
+    Coherent,
+    /// Ying et al. 2001 §4: multiscale (Wei-Levoy), with k-coherence or ANN search.
+    Multiscale,
+    /// Paper 001 §5.2: patch sampling along the field (Liang et al.), joined by cuts.
+    Patches,
+    /// Paper 001 §4.3–4.4: texture optimisation (Kwatra et al.), multilevel.
+    Optimise,
+    /// Paper 002: jump maps (Zelinka & Garland), region growing over the texels.
+    Jump,
+    /// Paper 003: BTF synthesis with surface textons ([`crate::synth::Settings::btf`]; without a BTF
+    /// sample, the example as a one-image sample). Not in [`Method::ALL`], the methods of
+    /// plain examples.
+    Textons,
+}
+
+impl Method {
+    /// The method `synth` uses without `--method`: the one that keeps the example's
+    /// structure best at good speed (docs/synthesis.md has the table it was chosen from).
+    pub const DEFAULT: Method = Method::Optimise;
+
+    /// Every method, in the order of docs/synthesis.md's table.
+    pub const ALL: [Method; 5] = [
+        Method::Coherent,
+        Method::Multiscale,
+        Method::Patches,
+        Method::Optimise,
+        Method::Jump,
+    ];
+
+    /// The orientation field a run of this method gets without `--orient`.
+    ///
+    /// Texture optimisation copies whole patches, so it shows the example as it is — upright
+    /// bricks stay level only if the field keeps the example's up along the world's
+    /// (`up`, +y); with guided final assembly its seams stay within the bar there
+    /// (docs/synthesis.md, "The `up` field"). On a mostly level surface (terrain, a floor)
+    /// `up` has no up to follow and draws contour rings, so the default is `upright`: `up`
+    /// there only where the surface stands (`field::choice::upright`). The per-texel methods
+    /// keep the smoothest field (`auto`): `up` raised patch sampling's seams on the double
+    /// torus (1.31) and gains them nothing measured.
+    pub fn default_orientation(self) -> crate::field::Orientation {
+        match self {
+            Method::Optimise => crate::field::Orientation::Upright(glam::DVec3::Y),
+            _ => crate::field::Orientation::Auto,
+        }
+    }
+
+    /// The name used on the command line and in report.json.
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Coherent => "coherent",
+            Method::Multiscale => "multiscale",
+            Method::Patches => "patches",
+            Method::Optimise => "optimise",
+            Method::Jump => "jump",
+            Method::Textons => "textons",
+        }
+    }
+}
+
+impl std::str::FromStr for Method {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        Method::ALL
+            .into_iter()
+            .chain([Method::Textons])
+            .find(|m| m.name() == s)
+            .ok_or_else(|| {
+                let names: Vec<_> = Method::ALL
+                    .iter()
+                    .chain(&[Method::Textons])
+                    .map(|m| m.name())
+                    .collect();
+                format!(
+                    "unknown method '{s}' (expected one of {})",
+                    names.join(", ")
+                )
+            })
+    }
+}
