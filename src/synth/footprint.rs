@@ -74,8 +74,11 @@ pub struct LevelTexels {
     /// results without `--scale-map` are bit-identical to earlier versions. f64 so that a
     /// constant factor k gives the same local step, bit for bit, as the global scale S·k.
     pub factor: Option<Vec<f64>>,
-    /// The grid's 4-neighbourhood across domains: floods and seams run on it.
-    pub edges: EdgeGraph,
+    /// The grid's 4-neighbourhood across domains: floods and seams run on it. `None` for
+    /// texels prepared for one coherent synthesis (which never reads it) and after
+    /// [`Self::drop_edges`]: [`Self::edges`] then says so instead of handing out an empty
+    /// graph that would read as "no neighbours anywhere".
+    edges: Option<EdgeGraph>,
 }
 
 impl LevelTexels {
@@ -106,7 +109,7 @@ impl LevelTexels {
         step: f64,
     ) -> Self {
         let edges = EdgeGraph::build(surface, &geometry);
-        Self::from_built(geometry, frames, step, edges, None)
+        Self::from_built(geometry, frames, step, Some(edges), None)
     }
 
     /// From parts already computed, the edge graph (and the texel graph, if given) too:
@@ -115,7 +118,7 @@ impl LevelTexels {
         geometry: TexelGeometry,
         frames: Vec<[Vec3; 2]>,
         step: f64,
-        edges: EdgeGraph,
+        edges: Option<EdgeGraph>,
         graph: Option<TexelGraph>,
     ) -> Self {
         let cell = std::sync::OnceLock::new();
@@ -178,8 +181,19 @@ impl LevelTexels {
     }
 
     /// The texels' edge neighbours.
+    ///
+    /// # Panics
+    /// On texels made without them (a session prepared for one coherent synthesis) or
+    /// after [`Self::drop_edges`]: a programming error, not an input one.
     pub fn edges(&self) -> &EdgeGraph {
-        &self.edges
+        self.edges.as_ref().expect(
+            "texels without an edge graph (prepared for coherent synthesis only, or dropped)",
+        )
+    }
+
+    /// Frees the edge graph (a one-shot run once its synthesis is done).
+    pub fn drop_edges(&mut self) {
+        self.edges = None;
     }
 
     /// Where the texels are.

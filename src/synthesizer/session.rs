@@ -532,13 +532,13 @@ impl Session {
                 // synthesis (the one-shot builder's) goes without it (bunny N = 16: ~2% of
                 // the run's CPU, on the texel side's path to the texel graph).
                 let edges = match method {
-                    Some(Method::Coherent) => EdgeGraph::default(),
-                    _ => EdgeGraph::build(&surface, &geometry),
+                    Some(Method::Coherent) => None,
+                    _ => Some(EdgeGraph::build(&surface, &geometry)),
                 };
                 let (growth, graph) = match method {
                     Some(Method::Jump) => (
                         Some(crate::synth::jump::Growth::compute(
-                            &edges,
+                            edges.as_ref().expect("built for every method but coherent"),
                             &geometry.layout,
                             &geometry.pos,
                         )),
@@ -774,7 +774,7 @@ impl Session {
     ) -> Result<SynthResult> {
         let mut s = self.synthesis(&example, params, &labels)?;
         self.texels.drop_graph();
-        drop(std::mem::take(&mut self.texels.edges));
+        self.texels.drop_edges();
         drop(std::mem::take(&mut self.derived));
         // The tangents are taken from the frames once the graphs and orders are gone (not
         // beside them at the end of the synthesis stage: 12 B per texel off its peak).
