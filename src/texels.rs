@@ -887,23 +887,31 @@ struct Landings {
     n: Option<usize>,
     d: usize,
     quad: bool,
-    /// Per cell (X + 2, Y + 2) of the (N + 4)² lattice around the domain: [`Self::UNKNOWN`],
-    /// [`Self::NONE`], [`Self::WALK`] or the texel.
-    cells: Vec<u64>,
+    /// Per cell (X + 2, Y + 2) of the (N + 4)² lattice around the domain.
+    cells: Vec<Cell>,
+}
+
+/// What [`Landings`] knows of the walks to one cell.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Cell {
+    /// No walk to it yet.
+    Unknown,
+    /// Every walk leaves the surface through an open boundary.
+    Open,
+    /// Walks to it may land on different texels (another kind of neighbour): walk each.
+    Walk,
+    /// Every walk to it lands on this texel.
+    Texel(u32),
 }
 
 impl Landings {
-    const UNKNOWN: u64 = u64::MAX;
-    const NONE: u64 = u64::MAX - 1;
-    const WALK: u64 = u64::MAX - 2;
-
     fn new(surface: &Surface, layout: &TexelLayout, d: usize) -> Self {
         let n = layout.uniform_n().filter(|&n| n >= 4);
         let quad = matches!(
             surface.domain(DomainId::from_idx(d)),
             subdiv::Domain::Quad { .. }
         );
-        let cells = n.map_or_else(Vec::new, |n| vec![Self::UNKNOWN; (n + 4) * (n + 4)]);
+        let cells = n.map_or_else(Vec::new, |n| vec![Cell::Unknown; (n + 4) * (n + 4)]);
         Self { n, d, quad, cells }
     }
 
@@ -945,25 +953,25 @@ impl Landings {
         }
         let k = (cy + 2) as usize * (n + 4) + (cx + 2) as usize;
         match self.cells[k] {
-            Self::UNKNOWN => {
+            Cell::Unknown => {
                 let r = walk();
                 self.cells[k] = match r {
-                    None => Self::NONE,
+                    None => Cell::Open,
                     Some((e, t)) => {
                         let same =
                             matches!(surface.domain(e), subdiv::Domain::Quad { .. }) == self.quad;
                         if same {
-                            t as u64
+                            Cell::Texel(t)
                         } else {
-                            Self::WALK
+                            Cell::Walk
                         }
                     }
                 };
                 r.map(|(_, t)| t)
             }
-            Self::NONE => None,
-            Self::WALK => walk().map(|(_, t)| t),
-            t => Some(t as u32),
+            Cell::Open => None,
+            Cell::Walk => walk().map(|(_, t)| t),
+            Cell::Texel(t) => Some(t),
         }
     }
 }
@@ -1617,7 +1625,7 @@ mod tests {
                     kept += keeping
                         .cells
                         .iter()
-                        .filter(|&&c| c < Landings::WALK)
+                        .filter(|c| matches!(c, Cell::Texel(_)))
                         .count();
                 }
                 assert_eq!(kept > 0, n >= 4, "N = {n}");
