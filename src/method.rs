@@ -56,6 +56,18 @@ impl Method {
         }
     }
 
+    /// Why this method cannot take a BTF sample, if it cannot — one message for the
+    /// command line, which checks before any work, and for [`crate::synth::synthesize`],
+    /// which checks for library callers.
+    pub fn btf_refusal(self) -> Option<&'static str> {
+        match self {
+            Method::Multiscale => Some(
+                "with a BTF sample, --method multiscale would match its default image only: use --method textons (multiscale over every image) or optimise, patches, coherent, jump (every image in appearance space)",
+            ),
+            _ => None,
+        }
+    }
+
     /// The name used on the command line and in report.json.
     pub fn name(self) -> &'static str {
         match self {

@@ -26,6 +26,21 @@ pub enum Method {
     Textons,
 }
 
+impl Method {
+    /// The library's method of this name.
+    fn lib(self) -> surfsynth::method::Method {
+        use surfsynth::method::Method as M;
+        match self {
+            Method::Coherent => M::Coherent,
+            Method::Multiscale => M::Multiscale,
+            Method::Patches => M::Patches,
+            Method::Optimise => M::Optimise,
+            Method::Jump => M::Jump,
+            Method::Textons => M::Textons,
+        }
+    }
+}
+
 #[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Appearance {
     /// PCA of every pixel's 5x5 neighbourhood (8 dimensions; Lefebvre & Hoppe 2006).
@@ -301,10 +316,8 @@ pub fn run(mut a: SynthArgs) -> anyhow::Result<()> {
     if chosen == Method::Textons && a.btf.is_none() {
         return super::usage("--method textons needs a BTF sample: pass --btf B.json");
     }
-    if chosen == Method::Multiscale && a.btf.is_some() {
-        return super::usage(
-            "--method multiscale matches one image: with --btf use --method textons (multiscale over every image) or optimise, patches, coherent, jump",
-        );
+    if let (Some(why), Some(_)) = (chosen.lib().btf_refusal(), &a.btf) {
+        return super::usage(why);
     }
     if a.search.is_some() && !matches!(chosen, Method::Multiscale | Method::Textons) {
         return super::usage(format!(
@@ -396,14 +409,7 @@ pub fn run(mut a: SynthArgs) -> anyhow::Result<()> {
     }
     surfsynth::memory::set_limit(a.max_memory);
     use surfsynth::synthesizer::Search as S;
-    let method = match chosen {
-        Method::Coherent => surfsynth::synthesizer::Method::Coherent,
-        Method::Multiscale => surfsynth::synthesizer::Method::Multiscale,
-        Method::Patches => surfsynth::synthesizer::Method::Patches,
-        Method::Optimise => surfsynth::synthesizer::Method::Optimise,
-        Method::Jump => surfsynth::synthesizer::Method::Jump,
-        Method::Textons => surfsynth::synthesizer::Method::Textons,
-    };
+    let method = chosen.lib();
     let cache = match (a.cache, a.no_cache) {
         (_, true) => surfsynth::synthesizer::CacheDir::Off,
         (Some(d), false) => surfsynth::synthesizer::CacheDir::Dir(d),

@@ -274,10 +274,8 @@ pub fn synthesize(
             let (img, info) = matching::reflectance::reflectance(sample, dims);
             (img, Some(info))
         }
-        (Some(_), Method::Multiscale) => {
-            return Err(crate::Error::invalid(
-                "with a BTF sample, --method multiscale would match its default image only: use --method textons (multiscale over every image) or optimise, patches, coherent, jump (every image in appearance space)",
-            ));
+        (Some(_), m) if m.btf_refusal().is_some() => {
+            return Err(crate::Error::invalid(m.btf_refusal().unwrap_or_default()));
         }
         _ => (weighted_image(example, &settings.weights), None),
     };
