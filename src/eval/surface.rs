@@ -766,17 +766,20 @@ fn median_spacing(
     valid: &(impl Fn(usize) -> bool + Sync),
 ) -> Option<f64> {
     let ok = |i: usize| all_valid || valid(i);
-    // Texel i's spacings to its +x and +y neighbours in its face.
+    // Texel i's spacings to its +x and +y neighbours in its face, squared: the root is
+    // monotonic, so the median of the squares is the square of the median (the same
+    // texel pair's, rooted once at the end instead of 8 M times at 4 M texels), and a
+    // bracket in squares holds the median as well as one in lengths does.
     let spacings = |i: usize, x: usize, y: usize, n: usize, nv: usize, f: &mut dyn FnMut(f64)| {
         if !ok(i) {
             return;
         }
         let pi = pos.get(i);
         if x + 1 < n && ok(i + 1) {
-            f((pos.get(i + 1) - pi).length());
+            f((pos.get(i + 1) - pi).length_squared());
         }
         if y + 1 < nv && ok(i + n) {
-            f((pos.get(i + n) - pi).length());
+            f((pos.get(i + n) - pi).length_squared());
         }
     };
     let each_face = |face: usize, f: &mut dyn FnMut(f64)| {
@@ -789,7 +792,10 @@ fn median_spacing(
     };
     let median =
         |d: &mut [f64], rank: usize| -> f64 { *d.select_nth_unstable_by(rank, f64::total_cmp).1 };
-    let result = |m: f64| (m.is_finite() && m > 0.0).then_some(m);
+    let result = |m2: f64| {
+        let m = m2.sqrt();
+        (m.is_finite() && m > 0.0).then_some(m)
+    };
     // The bracket from a sample.
     let mut sample: Vec<f64> = (0..l.len())
         .into_par_iter()

@@ -246,8 +246,15 @@ impl<'a> TexelBvh<'a> {
                 (lo.map(|v| v as f32), hi.map(|v| v as f32))
             })
             .collect();
-        let mut items: Vec<u32> = (0..s.blocks.len() as u32)
+        let mut items: Vec<Item> = (0..s.blocks.len() as u32)
             .filter(|&b| boxes[b as usize].0[0] <= boxes[b as usize].1[0])
+            .map(|b| {
+                let (lo, hi) = &boxes[b as usize];
+                Item {
+                    centre: std::array::from_fn(|k| 0.5 * (lo[k] as f64 + hi[k] as f64)),
+                    block: b,
+                }
+            })
             .collect();
         if !items.is_empty() {
             let mut nodes = vec![EMPTY; 2 * items.len() - 1];
@@ -590,40 +597,39 @@ impl<'a> TexelBvh<'a> {
     }
 }
 
-/// Builds the subtree of `items` (block indices) into `nodes` (exactly 2 x items - 1 of
+/// Builds the subtree of `items` (blocks, with their centres) into `nodes` (exactly 2 x items - 1 of
 /// them, this subtree's root first, the right child's offset from its parent in `right`):
 /// split at the median of the block centres along the longest side of their bounds, ties
 /// by block index, so the tree depends on nothing but the boxes.
-fn build_tree(nodes: &mut [Node], items: &mut [u32], boxes: &[Corners]) {
+fn build_tree(nodes: &mut [Node], items: &mut [Item], boxes: &[Corners]) {
     debug_assert_eq!(nodes.len(), 2 * items.len() - 1);
     if items.len() == 1 {
-        let (lo, hi) = boxes[items[0] as usize];
+        let (lo, hi) = boxes[items[0].block as usize];
         nodes[0] = Node {
             lo,
             hi,
             right: 0,
-            block: items[0],
+            block: items[0].block,
         };
         return;
     }
-    let centre = |b: u32, k: usize| {
-        let (lo, hi) = &boxes[b as usize];
-        0.5 * (lo[k] as f64 + hi[k] as f64)
-    };
     let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
-    for &b in items.iter() {
+    for it in items.iter() {
         for k in 0..3 {
-            let c = centre(b, k);
-            lo[k] = lo[k].min(c);
-            hi[k] = hi[k].max(c);
+            lo[k] = lo[k].min(it.centre[k]);
+            hi[k] = hi[k].max(it.centre[k]);
         }
     }
     let axis = (0..3)
         .max_by(|&a, &b| (hi[a] - lo[a]).total_cmp(&(hi[b] - lo[b])).then(b.cmp(&a)))
         .unwrap_or(0);
     let mid = items.len() / 2;
-    items.select_nth_unstable_by(mid, |&a, &b| {
-        centre(a, axis).total_cmp(&centre(b, axis)).then(a.cmp(&b))
+    // A strict total order (ties by block number): the halves are the same sets whatever
+    // order the items come in, so the tree is the same as well.
+    items.select_nth_unstable_by(mid, |a, b| {
+        a.centre[axis]
+            .total_cmp(&b.centre[axis])
+            .then(a.block.cmp(&b.block))
     });
     let (left_items, right_items) = items.split_at_mut(mid);
     let (root, rest) = nodes.split_first_mut().expect("at least 3 nodes");
@@ -644,6 +650,15 @@ fn build_tree(nodes: &mut [Node], items: &mut [u32], boxes: &[Corners]) {
         right: 2 * left_items.len() as u32,
         block: INNER,
     };
+}
+
+/// A block being placed in the tree, with its box's centre beside it: the splits read
+/// the centres in place instead of looking each block's box up in comparisons (at 4 M
+/// texels, ~250 k blocks, those scattered reads were most of the tree's build).
+#[derive(Clone, Copy, Debug)]
+struct Item {
+    centre: [f64; 3],
+    block: u32,
 }
 
 #[cfg(test)]
