@@ -526,8 +526,16 @@ pub fn search(
     let g = scratch.generation;
     scratch.cands.clear();
     let k = k.min(lists.len);
-    for &s in seeds {
-        for &c in &lists.list(s as usize)[..k] {
+    // Rank by rank over the seeds (every seed's first entry, then every seed's second, ...)
+    // rather than seed by seed. *Why*: the best match is most often a seed's own
+    // continuation or one of its nearest, so the pick bound ([`TopN::pick_bound`]) tightens
+    // after the first few distances and the later candidates' early exits come sooner.
+    // Which matches [`super::pick`] can choose does not depend on the order (every
+    // candidate within the final limit is kept, sorted with ties by index), so the choice
+    // is the same as seed by seed.
+    for r in 0..k {
+        for &s in seeds {
+            let c = lists.list(s as usize)[r];
             let st = &mut scratch.stamp[c as usize];
             if *st != g {
                 *st = g;
