@@ -712,6 +712,28 @@ impl Features {
             }
         }
     }
+
+    /// [`Self::rerank`], also keeping per candidate what [`Self::distance`] returned and
+    /// the bound it was given (`measured`, in the order of `candidates`; cleared first):
+    /// what a later distance of the same candidate would say (see
+    /// [`kcoherence::KScratch::measured`]).
+    pub fn rerank_measured(
+        &self,
+        q: &Prepared,
+        candidates: &[u32],
+        top: &mut TopN,
+        measured: &mut Vec<(f32, f32)>,
+    ) {
+        measured.clear();
+        for &i in candidates {
+            let b = top.pick_bound();
+            let d = self.distance(q, i as usize, b);
+            measured.push((d, b));
+            if d <= b {
+                top.push(Match { index: i, dist2: d });
+            }
+        }
+    }
 }
 
 /// Sample indices sorted by decreasing weight (ties by index): the storage order of
