@@ -292,7 +292,12 @@ impl Query {
     #[inline]
     pub fn set(&mut self, s: usize, vals: &[f32]) {
         let c = self.shape.channels;
-        self.values[s * c..(s + 1) * c].copy_from_slice(&vals[..c]);
+        if c == 8 {
+            // Two moves instead of a call to memcpy (appearance space's 8 channels).
+            self.values[s * 8..s * 8 + 8].copy_from_slice(&vals[..8]);
+        } else {
+            self.values[s * c..(s + 1) * c].copy_from_slice(&vals[..c]);
+        }
         self.present[s] = true;
     }
 
