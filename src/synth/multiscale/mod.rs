@@ -436,7 +436,12 @@ impl Ctx<'_> {
         let bound = top[0].dist2 * (1.0 + kappa) * (1.0 + kappa);
         let mut best: Option<(f32, u32)> = None;
         for &c in &w.coherent {
-            let d = f.distance(&w.prep, c as usize, bound);
+            // What the search measured, where that settles it (`KScratch::measured`).
+            let d = match w.scratch.kcoh.measured(c) {
+                Some((d, b)) if d <= b => d,
+                Some((_, b)) if b >= bound => continue,
+                _ => f.distance(&w.prep, c as usize, bound),
+            };
             if d <= bound && best.is_none_or(|(bd, bi)| d < bd || (d == bd && c < bi)) {
                 best = Some((d, c));
             }

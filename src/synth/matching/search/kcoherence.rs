@@ -499,6 +499,39 @@ pub struct KScratch {
     stamp: Vec<u32>,
     generation: u32,
     cands: Vec<u32>,
+    /// Per feature: its place in `cands` (valid where `stamp` is the generation).
+    slot: Vec<u32>,
+    /// Per candidate of the last search: the distance returned and the bound given.
+    measured: Vec<(f32, f32)>,
+    /// Whether the last search of this scratch's owner was a k-coherence one (else
+    /// `measured` belongs to an older query).
+    current: bool,
+}
+
+impl KScratch {
+    /// Forgets the last search (the next query's search is not a k-coherence one).
+    pub fn invalidate(&mut self) {
+        self.current = false;
+    }
+
+    /// What the last search measured for feature `c`, if it was a candidate: the value
+    /// [`Features::distance`] returned and the bound it was given. *Why*: the finest
+    /// level's coherent choice measures its neighbours' continuations against the best
+    /// match right after the search, and they are almost always among its candidates. The
+    /// distance is a deterministic sum of non-negative terms with an early exit once it
+    /// exceeds the bound, so the value returned within its bound is the full distance
+    /// whatever bound a new call gets (compared with that bound it gives the same
+    /// verdict), and a value beyond a bound at least as large as the new one says the
+    /// full distance is beyond the new bound too. Only a candidate cut off by a smaller
+    /// bound has to be measured again.
+    #[inline]
+    pub fn measured(&self, c: u32) -> Option<(f32, f32)> {
+        let c = c as usize;
+        if !self.current || self.stamp.get(c) != Some(&self.generation) {
+            return None;
+        }
+        Some(self.measured[self.slot[c] as usize])
+    }
 }
 
 /// The best matches of `q` among the first `k` entries of the lists of the `seeds`
@@ -516,6 +549,7 @@ pub fn search(
     let n = features.len();
     if scratch.stamp.len() != n {
         scratch.stamp = vec![0; n];
+        scratch.slot = vec![0; n];
         scratch.generation = 0;
     }
     scratch.generation = scratch.generation.wrapping_add(1);
@@ -526,17 +560,27 @@ pub fn search(
     let g = scratch.generation;
     scratch.cands.clear();
     let k = k.min(lists.len);
-    for &s in seeds {
-        for &c in &lists.list(s as usize)[..k] {
+    // Rank by rank over the seeds (every seed's first entry, then every seed's second, ...)
+    // rather than seed by seed. *Why*: the best match is most often a seed's own
+    // continuation or one of its nearest, so the pick bound ([`TopN::pick_bound`]) tightens
+    // after the first few distances and the later candidates' early exits come sooner.
+    // Which matches [`super::pick`] can choose does not depend on the order (every
+    // candidate within the final limit is kept, sorted with ties by index), so the choice
+    // is the same as seed by seed.
+    for r in 0..k {
+        for &s in seeds {
+            let c = lists.list(s as usize)[r];
             let st = &mut scratch.stamp[c as usize];
             if *st != g {
                 *st = g;
+                scratch.slot[c as usize] = scratch.cands.len() as u32;
                 scratch.cands.push(c);
             }
         }
     }
     top.clear();
-    features.rerank(q, &scratch.cands, top);
+    features.rerank_measured(q, &scratch.cands, top, &mut scratch.measured);
+    scratch.current = true;
     scratch.cands.len()
 }
 

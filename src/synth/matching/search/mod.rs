@@ -279,7 +279,18 @@ impl Query {
     #[inline]
     pub fn set(&mut self, s: usize, vals: &[f32]) {
         let c = self.shape.channels;
-        self.values[s * c..(s + 1) * c].copy_from_slice(&vals[..c]);
+        if c == 8 {
+            // Two moves instead of a call to memcpy (appearance space's 8 channels): as
+            // one 8-float value, which the optimiser does not fold back into the general
+            // copy as it did a `copy_from_slice` of 8.
+            let v: [f32; 8] = vals[..8].try_into().expect("8 channels");
+            let dst: &mut [f32; 8] = (&mut self.values[s * 8..s * 8 + 8])
+                .try_into()
+                .expect("8 channels");
+            *dst = v;
+        } else {
+            self.values[s * c..(s + 1) * c].copy_from_slice(&vals[..c]);
+        }
         self.present[s] = true;
     }
 
@@ -694,6 +705,28 @@ impl Features {
         for &i in candidates {
             let b = top.pick_bound();
             let d = self.distance(q, i as usize, b);
+            if d <= b {
+                top.push(Match { index: i, dist2: d });
+            }
+        }
+    }
+
+    /// [`Self::rerank`], also keeping per candidate what [`Self::distance`] returned and
+    /// the bound it was given (`measured`, in the order of `candidates`; cleared first):
+    /// what a later distance of the same candidate would say (see
+    /// [`kcoherence::KScratch::measured`]).
+    pub fn rerank_measured(
+        &self,
+        q: &Prepared,
+        candidates: &[u32],
+        top: &mut TopN,
+        measured: &mut Vec<(f32, f32)>,
+    ) {
+        measured.clear();
+        for &i in candidates {
+            let b = top.pick_bound();
+            let d = self.distance(q, i as usize, b);
+            measured.push((d, b));
             if d <= b {
                 top.push(Match { index: i, dist2: d });
             }

@@ -357,6 +357,7 @@ impl ExampleModel {
     ) -> usize {
         let s = self.searcher(level, pass);
         let f = &s.features;
+        scratch.kcoh.invalidate();
         if pass == Pass::Coarsest || level == self.coarsest() {
             f.brute_force(q, &mut scratch.top);
             return f.len();
