@@ -12,7 +12,7 @@
 use glam::DVec3;
 use subdiv::{ControlMesh, Surface};
 use surfsynth::example::Example;
-use surfsynth::io::atlas::{export, ExportOptions};
+use surfsynth::io::export::{export, ExportOptions};
 use surfsynth::io::ptex::{write_face_maps_ptex, PtexOptions, PTEX_FILE};
 use surfsynth::synthesizer::Synthesizer;
 

@@ -1033,7 +1033,7 @@ impl SynthResult {
                         normal: &self.geometry.normal,
                     },
                 );
-                let (_, images) = atlas::export_with_frames(
+                let (_, images) = crate::io::export::export_with_frames(
                     d,
                     &self.surface,
                     &self.maps,

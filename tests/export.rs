@@ -9,7 +9,8 @@ use glam::DVec3;
 use std::collections::HashMap;
 use std::path::Path;
 use subdiv::{DomainId, Surface};
-use surfsynth::io::atlas::{export, ExportOptions, ATLAS_NAME, MTL_NAME, OBJ_NAME};
+use surfsynth::io::atlas::{ATLAS_NAME, MTL_NAME, OBJ_NAME};
+use surfsynth::io::export::{export, ExportOptions};
 use surfsynth::io::exr::FaceMaps;
 
 fn load(rel: &str) -> Surface {

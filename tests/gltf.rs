@@ -10,9 +10,8 @@ use common::{glb, gltf_validator};
 use glam::DVec3;
 use std::path::Path;
 use subdiv::{DomainId, Surface};
-use surfsynth::io::atlas::{
-    export, AtlasLayout, ExportOptions, ATLAS_NAME, DEFAULT_GUTTER, GLB_NAME,
-};
+use surfsynth::io::atlas::{AtlasLayout, ATLAS_NAME, DEFAULT_GUTTER, GLB_NAME};
+use surfsynth::io::export::{export, ExportOptions};
 use surfsynth::io::exr::FaceMaps;
 
 /// The domain and domain (u, v) of a glTF texture coordinate in the atlas of `layout`.

@@ -27,12 +27,10 @@
 //! all three were written, so an error leaves none of them behind.
 
 use crate::error::{Error, Result};
-use crate::io::atomic::AtomicFile;
 use crate::io::exr::FaceMaps;
 use crate::layout::TexelLayout;
 use rayon::prelude::*;
 use std::io::Write;
-use std::path::Path;
 use std::sync::Arc;
 use subdiv::{BaseQuadId, DomainId, DomainLocation, FaceId, LimitMesh, Surface, VertexId};
 
@@ -40,7 +38,7 @@ use subdiv::{BaseQuadId, DomainId, DomainLocation, FaceId, LimitMesh, Surface, V
 /// mip level (where a renderer averages 2×2 pixels) free of bleeding from other tiles.
 pub const DEFAULT_GUTTER: usize = 2;
 
-/// Names of the files [`export`] writes.
+/// Names of the files [`crate::io::export::export`] writes.
 pub const OBJ_NAME: &str = "surface.obj";
 /// See [`OBJ_NAME`].
 pub const MTL_NAME: &str = "surface.mtl";
@@ -391,7 +389,7 @@ fn fix_corner_gutter(
     }
 }
 /// The checks every writer of the atlas and its mesh makes first.
-fn check_maps(surface: &Surface, maps: &FaceMaps, gutter: usize) -> Result<()> {
+pub(crate) fn check_maps(surface: &Surface, maps: &FaceMaps, gutter: usize) -> Result<()> {
     if maps.faces() != surface.num_domains() {
         return Err(Error::invalid(format!(
             "face maps have {} domains but the mesh has {}",
@@ -732,7 +730,7 @@ pub struct SurfaceMesh {
     pub level: u32,
 }
 
-/// The refinement level [`export`] uses for resolution `n`: a quad domain gets 2^level
+/// The refinement level [`crate::io::export::export`] uses for resolution `n`: a quad domain gets 2^level
 /// segments per side (an n-gon sub-face half that), aiming at about one segment per four
 /// texels — finer adds file size but no visible smoothness, the limit surface being C² almost
 /// everywhere — clamped to 2..=5 (4 to 32 segments per quad domain side).
@@ -753,7 +751,7 @@ pub fn level_for_resolution(n: usize) -> u32 {
 /// "Orientation field").
 pub const DENSE_DOMAINS: usize = 65_536;
 
-/// The level [`export`] uses for a face-map layout: [`level_for_resolution`] of
+/// The level [`crate::io::export::export`] uses for a face-map layout: [`level_for_resolution`] of
 /// [`side_for_level`], but at least 1 instead of 2 on a control mesh with
 /// [`DENSE_DOMAINS`] or more domains (the floor is for the smoothness of coarse meshes; the
 /// UVs are exact at any level, being the domain parameters).
@@ -976,190 +974,6 @@ pub fn mtl_text_with_maps(atlas: &str, alpha: bool, maps: &[(String, String)]) -
         s.push_str(&line);
     }
     s
-}
-
-/// Options of [`export`].
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct ExportOptions {
-    /// Gutter width in pixels (>= 1; [`DEFAULT_GUTTER`]).
-    pub gutter: usize,
-    /// Tessellation level; `None` picks [`level_for_layout`].
-    pub level: Option<u32>,
-    /// Also write `surface.glb` (default).
-    pub gltf: bool,
-}
-
-impl Default for ExportOptions {
-    fn default() -> Self {
-        Self {
-            gutter: DEFAULT_GUTTER,
-            level: None,
-            gltf: true,
-        }
-    }
-}
-
-/// What [`export`] wrote.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct ExportSummary {
-    pub atlas_width: usize,
-    pub atlas_height: usize,
-    pub vertices: usize,
-    pub quads: usize,
-    pub level: u32,
-    pub alpha: bool,
-}
-
-/// Writes `DIR/surface.obj`, `DIR/surface.mtl`, `DIR/atlas.png` and (with
-/// [`ExportOptions::gltf`]) `DIR/surface.glb` for `maps` (which need `R`, `G`, `B` and may
-/// have `A`, and the data maps of [`crate::io::materials`]) on `surface`. The directory
-/// must exist. Nothing is published unless all files were written.
-///
-/// The atlases (PNG encoding is single-threaded) are made while the surface is
-/// tessellated, and the OBJ text while the glTF mesh is built.
-pub fn export(
-    dir: impl AsRef<Path>,
-    surface: &Surface,
-    maps: &FaceMaps,
-    opts: &ExportOptions,
-) -> Result<ExportSummary> {
-    export_images(dir, surface, maps, opts).map(|(summary, _)| summary)
-}
-
-/// [`export`], also returning the encoded material images (for other outputs with the same
-/// material: `displaced.glb`).
-pub fn export_images(
-    dir: impl AsRef<Path>,
-    surface: &Surface,
-    maps: &FaceMaps,
-    opts: &ExportOptions,
-) -> Result<(ExportSummary, crate::io::materials::MaterialImages)> {
-    export_with_frames(dir, surface, maps, opts, None)
-}
-
-/// [`export_images`] for face maps whose `normal.*` is in the orientation field's frame
-/// (`frames`; facemaps.exr as `synth` writes it): the normal atlases are re-expressed in
-/// the tangent frames renderers derive from surface.obj's UVs ([`crate::io::tangent`]).
-pub fn export_with_frames(
-    dir: impl AsRef<Path>,
-    surface: &Surface,
-    maps: &FaceMaps,
-    opts: &ExportOptions,
-    frames: Option<crate::io::tangent::FieldFrames<'_>>,
-) -> Result<(ExportSummary, crate::io::materials::MaterialImages)> {
-    let dir = dir.as_ref();
-    check_maps(surface, maps, opts.gutter)?;
-    let level = opts.level.unwrap_or_else(|| level_for_layout(&maps.layout));
-    let layout = AtlasLayout::of(maps.layout.clone(), opts.gutter);
-    let (images, mesh) = match frames.filter(|_| maps.channel("normal.R").is_some()) {
-        // The normal atlas needs the tessellation's triangles first.
-        Some(f) => {
-            let mesh = tessellate(surface, &layout, level);
-            let uv = crate::io::tangent::UvFrames::new(surface, &mesh, layout.clone());
-            let normal = crate::io::tangent::normal_atlas(surface, maps, f, &uv, opts.gutter)?;
-            (
-                crate::io::materials::material_images(surface, maps, opts.gutter, normal.as_ref()),
-                mesh,
-            )
-        }
-        None => rayon::join(
-            || crate::io::materials::material_images(surface, maps, opts.gutter, None),
-            || tessellate(surface, &layout, level),
-        ),
-    };
-    let images = images?;
-    let alpha = images.alpha;
-    // The last guard before the meshes (issue 18): never a `v inf inf inf`.
-    if let Some(k) = mesh
-        .positions
-        .iter()
-        .chain(&mesh.normals)
-        .position(|p| !p.iter().all(|v| v.is_finite()))
-    {
-        return Err(Error::file(
-            dir.join(OBJ_NAME),
-            format!(
-                "surface {} {} is not finite; nothing was written",
-                if k < mesh.positions.len() {
-                    "point"
-                } else {
-                    "normal"
-                },
-                k % mesh.positions.len().max(1)
-            ),
-        ));
-    }
-
-    let mut map_files = Vec::with_capacity(images.maps.len());
-    let mut map_list = Vec::with_capacity(images.maps.len());
-    for m in &images.maps {
-        let path = dir.join(m.file_name());
-        let mut f = AtomicFile::create(&path)?;
-        f.writer()
-            .write_all(&m.png)
-            .map_err(|e| Error::io(&path, "cannot write", e))?;
-        map_files.push(f);
-        map_list.push((m.name.clone(), m.file_name()));
-    }
-
-    let png_path = dir.join(ATLAS_NAME);
-    let mut png = AtomicFile::create(&png_path)?;
-    png.writer()
-        .write_all(&images.base_colour)
-        .map_err(|e| Error::io(&png_path, "cannot write", e))?;
-
-    let mtl_path = dir.join(MTL_NAME);
-    let mut mtl = AtomicFile::create(&mtl_path)?;
-    mtl.writer()
-        .write_all(mtl_text_with_maps(ATLAS_NAME, alpha, &map_list).as_bytes())
-        .map_err(|e| Error::io(&mtl_path, "cannot write", e))?;
-
-    let obj_path = dir.join(OBJ_NAME);
-    let glb_path = dir.join(GLB_NAME);
-    let (obj, glb) = rayon::join(
-        || -> Result<AtomicFile> {
-            let mut obj = AtomicFile::create(&obj_path)?;
-            mesh.write_obj(obj.writer(), MTL_NAME)
-                .map_err(|e| Error::io(&obj_path, "cannot write", e))?;
-            Ok(obj)
-        },
-        || -> Result<Option<AtomicFile>> {
-            if !opts.gltf {
-                return Ok(None);
-            }
-            let mut tri = crate::io::gltf::TriMesh::from(&mesh);
-            tri.tangents = crate::io::gltf::tangents(&tri);
-            let material = crate::io::gltf::Material {
-                name: MATERIAL,
-                base_colour: &images.base_colour,
-                alpha,
-                normal: images.normal.as_deref(),
-                orm: images.orm.as_ref().map(|(p, o)| (p.as_slice(), *o)),
-            };
-            crate::io::gltf::write_glb_uncommitted(&glb_path, &tri, &material).map(Some)
-        },
-    );
-    let (obj, glb) = (obj?, glb?);
-
-    // The OBJ refers to the MTL, which refers to the PNGs: publish in that dependency order.
-    for f in map_files {
-        f.commit()?;
-    }
-    png.commit()?;
-    mtl.commit()?;
-    obj.commit()?;
-    if let Some(glb) = glb {
-        glb.commit()?;
-    }
-    let summary = ExportSummary {
-        atlas_width: layout.width(),
-        atlas_height: layout.height(),
-        vertices: mesh.positions.len(),
-        quads: mesh.quads.len(),
-        level,
-        alpha,
-    };
-    Ok((summary, images))
 }
 
 #[cfg(test)]

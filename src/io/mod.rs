@@ -9,6 +9,7 @@ pub mod atomic;
 pub mod decimate;
 pub mod direct;
 pub mod displace;
+pub mod export;
 pub mod exr;
 pub mod gltf;
 pub mod interrupt;
