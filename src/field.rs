@@ -1437,14 +1437,22 @@ pub const SMOOTH_MAX_LEVEL: u32 = 4;
 /// The level [`OrientationField::compute_with`] puts the field of `orientation` on with
 /// `opts` (the smoothest field's cap included), without computing it.
 pub fn planned_level(surface: &Surface, orientation: &Orientation, opts: &FieldOptions) -> u32 {
-    if *orientation == Orientation::Auto && opts.level.is_none() && opts.texels.is_some() {
-        let capped = FieldOptions {
+    final_level(
+        surface,
+        smooth_capped(orientation, opts).as_ref().unwrap_or(opts),
+    )
+}
+
+/// `opts` capped for the smoothest field sized by the texel count, which has no detail
+/// finer than the surface's own shape: level [`SMOOTH_MAX_LEVEL`] at most, whatever the
+/// texel count (`None`: `opts` as they are).
+fn smooth_capped(orientation: &Orientation, opts: &FieldOptions) -> Option<FieldOptions> {
+    (*orientation == Orientation::Auto && opts.level.is_none() && opts.texels.is_some()).then(
+        || FieldOptions {
             max_level: opts.max_level.min(SMOOTH_MAX_LEVEL),
             ..opts.clone()
-        };
-        return final_level(surface, &capped);
-    }
-    final_level(surface, opts)
+        },
+    )
 }
 
 /// The level the field lives on: [`FieldOptions::level`], or the automatic one.
@@ -1537,13 +1545,7 @@ impl OrientationField {
             field.choice = Some(choice);
             return Ok(field);
         }
-        if *orientation == Orientation::Auto && opts.level.is_none() && opts.texels.is_some() {
-            // The smoothest field has no detail finer than the surface's own shape: level
-            // [`SMOOTH_MAX_LEVEL`] at most, whatever the texel count.
-            let capped = FieldOptions {
-                max_level: opts.max_level.min(SMOOTH_MAX_LEVEL),
-                ..opts.clone()
-            };
+        if let Some(capped) = smooth_capped(orientation, opts) {
             return Self::compute_fixed(surface, orientation, &capped);
         }
         if *orientation != Orientation::Straight {

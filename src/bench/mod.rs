@@ -21,7 +21,7 @@ pub mod multiscale;
 pub mod sampling;
 pub mod synth;
 
-pub use crate::process::{cpu_seconds, current_rss_bytes, peak_rss_bytes, reset_peak_rss};
+use crate::process::{cpu_seconds, current_rss_bytes, peak_rss_bytes};
 
 /// A closed quad-grid torus with about `min_domains` faces (rows x 2 rows), major radius 1,
 /// minor radius 0.35. All vertices are regular, so it measures the fast path of evaluation.

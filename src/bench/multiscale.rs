@@ -85,7 +85,7 @@ pub fn bench_surface(
     params: &MultiscaleParams,
     seed: u64,
 ) -> Result<BenchResult> {
-    let cpu0 = crate::bench::cpu_seconds();
+    let cpu0 = crate::process::cpu_seconds();
     let t0 = Instant::now();
     let geom = TexelGeometry::compute(surface, n);
     let field = OrientationField::compute(surface, &Orientation::Auto)
@@ -111,7 +111,7 @@ pub fn bench_surface(
     let synthesis_seconds = t1.elapsed().as_secs_f64();
     let total_seconds = t0.elapsed().as_secs_f64();
     let texels = geom.len();
-    let cpu_seconds = match (cpu0, crate::bench::cpu_seconds()) {
+    let cpu_seconds = match (cpu0, crate::process::cpu_seconds()) {
         (Some(a), Some(b)) => Some(b - a),
         _ => None,
     };
@@ -128,7 +128,7 @@ pub fn bench_surface(
         cpu_seconds,
         texels_per_second: texels as f64 / total_seconds,
         synthesis_texels_per_second: texels as f64 / synthesis_seconds,
-        peak_bytes_per_texel: crate::bench::peak_rss_bytes().map(|b| b as f64 / texels as f64),
+        peak_bytes_per_texel: crate::process::peak_rss_bytes().map(|b| b as f64 / texels as f64),
         stats: out.stats,
     })
 }

@@ -304,26 +304,27 @@ fn disjoint_parts<'a, const K: usize>(
     (&'a mut [[f32; 2]], &'a mut [u8], &'a mut [[f32; K]]),
     DomainOut<K>,
 )> {
-    let (mut src, mut kind, mut feat) = (src, kind, feat);
-    let (mut at, mut at_shared) = (0, 0);
-    let mut parts = Vec::with_capacity(outs.len());
-    for (d, r) in outs {
-        let d = d as usize;
-        let (t, f) = (texels(d), shared(d));
-        let (_, rest) = std::mem::take(&mut src).split_at_mut(t.start - at);
-        let (s, rest) = rest.split_at_mut(t.len());
-        src = rest;
-        let (_, rest) = std::mem::take(&mut kind).split_at_mut(t.start - at);
-        let (k, rest) = rest.split_at_mut(t.len());
-        kind = rest;
-        at = t.end;
-        let (_, rest) = std::mem::take(&mut feat).split_at_mut(f.start - at_shared);
-        let (g, rest) = rest.split_at_mut(f.len());
-        feat = rest;
-        at_shared = f.end;
-        parts.push((d, (s, k, g), r));
-    }
-    parts
+    let (mut src, mut kind, mut feat) = ((src, 0), (kind, 0), (feat, 0));
+    outs.into_iter()
+        .map(|(d, r)| {
+            let d = d as usize;
+            let (t, f) = (texels(d), shared(d));
+            let s = carve(&mut src, t.clone());
+            let k = carve(&mut kind, t);
+            let g = carve(&mut feat, f);
+            (d, (s, k, g), r)
+        })
+        .collect()
+}
+
+/// The part `r` (indices of the whole slice) of what is left of a slice, `rest.0` being
+/// the whole from index `rest.1` on; `rest` keeps what follows `r`. Parts must be asked
+/// for in ascending, disjoint order.
+fn carve<'a, T>(rest: &mut (&'a mut [T], usize), r: std::ops::Range<usize>) -> &'a mut [T] {
+    let (_, tail) = std::mem::take(&mut rest.0).split_at_mut(r.start - rest.1);
+    let (part, tail) = tail.split_at_mut(r.len());
+    *rest = (tail, r.end);
+    part
 }
 
 /// Texel area of every domain: the square of its median distance between adjacent texel

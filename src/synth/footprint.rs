@@ -85,7 +85,7 @@ impl LevelTexels {
     /// Evaluates everything for `n`×`n` maps.
     pub fn new(surface: &Surface, field: &OrientationField, n: usize, step: f64) -> Self {
         let geometry = TexelGeometry::compute(surface, n);
-        let frames = super::texel_frames_f32(field, surface, n);
+        let frames = crate::texel_frames::texel_frames_f32(field, surface, n);
         Self::from_parts(surface, geometry, frames, step)
     }
 
@@ -97,7 +97,7 @@ impl LevelTexels {
         step: f64,
     ) -> Self {
         let geometry = TexelGeometry::compute_layout(surface, layout);
-        let frames = super::layout_frames(field, surface, &geometry.layout);
+        let frames = crate::texel_frames::layout_frames(field, surface, &geometry.layout);
         Self::from_parts(surface, geometry, frames, step)
     }
 

@@ -25,8 +25,9 @@
 
 use crate::error::{Error, Result};
 use crate::pyramid::{levels_for, Image};
+use crate::random::hash;
 use crate::synth::matching::search::model::{ExampleModel, ModelParams, Pass, Scratch};
-use crate::synth::matching::search::{hash, pick, Prepared, Query};
+use crate::synth::matching::search::{pick, Prepared, Query};
 use rayon::prelude::*;
 
 /// Order of pass 2 within a level.

@@ -319,6 +319,13 @@ pub(super) fn depth_resolution(control: &ControlMesh, n: usize, texel_size: Opti
     }
 }
 
+/// The level of the finer field multiscale and textons sample along
+/// ([`Session::field_for`]): the automatic level of default options, not sized by the
+/// texel count.
+fn fine_level(surface: &Surface) -> u32 {
+    crate::field::auto_level(surface.num_base_quads(), &FieldOptions::default())
+}
+
 /// The surface built so far by the load stage, handed to [`Session::from_loaded`].
 pub(super) struct Loaded {
     pub mesh_label: String,
@@ -477,12 +484,10 @@ impl Session {
         // (Spot N = 32: ~0.5 s, much of it one core's work). The same call as
         // `field_for`'s (the structure length it passes is read by `straight` only, which
         // is not early): the same field.
-        let fine_level =
-            crate::field::auto_level(surface.num_base_quads(), &FieldOptions::default());
         let fine_early = early
             && matches!(method, Some(Method::Multiscale | Method::Textons))
             && crate::field::planned_level(&surface, &settings.orientation, &options_at(None))
-                < fine_level;
+                < fine_level(&surface);
         let (early_field, texel_side) = rayon::join(
             || {
                 let prepared = || {
@@ -702,9 +707,7 @@ impl Session {
         if !matches!(method, Method::Multiscale | Method::Textons) {
             return Ok(&self.field);
         }
-        let finest =
-            crate::field::auto_level(self.surface.num_base_quads(), &FieldOptions::default());
-        if self.field.level() >= finest {
+        if self.field.level() >= fine_level(&self.surface) {
             return Ok(&self.field);
         }
         if let Some(f) = self.fine_field.get() {

@@ -52,12 +52,13 @@ use crate::example::Example;
 use crate::field::OrientationField;
 use crate::layout::TexelLayout;
 use crate::pyramid::{levels_for, Image};
+use crate::random::hash;
 use crate::sampling::{sparse_keeps, Sampler, SamplerKind, SamplerStats};
 use crate::synth::matching::appearance::{
     Appearance, AppearanceInfo, AppearanceMode, DIMS, WINDOW,
 };
 use crate::synth::matching::search::model::{ExampleModel, Method, ModelParams, Pass, Scratch};
-use crate::synth::matching::search::{hash, pick, Prepared, Query};
+use crate::synth::matching::search::{pick, Prepared, Query};
 use crate::synth::schedule::{inward_order, Schedule};
 use level::{
     nearest_texel, pattern, Anchors, LevelGeometry, Lookup, Own, PatternScratch, PatternStats, View,

@@ -28,7 +28,8 @@
 
 use crate::btf::BtfSample;
 use crate::pyramid::Image;
-use crate::synth::matching::search::{hash, pca::top_eigen};
+use crate::random::hash;
+use crate::synth::matching::search::pca::top_eigen;
 use rayon::prelude::*;
 use serde::Serialize;
 

@@ -586,9 +586,10 @@ pub fn search(
 
 #[cfg(test)]
 mod tests {
-    use super::super::{hash, Shape};
+    use super::super::Shape;
     use super::*;
     use crate::pyramid::{Image, Pyramid};
+    use crate::random::hash;
 
     /// A `w x h` image of `c` channels: random values, or (`period`) a tiling of a small
     /// random tile, whose repeated neighbourhoods are at exactly equal distances.

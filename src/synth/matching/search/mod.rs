@@ -245,9 +245,6 @@ pub fn pick_limit(best: f32) -> f32 {
     best * (1.0 + TOLERANCE) * (1.0 + TOLERANCE)
 }
 
-/// The counter-based hash the searches draw their random candidates from.
-pub(crate) use crate::random::hash;
-
 /// A target neighbourhood in [`Shape`] order, raw (unweighted) values, with a presence flag
 /// per sample.
 #[derive(Clone, Debug)]
@@ -702,13 +699,7 @@ impl Features {
     /// cleared: the best match and those [`pick`] may choose beside it, sorted, possibly
     /// followed by some it may not ([`TopN::pick_bound`]).
     pub fn rerank(&self, q: &Prepared, candidates: &[u32], top: &mut TopN) {
-        for &i in candidates {
-            let b = top.pick_bound();
-            let d = self.distance(q, i as usize, b);
-            if d <= b {
-                top.push(Match { index: i, dist2: d });
-            }
-        }
+        self.rerank_each(q, candidates, top, |_, _| {});
     }
 
     /// [`Self::rerank`], also keeping per candidate what [`Self::distance`] returned and
@@ -723,10 +714,23 @@ impl Features {
         measured: &mut Vec<(f32, f32)>,
     ) {
         measured.clear();
+        self.rerank_each(q, candidates, top, |d, b| measured.push((d, b)));
+    }
+
+    /// The loop of [`Self::rerank`], telling `seen` each candidate's distance and the
+    /// bound it was measured with.
+    #[inline]
+    fn rerank_each(
+        &self,
+        q: &Prepared,
+        candidates: &[u32],
+        top: &mut TopN,
+        mut seen: impl FnMut(f32, f32),
+    ) {
         for &i in candidates {
             let b = top.pick_bound();
             let d = self.distance(q, i as usize, b);
-            measured.push((d, b));
+            seen(d, b);
             if d <= b {
                 top.push(Match { index: i, dist2: d });
             }
@@ -1163,6 +1167,7 @@ pub fn dist_masked_bounded(a: &[f32], m: &[f32], b: &[f32], bound: f32) -> f32 {
 mod tests {
     use super::*;
     use crate::pyramid::Image;
+    use crate::random::hash;
 
     #[test]
     fn weights_are_gaussian_and_normalised_per_block() {

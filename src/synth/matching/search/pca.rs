@@ -171,7 +171,9 @@ pub(crate) fn top_eigen(a: &[f64], n: usize, k: usize) -> (Vec<f64>, Vec<f64>) {
     let p = (k + 8).min(n);
     // Deterministic start: pseudo-random vectors from the counter hash.
     let mut q: Vec<f64> = (0..p * n)
-        .map(|i| (super::hash(0x5EED, &[i as u64]) >> 11) as f64 / (1u64 << 53) as f64 - 0.5)
+        .map(|i| {
+            (crate::random::hash(0x5EED, &[i as u64]) >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        })
         .collect();
     orthonormalise(&mut q, n, p);
     let mut z = vec![0.0f64; p * n];
@@ -337,7 +339,7 @@ mod tests {
         let mut data = vec![0.0f32; n * dim];
         let g = |i: u64| {
             // Uniform in [-sqrt3, sqrt3]: unit variance.
-            let u = (super::super::hash(9, &[i]) >> 11) as f32 / (1u64 << 53) as f32;
+            let u = (crate::random::hash(9, &[i]) >> 11) as f32 / (1u64 << 53) as f32;
             (u - 0.5) * 2.0 * 3f32.sqrt()
         };
         for r in 0..n {
