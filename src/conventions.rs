@@ -1,7 +1,9 @@
 //! Output conventions a run is made with and its report records: which way round the
-//! example lies on the surface ([`Handedness`]) and which way a normal map's green points
-//! ([`NormalConvention`]). Below the builder and the report, which both name them
-//! ([`crate::synthesizer`] re-exports them).
+//! example lies on the surface ([`Handedness`]), which way a normal map's green points
+//! ([`NormalConvention`]) and whether a material map stores light or data ([`MapKind`],
+//! which the loader decodes by and the atlas writers encode by). Below the builder, the
+//! report, the loader and the writers, which all name them ([`crate::synthesizer`]
+//! re-exports the first two).
 
 /// Which way round the example is laid on the surface (`--handedness`).
 ///
@@ -54,6 +56,37 @@ impl Handedness {
         match self {
             Handedness::Outside => 1,
             Handedness::Tiles => -1,
+        }
+    }
+}
+
+/// Whether a map's file stores light or data.
+///
+/// Light (colour) is sRGB-encoded in 8- and 16-bit files and must be decoded before it is
+/// compared or blended; data (normals, roughness, heights) is stored linearly, and decoding
+/// it would bend every value.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum MapKind {
+    /// sRGB-decoded; written to the atlas sRGB-encoded (8 bit, like `atlas.png`).
+    Colour,
+    /// Stored values scaled to 0..1; written to the atlas linearly (16 bit).
+    Data,
+}
+
+impl MapKind {
+    /// The kind a map named `name` has: colour when the name says so (`basecolor`,
+    /// `base_colour`, `albedo`, `diffuse`, `emissive`, `emission`, `specular_color`, ...),
+    /// data otherwise (normal, roughness, metallic, height, ao, occlusion, any other name).
+    pub fn for_name(name: &str) -> Self {
+        let n = name.to_ascii_lowercase();
+        let colour = [
+            "color", "colour", "albedo", "diffuse", "emissive", "emission",
+        ];
+        if colour.iter().any(|c| n.contains(c)) {
+            MapKind::Colour
+        } else {
+            MapKind::Data
         }
     }
 }

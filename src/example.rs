@@ -18,6 +18,7 @@
 //! centres at +0.5 (pixel (i, j) covers [i, i+1) x [j, j+1)), the same convention as the
 //! `source.u`/`source.v` channels of `facemaps.exr`.
 
+use crate::conventions::MapKind;
 use crate::error::{Error, Result};
 use image::DynamicImage;
 use std::path::{Path, PathBuf};
@@ -46,37 +47,6 @@ pub struct Example {
 pub const HEIGHT: &str = "height";
 /// Name of the tangent-space normal map.
 pub const NORMAL: &str = "normal";
-
-/// Whether a map's file stores light or data.
-///
-/// Light (colour) is sRGB-encoded in 8- and 16-bit files and must be decoded before it is
-/// compared or blended; data (normals, roughness, heights) is stored linearly, and decoding
-/// it would bend every value.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum MapKind {
-    /// sRGB-decoded; written to the atlas sRGB-encoded (8 bit, like `atlas.png`).
-    Colour,
-    /// Stored values scaled to 0..1; written to the atlas linearly (16 bit).
-    Data,
-}
-
-impl MapKind {
-    /// The kind a map named `name` has: colour when the name says so (`basecolor`,
-    /// `base_colour`, `albedo`, `diffuse`, `emissive`, `emission`, `specular_color`, ...),
-    /// data otherwise (normal, roughness, metallic, height, ao, occlusion, any other name).
-    pub fn for_name(name: &str) -> Self {
-        let n = name.to_ascii_lowercase();
-        let colour = [
-            "color", "colour", "albedo", "diffuse", "emissive", "emission",
-        ];
-        if colour.iter().any(|c| n.contains(c)) {
-            MapKind::Colour
-        } else {
-            MapKind::Data
-        }
-    }
-}
 
 /// One further map of a material: `channels` (1 or 3) values per pixel, interleaved,
 /// linear (colour maps decoded from sRGB, data maps as stored, scaled to 0..1).

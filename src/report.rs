@@ -39,7 +39,7 @@ pub struct MapInfo {
     pub name: String,
     pub file: String,
     /// `colour` (sRGB-decoded) or `data` (as stored).
-    pub kind: crate::example::MapKind,
+    pub kind: crate::conventions::MapKind,
     /// 1 (`NAME.Y`) or 3 (`NAME.R NAME.G NAME.B`).
     pub channels: usize,
     /// Matching weight per channel (0: copied, not matched).

@@ -718,8 +718,8 @@ impl Synthesizer {
                         let gray = m.info().channels <= 2;
                         if name == crate::example::HEIGHT
                             || (gray
-                                && crate::example::MapKind::for_name(name)
-                                    == crate::example::MapKind::Data)
+                                && crate::conventions::MapKind::for_name(name)
+                                    == crate::conventions::MapKind::Data)
                         {
                             1
                         } else {

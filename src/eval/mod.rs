@@ -39,7 +39,8 @@ pub use pf::{
     image_patch_fidelities, PatchFidelity, PfDetail, PfMethod, PfOptions, PfScale, Rgb, PF_SAMPLES,
     PF_SCALES, PF_SUMMARY_SAMPLES,
 };
-pub use surface::{patch_fidelities_of, patch_fidelities_with, TexelPoints, Xyz};
+pub use surface::{patch_fidelities_of, patch_fidelities_with, TexelPoints};
+pub use texel_bvh::Xyz;
 
 /// The pfS figures `synth` prints at the end of a run and records in report.json
 /// (`patch_fidelity`): measured like `eval`'s, on fewer drawn texels.

@@ -38,7 +38,7 @@ use super::pf::{
     draw, draw_from, image_patch_fidelities_as, score_scale, PatchFidelity, PfMethod, PfOptions,
     Rgb, DIMS, PF_SCALES, WINDOW,
 };
-use super::texel_bvh::TexelBvh;
+use super::texel_bvh::{TexelBvh, Xyz};
 use crate::example::Example;
 use crate::io::exr::FaceMaps;
 use glam::DVec3;
@@ -95,31 +95,6 @@ struct State {
     /// A texel near `p` (the nearest one to the point before its last projection): where
     /// the next nearest-texel search starts ([`TexelBvh::nearest`]'s hint).
     near: usize,
-}
-
-/// Three f32 values per texel, read as f64 (exact): the planes of geometry maps
-/// (geometry.exr's `P.X P.Y P.Z`) or the packed vectors of the texel geometry in memory.
-#[derive(Clone, Copy, Debug)]
-pub enum Xyz<'a> {
-    Planar([&'a [f32]; 3]),
-    Packed(&'a [glam::Vec3]),
-}
-
-impl Xyz<'_> {
-    #[inline]
-    pub(crate) fn get(&self, i: usize) -> DVec3 {
-        match self {
-            Xyz::Planar([x, y, z]) => DVec3::new(x[i] as f64, y[i] as f64, z[i] as f64),
-            Xyz::Packed(v) => v[i].as_dvec3(),
-        }
-    }
-
-    pub(crate) fn len(&self) -> usize {
-        match self {
-            Xyz::Planar([x, y, z]) => x.len().min(y.len()).min(z.len()),
-            Xyz::Packed(v) => v.len(),
-        }
-    }
 }
 
 /// The texel geometry pf reads: positions, normals (optional) and the requested local

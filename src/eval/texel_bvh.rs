@@ -18,7 +18,6 @@
 //! point exactly as far from two texels in floating point, such as the midpoint of two
 //! texels in a straight line: walks do not land there but by coincidence.
 
-use super::surface::Xyz;
 use crate::layout::TexelLayout;
 use glam::DVec3;
 use rayon::prelude::*;
@@ -659,6 +658,31 @@ fn build_tree(nodes: &mut [Node], items: &mut [Item], boxes: &[Corners]) {
 struct Item {
     centre: [f64; 3],
     block: u32,
+}
+
+/// Three f32 values per texel, read as f64 (exact): the planes of geometry maps
+/// (geometry.exr's `P.X P.Y P.Z`) or the packed vectors of the texel geometry in memory.
+#[derive(Clone, Copy, Debug)]
+pub enum Xyz<'a> {
+    Planar([&'a [f32]; 3]),
+    Packed(&'a [glam::Vec3]),
+}
+
+impl Xyz<'_> {
+    #[inline]
+    pub(crate) fn get(&self, i: usize) -> DVec3 {
+        match self {
+            Xyz::Planar([x, y, z]) => DVec3::new(x[i] as f64, y[i] as f64, z[i] as f64),
+            Xyz::Packed(v) => v[i].as_dvec3(),
+        }
+    }
+
+    pub(crate) fn len(&self) -> usize {
+        match self {
+            Xyz::Planar([x, y, z]) => x.len().min(y.len()).min(z.len()),
+            Xyz::Packed(v) => v.len(),
+        }
+    }
 }
 
 #[cfg(test)]

@@ -18,8 +18,8 @@
 //! map re-expressed in the renderer's UV tangent frame ([`crate::io::tangent`]) when the
 //! field's frames are known.
 
+use crate::conventions::MapKind;
 use crate::error::Result;
-use crate::example::MapKind;
 use crate::io::atlas::{
     build_atlas_8bit, build_atlas_8bit_of, build_atlas_of, encode_png, encode_png16, Atlas,
     AtlasLayout,

@@ -61,7 +61,7 @@ impl DeepNode {
     /// can be gathered is evaluated as that patch.
     pub(crate) fn classify(m: PolyMesh) -> Self {
         let q = FaceId(0);
-        if crate::surface::is_regular_quad(&m, q) {
+        if crate::submesh::is_regular_quad(&m, q) {
             if let Some(p) = BSplinePatch::gather(&m, q) {
                 return DeepNode::Patch(p);
             }
@@ -91,7 +91,7 @@ impl DeepTree {
         let r = refine(m);
         let first = self.nodes.len() as u32;
         let kids = [0, 1, 2, 3]
-            .map(|k| DeepNode::classify(crate::surface::extract_submesh(&r, FaceId::from_idx(k))));
+            .map(|k| DeepNode::classify(crate::submesh::extract_submesh(&r, FaceId::from_idx(k))));
         if let DeepNode::Mesh { children, .. } = &mut self.nodes[i] {
             *children = [first, first + 1, first + 2, first + 3];
         }

@@ -23,6 +23,7 @@ pub mod nonmanifold;
 pub mod patch;
 mod pool;
 pub mod refine;
+mod submesh;
 pub mod surface;
 #[cfg(test)]
 mod test_data;

@@ -296,7 +296,7 @@ const NEAR_LEVELS: usize = 30;
 /// which have no tangent plane.
 pub fn normal_near_corner(m: &PolyMesh, h: u32) -> DVec3 {
     use crate::patch::BSplinePatch;
-    use crate::surface::{extract_submesh, is_regular_quad};
+    use crate::submesh::{extract_submesh, is_regular_quad};
     let q = m.face_of(h);
     let mut c = (h - m.face_he(q)) as usize;
     let mut sub = extract_submesh(m, q);
