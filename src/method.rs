@@ -68,6 +68,26 @@ impl Method {
         }
     }
 
+    /// One line on what the method does: `--method`'s help beside each name.
+    pub fn summary(self) -> &'static str {
+        match self {
+            Method::Coherent => "Single pass, copies coherent patches (000 §5): the fast preview",
+            Method::Multiscale => "Gaussian pyramid, two passes per level (000 §4)",
+            Method::Patches => {
+                "Whole example patches along the field, joined by minimum-error cuts (001 §5.2)"
+            }
+            Method::Optimise => {
+                "Texture optimisation: EM over overlapping surface patches, multilevel (001 §4)"
+            }
+            Method::Jump => {
+                "Jump maps: region growing, continuations and weighted jumps, no matching (002)"
+            }
+            Method::Textons => {
+                "BTF synthesis with surface textons: every image of --btf at once, multiscale over textons (003). The other methods but multiscale take a BTF too, matching every image in appearance space"
+            }
+        }
+    }
+
     /// The name used on the command line and in report.json.
     pub fn name(self) -> &'static str {
         match self {
@@ -99,5 +119,48 @@ impl std::str::FromStr for Method {
                     names.join(", ")
                 )
             })
+    }
+}
+
+/// `--method`'s values: [`Method::name`] with [`Method::summary`] as help, in the order of
+/// docs/synthesis.md's table, textons last. Here rather than as a second enum in the
+/// command line's module, which had to be kept in step with this one by hand.
+impl clap::ValueEnum for Method {
+    fn value_variants<'a>() -> &'a [Self] {
+        const VARIANTS: [Method; 6] = [
+            Method::Coherent,
+            Method::Multiscale,
+            Method::Patches,
+            Method::Optimise,
+            Method::Jump,
+            Method::Textons,
+        ];
+        &VARIANTS
+    }
+
+    fn to_possible_value(&self) -> Option<clap::builder::PossibleValue> {
+        Some(clap::builder::PossibleValue::new(self.name()).help(self.summary()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::ValueEnum;
+
+    /// The command line offers every method, textons included, under the name report.json
+    /// and `FromStr` use, each with a line of help.
+    #[test]
+    fn command_line_values_are_the_names() {
+        let values = Method::value_variants();
+        assert_eq!(values.len(), Method::ALL.len() + 1);
+        for m in Method::ALL.into_iter().chain([Method::Textons]) {
+            assert!(values.contains(&m));
+            let v = m.to_possible_value().expect("not hidden");
+            assert_eq!(v.get_name(), m.name());
+            assert!(v.get_help().is_some_and(|h| !h.to_string().is_empty()));
+            assert_eq!(Method::from_str(m.name(), false), Ok(m));
+            assert_eq!(m.name().parse::<Method>(), Ok(m));
+        }
     }
 }

@@ -5,41 +5,7 @@ use super::{parse_finite, parse_orient, parse_positive, parse_resolution};
 use clap::{Args, ValueEnum};
 use std::path::PathBuf;
 use surfsynth::field::Orientation;
-
-/// The CLI's names of [`surfsynth::synthesizer::Method`] (default: optimise, the library's
-/// `Method::DEFAULT`).
-#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Method {
-    /// Single pass, copies coherent patches (000 §5): the fast preview.
-    Coherent,
-    /// Gaussian pyramid, two passes per level (000 §4).
-    Multiscale,
-    /// Whole example patches along the field, joined by minimum-error cuts (001 §5.2).
-    Patches,
-    /// Texture optimisation: EM over overlapping surface patches, multilevel (001 §4).
-    Optimise,
-    /// Jump maps: region growing, continuations and weighted jumps, no matching (002).
-    Jump,
-    /// BTF synthesis with surface textons: every image of --btf at once, multiscale over
-    /// textons (003). The other methods but multiscale take a BTF too, matching every image
-    /// in appearance space.
-    Textons,
-}
-
-impl Method {
-    /// The library's method of this name.
-    fn lib(self) -> surfsynth::method::Method {
-        use surfsynth::method::Method as M;
-        match self {
-            Method::Coherent => M::Coherent,
-            Method::Multiscale => M::Multiscale,
-            Method::Patches => M::Patches,
-            Method::Optimise => M::Optimise,
-            Method::Jump => M::Jump,
-            Method::Textons => M::Textons,
-        }
-    }
-}
+use surfsynth::method::Method;
 
 #[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Appearance {
@@ -312,11 +278,11 @@ fn parse_weight(s: &str, what: &str, max: f32) -> Result<f32, String> {
 
 pub fn run(mut a: SynthArgs) -> anyhow::Result<()> {
     // The handler lives in the library (surfsynth::synthesizer::run_command).
-    let chosen = a.method.unwrap_or(Method::Optimise);
+    let chosen = a.method.unwrap_or(Method::DEFAULT);
     if chosen == Method::Textons && a.btf.is_none() {
         return super::usage("--method textons needs a BTF sample: pass --btf B.json");
     }
-    if let (Some(why), Some(_)) = (chosen.lib().btf_refusal(), &a.btf) {
+    if let (Some(why), Some(_)) = (chosen.btf_refusal(), &a.btf) {
         return super::usage(why);
     }
     if a.search.is_some() && !matches!(chosen, Method::Multiscale | Method::Textons) {
@@ -409,7 +375,7 @@ pub fn run(mut a: SynthArgs) -> anyhow::Result<()> {
     }
     surfsynth::memory::set_limit(a.max_memory);
     use surfsynth::synthesizer::Search as S;
-    let method = chosen.lib();
+    let method = chosen;
     let cache = match (a.cache, a.no_cache) {
         (_, true) => surfsynth::synthesizer::CacheDir::Off,
         (Some(d), false) => surfsynth::synthesizer::CacheDir::Dir(d),
