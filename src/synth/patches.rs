@@ -1517,6 +1517,32 @@ mod tests {
         }
     }
 
+    /// A patch waits for the earlier patches (breadth-first) that share a texel with it,
+    /// and only for those: a chain of three overlapping patches runs in order, a patch
+    /// apart from them waits for nothing.
+    #[test]
+    fn patches_wait_for_the_earlier_patches_they_overlap() {
+        let patch = |c: u32, texels: std::ops::RangeInclusive<u32>| {
+            let mut list: Vec<(u32, [f32; 2])> =
+                texels.map(|t| (t, [t as f32 - c as f32, 0.0])).collect();
+            list.sort_by_key(|&(t, _)| t != c);
+            (c, list)
+        };
+        let fp = Footprints::from_lists(
+            6.0,
+            vec![
+                patch(5, 0..=10),
+                patch(24, 18..=30),
+                patch(13, 8..=19),
+                patch(35, 32..=38),
+            ],
+        );
+        let plan = plan(&fp, 40);
+        assert_eq!(plan.earlier, [0, 1, 1, 0]);
+        assert_eq!(plan.later, [vec![2], vec![], vec![1], vec![]]);
+        assert_eq!(plan.depth, 3);
+    }
+
     #[test]
     fn blended_joins_bend_a_small_step_and_leave_single_patches_and_large_steps_alone() {
         let (fp, z, mut src) = two_patches(0.8);
