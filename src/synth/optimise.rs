@@ -300,7 +300,7 @@ pub fn run<const K: usize>(
     let total_iters = plan.len() * params.sizes.len().max(1) * params.iterations;
     let mut done_iters = 0;
     // The final assembly weighs as much as [`ASSEMBLY_ITERATIONS`] iterations of the
-    // output level, and reports per wave of patches: on a big mesh it runs for several
+    // output level, and reports per patch pasted: on a big mesh it runs for several
     // seconds after the last iteration (the hand at N = 32: ~12 s), which a bar counting
     // iterations alone would show as a stall.
     let total = (total_iters + ASSEMBLY_ITERATIONS) * PROGRESS_STEP;

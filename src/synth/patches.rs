@@ -34,10 +34,12 @@
 //!
 //! Each texel ends with one source position — all channels from the same place, no blur.
 //!
-//! **Determinism and parallelism**: patches run in waves; a patch's wave is one more than
-//! the latest earlier patch (in breadth-first order) whose footprint shares a texel with it,
-//! so each patch sees exactly the patches before it that it overlaps, as in the sequential
-//! order, whatever the thread count. Random draws hash (seed, patch, draw).
+//! **Determinism and parallelism**: a patch reads and writes only texels of its own
+//! footprint. So a patch starts once every earlier patch (in breadth-first order) whose
+//! footprint shares a texel with it is pasted, and later ones that share a texel wait for
+//! it: each patch sees exactly the patches before it that it overlaps, as in the sequential
+//! order, and each texel is written in that order, whatever the thread count. Random draws
+//! hash (seed, patch, draw).
 
 use super::footprint::{centres, spread, turned, Footprints, LevelTexels, Turn};
 use super::matching::exemplar::Exemplar;
@@ -49,6 +51,8 @@ use super::mincut::CutGraph;
 use super::texel_table::TexelTable;
 use crate::random::hash;
 use rayon::prelude::*;
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::{PoisonError, RwLock};
 
 use serde::Serialize;
 
@@ -118,6 +122,8 @@ pub struct Stats {
     /// not reach.
     pub passes: Vec<(usize, u64)>,
     pub patches: u64,
+    /// Patches in the longest chain of overlapping patches, summed over passes: the waves
+    /// a schedule with a barrier between waves would need.
     pub waves: u64,
     /// Candidate positions whose error was measured.
     pub candidates: u64,
@@ -269,13 +275,13 @@ pub fn run<const K: usize>(
             hi_x: ex.width() as f32 - 0.5 - half,
             hi_y: ex.height() as f32 - 0.5 - half,
         };
-        let waves = plan_waves(&fp, n);
+        let plan = plan(&fp, n);
         stats.patches += fp.len() as u64;
-        stats.waves += waves.len() as u64;
+        stats.waves += plan.depth as u64;
         stats.passes.push((size, fp.len() as u64));
         stats.footprint_bytes = stats.footprint_bytes.max(fp.heap_bytes() as u64);
-        paste_waves(
-            &ctx, &waves, &mut state, &scratch, &mut stats, None, progress,
+        paste_all(
+            &ctx, &plan, &mut state, &scratch, &mut stats, None, progress,
         );
         if covered.iter().all(|&c| c) || size <= MIN_SIZE {
             break;
@@ -310,55 +316,136 @@ impl<const K: usize> State<K> {
     }
 }
 
-/// Pastes the patches of `ctx` wave by wave (see the module docs); `positions`, when given,
-/// receives the position each patch was pasted at.
-fn paste_waves<const K: usize>(
-    ctx: &Ctx<'_, K>,
-    waves: &[Vec<u32>],
-    state: &mut State<K>,
-    scratch: &super::per_thread::PerThread<Scratch>,
-    stats: &mut Stats,
-    mut positions: Option<&mut [[f32; 2]]>,
-    progress: &(dyn Fn(usize, usize) + Sync),
-) {
-    let total: usize = waves.iter().map(|w| w.len()).sum();
-    let mut done = 0;
-    for wave in waves {
-        let pastes: Vec<Paste> = wave
-            .par_iter()
-            .map(|&p| {
-                scratch.with(Scratch::new, |s| {
-                    paste(ctx, p as usize, &state.src, &state.set, &state.app, s)
-                })
-            })
+/// What patch `p` reads of the texture pasted so far: the sources, whether set, and the
+/// appearance of its footprint's texels, in footprint order. A copy, taken once every
+/// earlier patch it overlaps is pasted: a patch reads and writes only texels of its own
+/// footprint, so the copy holds what the sequential order would show it (see the module
+/// docs), and patches running meanwhile write only texels outside it.
+struct Seen<const K: usize> {
+    src: Vec<[f32; 2]>,
+    set: Vec<bool>,
+    app: Vec<[f32; K]>,
+}
+
+impl<const K: usize> Seen<K> {
+    fn of(state: &State<K>, texels: &[u32]) -> Self {
+        Self {
+            src: texels.iter().map(|&t| state.src[t as usize]).collect(),
+            set: texels.iter().map(|&t| state.set[t as usize]).collect(),
+            app: texels.iter().map(|&t| state.app[t as usize]).collect(),
+        }
+    }
+}
+
+/// What the patches running in parallel share: the texture, the counters, and where each
+/// patch went.
+struct Pasted<'a, const K: usize> {
+    state: &'a mut State<K>,
+    stats: &'a mut Stats,
+    positions: Option<&'a mut [[f32; 2]]>,
+    done: usize,
+}
+
+/// Runs the patches of one pass as their dependencies allow ([`Runner::patch`]).
+struct Runner<'a, const K: usize> {
+    ctx: &'a Ctx<'a, K>,
+    plan: &'a Plan,
+    /// Per patch: earlier overlapping patches not yet pasted.
+    waiting: Vec<AtomicU32>,
+    pasted: RwLock<Pasted<'a, K>>,
+    scratch: &'a super::per_thread::PerThread<Scratch>,
+    progress: &'a (dyn Fn(usize, usize) + Sync),
+}
+
+impl<'a, const K: usize> Runner<'a, K> {
+    /// Pastes patch `p` (every earlier patch it overlaps is pasted), then starts each later
+    /// overlapping patch that no longer waits for another.
+    fn patch<'s>(&'s self, scope: &rayon::Scope<'s>, p: usize) {
+        let c = self.ctx;
+        let seen = {
+            let pasted = self.pasted.read().unwrap_or_else(PoisonError::into_inner);
+            Seen::of(pasted.state, c.fp.get(p).0)
+        };
+        let r = self.scratch.with(Scratch::new, |s| paste(c, p, &seen, s));
+        let apps: Vec<[f32; K]> = r
+            .sources
+            .iter()
+            .map(|s| c.ex.features.sample(s[0], s[1]))
             .collect();
-        for (&p, r) in wave.iter().zip(pastes) {
-            if let Some(z) = positions.as_deref_mut() {
-                z[p as usize] = r.z;
+        {
+            let mut g = self.pasted.write().unwrap_or_else(PoisonError::into_inner);
+            let g = &mut *g;
+            if let Some(z) = g.positions.as_deref_mut() {
+                z[p] = r.z;
             }
-            for ((&t, &s), &o) in r.texels.iter().zip(&r.sources).zip(&r.turns) {
+            let state = &mut *g.state;
+            for (((&t, &s), &o), a) in r.texels.iter().zip(&r.sources).zip(&r.turns).zip(apps) {
                 let t = t as usize;
                 state.src[t] = s;
                 state.turn[t] = o;
                 state.set[t] = true;
-                state.app[t] = ctx.ex.features.sample(s[0], s[1]);
+                state.app[t] = a;
             }
-            stats.candidates += r.candidates;
-            stats.seeded += r.seeded as u64;
-            stats.replaced += r.replaced;
+            g.stats.candidates += r.candidates;
+            g.stats.seeded += r.seeded as u64;
+            g.stats.replaced += r.replaced;
+            g.done += 1;
+            (self.progress)(g.done, self.plan.later.len());
         }
-        done += wave.len();
-        progress(done, total);
+        for &q in &self.plan.later[p] {
+            if self.waiting[q as usize].fetch_sub(1, Ordering::AcqRel) == 1 {
+                scope.spawn(move |scope| self.patch(scope, q as usize));
+            }
+        }
     }
 }
 
+/// Pastes the patches of `ctx`, each as soon as the earlier patches it overlaps are pasted
+/// (see the module docs); `positions`, when given, receives the position each patch was
+/// pasted at.
+///
+/// *Why not waves*: a pass's ~240 patches form ~80 waves of ~3, so with a barrier after
+/// each wave one of two cores often waited for the other; here a core takes the next
+/// patch whose earlier neighbours are pasted.
+fn paste_all<const K: usize>(
+    ctx: &Ctx<'_, K>,
+    plan: &Plan,
+    state: &mut State<K>,
+    scratch: &super::per_thread::PerThread<Scratch>,
+    stats: &mut Stats,
+    positions: Option<&mut [[f32; 2]]>,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) {
+    let runner = Runner {
+        ctx,
+        plan,
+        waiting: plan.earlier.iter().map(|&e| AtomicU32::new(e)).collect(),
+        pasted: RwLock::new(Pasted {
+            state,
+            stats,
+            positions,
+            done: 0,
+        }),
+        scratch,
+        progress,
+    };
+    let runner = &runner;
+    rayon::scope(|scope| {
+        for (p, &e) in plan.earlier.iter().enumerate() {
+            if e == 0 {
+                scope.spawn(move |scope| runner.patch(scope, p));
+            }
+        }
+    });
+}
+
 /// Joins patches at given positions — texture optimisation's final assembly — in the
-/// breadth-first waves of patch sampling: each patch of `fp` is pasted at `positions[p]`
+/// breadth-first order of patch sampling: each patch of `fp` is pasted at `positions[p]`
 /// and cut into what is already there, so patches meet along seams of least error
 /// instead of along the boundaries of whichever patch weighs most. Texels no footprint
 /// covers keep `fallback`'s source. With `blend`, joins between patches that nearly
 /// continue each other are smoothed (`blend_joins`). `progress(done, total)` counts
-/// patches pasted, once per wave.
+/// patches pasted.
 #[allow(clippy::too_many_arguments)]
 pub fn assemble<const K: usize>(
     ex: &Exemplar<K>,
@@ -393,9 +480,9 @@ pub fn assemble<const K: usize>(
     let scratch = super::per_thread::PerThread::new();
     // Where each patch was pasted (settling may move it), for blending its joins.
     let mut pasted = blend.map(|_| vec![[0.0; 2]; fp.len()]);
-    paste_waves(
+    paste_all(
         &ctx,
-        &plan_waves(fp, n),
+        &plan(fp, n),
         &mut state,
         &scratch,
         &mut stats,
@@ -470,8 +557,20 @@ fn blend_joins(
     src.copy_from_slice(&out);
 }
 
-/// Breadth-first order over overlapping patches, grouped into waves (see the module docs).
-fn plan_waves(fp: &Footprints, texels: usize) -> Vec<Vec<u32>> {
+/// The breadth-first order over overlapping patches (see the module docs), as what each
+/// patch waits for.
+struct Plan {
+    /// Per patch: how many earlier patches overlap it.
+    earlier: Vec<u32>,
+    /// Per patch: the later patches that overlap it (they wait for it).
+    later: Vec<Vec<u32>>,
+    /// Patches in the longest chain of overlapping patches, each later than the one before
+    /// (reported as [`Stats::waves`]).
+    depth: usize,
+}
+
+/// Plans the order of the patches of `fp` over a level of `texels` texels.
+fn plan(fp: &Footprints, texels: usize) -> Plan {
     let np = fp.len();
     let (start, list) = fp.covering(texels);
     // The patches overlapping each patch, ascending, without itself: gathered once and in
@@ -518,39 +617,31 @@ fn plan_waves(fp: &Footprints, texels: usize) -> Vec<Vec<u32>> {
             }
         }
     }
-    let mut wave = vec![0u32; np];
-    let mut waves: Vec<Vec<u32>> = Vec::new();
+    let mut earlier = vec![0u32; np];
+    let mut later: Vec<Vec<u32>> = vec![Vec::new(); np];
+    let mut chain = vec![0usize; np];
     for &p in &order {
         let p = p as usize;
-        let w = adj[p]
-            .iter()
-            .filter(|&&q| rank[q as usize] < rank[p])
-            .map(|&q| wave[q as usize] + 1)
-            .max()
-            .unwrap_or(0);
-        wave[p] = w;
-        if waves.len() <= w as usize {
-            waves.resize(w as usize + 1, Vec::new());
+        for &q in adj[p].iter().filter(|&&q| rank[q as usize] < rank[p]) {
+            earlier[p] += 1;
+            later[q as usize].push(p as u32);
+            chain[p] = chain[p].max(chain[q as usize] + 1);
         }
-        waves[w as usize].push(p as u32);
     }
-    waves
+    Plan {
+        earlier,
+        later,
+        depth: chain.iter().max().map_or(0, |&d| d + 1),
+    }
 }
 
 /// Chooses and joins patch `p` (read-only on the state): its position is searched, or
 /// given ([`Ctx::fixed`]).
-fn paste<const K: usize>(
-    c: &Ctx<'_, K>,
-    p: usize,
-    src: &[[f32; 2]],
-    set: &[bool],
-    app: &[[f32; K]],
-    s: &mut Scratch,
-) -> Paste {
+fn paste<const K: usize>(c: &Ctx<'_, K>, p: usize, seen: &Seen<K>, s: &mut Scratch) -> Paste {
     let (z, candidates, seeded) = match c.placement {
         Placement::Fixed(zs) => (zs[p], 0, false),
-        Placement::Guided(zs, g) => settle(c, p, zs[p], g, src, set, app),
-        Placement::Search => choose(c, p, src, set, app, s),
+        Placement::Guided(zs, g) => settle(c, p, zs[p], g, seen),
+        Placement::Search => choose(c, p, seen, s),
     };
     let (texels, coords) = c.fp.get(p);
     // On the pixel lattice (flat grids), the copy's texels become exact example pixels.
@@ -566,7 +657,7 @@ fn paste<const K: usize>(
             replaced: 0,
         };
     }
-    let (texels, sources, turns, replaced) = join(c, p, z, set, app, s);
+    let (texels, sources, turns, replaced) = join(c, p, z, seen, s);
     Paste {
         z,
         texels,
@@ -614,20 +705,20 @@ fn spread_known<const K: usize>(
 
 /// The positions continuing patch `p`'s overlapped texels (`known`: indices into its
 /// footprint), from at most [`PatchParams::proposers`] of them: texel `t` with source
-/// `s(t)` at coordinates `l(t)` proposes `s(t) − l(t)`.
+/// `s(t)` at coordinates `l(t)` proposes `s(t) − l(t)`. `src`: the sources in footprint
+/// order ([`Seen::src`]).
 fn continuations<'a, const K: usize>(
     c: &'a Ctx<'_, K>,
     p: usize,
     known: &[usize],
     src: &'a [[f32; 2]],
 ) -> impl Iterator<Item = [f32; 2]> + 'a {
-    let (texels, coords) = c.fp.get(p);
+    let coords = c.fp.get(p).1;
     spread_known(c, p, known, c.params.proposers, 0xC047)
         .into_iter()
         .map(move |i| {
             let i = i as usize;
-            let t = texels[i] as usize;
-            [src[t][0] - coords[i][0], src[t][1] - coords[i][1]]
+            [src[i][0] - coords[i][0], src[i][1] - coords[i][1]]
         })
 }
 
@@ -642,19 +733,17 @@ fn settle<const K: usize>(
     p: usize,
     z0: [f32; 2],
     guide: &[[f32; K]],
-    src: &[[f32; 2]],
-    set: &[bool],
-    app: &[[f32; K]],
+    seen: &Seen<K>,
 ) -> ([f32; 2], u64, bool) {
     let (texels, coords) = c.fp.get(p);
     let m = texels.len();
     let f = &c.ex.features;
-    let known: Vec<usize> = (0..m).filter(|&i| set[texels[i] as usize]).collect();
+    let known: Vec<usize> = (0..m).filter(|&i| seen.set[i]).collect();
     if known.is_empty() {
         return (z0, 0, false);
     }
     let mut cands = vec![z0];
-    for z in continuations(c, p, &known, src) {
+    for z in continuations(c, p, &known, &seen.src) {
         if c.valid(z) && !near_any(&cands, z) {
             cands.push(z);
         }
@@ -666,9 +755,12 @@ fn settle<const K: usize>(
     for &z in &cands {
         let mut e = 0.0f32;
         for i in (0..m).step_by(estep) {
-            let t = texels[i] as usize;
             let l = coords[i];
-            let want = if set[t] { &app[t] } else { &guide[t] };
+            let want = if seen.set[i] {
+                &seen.app[i]
+            } else {
+                &guide[texels[i] as usize]
+            };
             e += dist2(want, &f.sample(z[0] + l[0], z[1] + l[1]));
             if e >= best.0 {
                 break;
@@ -687,9 +779,7 @@ fn settle<const K: usize>(
 fn choose<const K: usize>(
     c: &Ctx<'_, K>,
     p: usize,
-    src: &[[f32; 2]],
-    set: &[bool],
-    app: &[[f32; K]],
+    seen: &Seen<K>,
     s: &mut Scratch,
 ) -> ([f32; 2], u64, bool) {
     let (texels, coords) = c.fp.get(p);
@@ -702,10 +792,11 @@ fn choose<const K: usize>(
         let b = ((h >> 8) & 0xFF_FFFF) as f32 / (1u64 << 24) as f32;
         [c.lo + a * (c.hi_x - c.lo), c.lo + b * (c.hi_y - c.lo)]
     };
-    let known: Vec<usize> = (0..m).filter(|&i| set[texels[i] as usize]).collect();
+    let known: Vec<usize> = (0..m).filter(|&i| seen.set[i]).collect();
     if known.is_empty() {
         return (random(0), 0, true);
     }
+    let app = &seen.app;
     // Candidates.
     s.cands.clear();
     let push = |cands: &mut Vec<[f32; 2]>, z: [f32; 2]| {
@@ -714,7 +805,7 @@ fn choose<const K: usize>(
         }
     };
     let mut conts: Vec<[f32; 2]> = Vec::new();
-    for z in continuations(c, p, &known, src) {
+    for z in continuations(c, p, &known, &seen.src) {
         if !near_any(&conts, z) {
             conts.push(z);
         }
@@ -740,7 +831,7 @@ fn choose<const K: usize>(
         let gsub: Vec<(usize, [f32; 2])> =
             spread_known(c, p, known.as_slice(), c.params.grid_samples, 0x6A1D)
                 .iter()
-                .map(|&i| (texels[i as usize] as usize, coords[i as usize]))
+                .map(|&i| (i as usize, coords[i as usize]))
                 .collect();
         let keep = c.params.grid_keep as usize;
         let g = c.params.grid_step as f32;
@@ -765,10 +856,7 @@ fn choose<const K: usize>(
     // Errors of positions over the subset, eight at a time ([`measure`]); a position is
     // eligible when its error is within (1 + tol) × the best so far, in candidate order.
     let tol1 = 1.0 + c.params.tolerance;
-    let pts: Vec<(usize, [f32; 2])> = sub
-        .iter()
-        .map(|&i| (texels[i] as usize, coords[i]))
-        .collect();
+    let pts: Vec<(usize, [f32; 2])> = sub.iter().map(|&i| (i, coords[i])).collect();
     let mut es = Vec::with_capacity(8);
     let mut best = f32::INFINITY;
     for (g, zs) in s.cands.chunks(8).enumerate() {
@@ -825,7 +913,7 @@ fn choose<const K: usize>(
     )
 }
 
-/// The errors of up to eight positions `zs` over `pts` (texel, `l`): for each, the sum
+/// The errors of up to eight positions `zs` over `pts` (index into `app`, `l`): for each, the sum
 /// over `pts` in order of [`dist2`] between the texel's appearance and the example sampled
 /// at `z + l` — exactly, or cut short once above `bound` (then the value returned is some
 /// partial sum above `bound`). [`choose`] passes the bound the first of the eight would
@@ -901,7 +989,7 @@ unsafe fn measure8_avx2<const K: usize>(
 }
 
 /// The coarse search of [`choose`]: the `keep` positions of the grid of step `g` over
-/// `[lo, hi_x] × [lo, hi_y]` (`bounds`) whose error over `gsub` (texel, `l`) against the
+/// `[lo, hi_x] × [lo, hi_y]` (`bounds`) whose error over `gsub` (index into `app`, `l`) against the
 /// example's pixels is lowest, best first, ties in scan order (rows, then columns).
 ///
 /// *Why a kernel*: this scan measures a few thousand positions per patch and was the
@@ -1108,10 +1196,10 @@ fn join<const K: usize>(
     c: &Ctx<'_, K>,
     p: usize,
     z: [f32; 2],
-    set: &[bool],
-    app: &[[f32; K]],
+    seen: &Seen<K>,
     s: &mut Scratch,
 ) -> (Vec<u32>, Vec<[f32; 2]>, Vec<Turn>, u64) {
+    let (set, app) = (&seen.set, &seen.app);
     let (texels, coords) = c.fp.get(p);
     let m = texels.len();
     let f = &c.ex.features;
@@ -1121,10 +1209,9 @@ fn join<const K: usize>(
         s.local.insert(t, i as u32);
     }
     s.diff.clear();
-    for (&t, &l) in texels.iter().zip(coords) {
-        let t = t as usize;
-        s.diff.push(if set[t] {
-            dist2(&app[t], &f.sample(z[0] + l[0], z[1] + l[1])).sqrt()
+    for (i, &l) in coords.iter().enumerate() {
+        s.diff.push(if set[i] {
+            dist2(&app[i], &f.sample(z[0] + l[0], z[1] + l[1])).sqrt()
         } else {
             f32::NAN
         });
@@ -1144,7 +1231,7 @@ fn join<const K: usize>(
     for i in 0..m {
         let t = texels[i] as usize;
         let l = coords[i];
-        let class = if !set[t] || (l[0].abs() <= core && l[1].abs() <= core) {
+        let class = if !set[i] || (l[0].abs() <= core && l[1].abs() <= core) {
             NEW
         } else if edges.of(t).iter().any(|&u| !s.local.contains(u)) {
             OLD
@@ -1206,11 +1293,10 @@ fn join<const K: usize>(
             _ => side[s.index[i] as usize],
         };
         if !keep_old {
-            let t = texels[i];
-            if set[t as usize] {
+            if set[i] {
                 replaced += 1;
             }
-            out_t.push(t);
+            out_t.push(texels[i]);
             out_s.push([z[0] + coords[i][0], z[1] + coords[i][1]]);
             out_o.push(turns[i]);
         }
@@ -1429,6 +1515,32 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// A patch waits for the earlier patches (breadth-first) that share a texel with it,
+    /// and only for those: a chain of three overlapping patches runs in order, a patch
+    /// apart from them waits for nothing.
+    #[test]
+    fn patches_wait_for_the_earlier_patches_they_overlap() {
+        let patch = |c: u32, texels: std::ops::RangeInclusive<u32>| {
+            let mut list: Vec<(u32, [f32; 2])> =
+                texels.map(|t| (t, [t as f32 - c as f32, 0.0])).collect();
+            list.sort_by_key(|&(t, _)| t != c);
+            (c, list)
+        };
+        let fp = Footprints::from_lists(
+            6.0,
+            vec![
+                patch(5, 0..=10),
+                patch(24, 18..=30),
+                patch(13, 8..=19),
+                patch(35, 32..=38),
+            ],
+        );
+        let plan = plan(&fp, 40);
+        assert_eq!(plan.earlier, [0, 1, 1, 0]);
+        assert_eq!(plan.later, [vec![2], vec![], vec![1], vec![]]);
+        assert_eq!(plan.depth, 3);
     }
 
     #[test]
