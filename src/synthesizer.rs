@@ -55,7 +55,7 @@
 use crate::error::{Error, Result};
 use crate::example::{Example, PendingImage};
 use crate::field::Orientation;
-use crate::io::exr::{write_face_maps, FaceMaps};
+use crate::io::exr::{FaceMaps, TileThreads};
 use crate::io::txn::OutputTxn;
 use crate::report::Report;
 use crate::texels::TexelGeometry;
@@ -1015,17 +1015,10 @@ impl SynthResult {
     /// and OBJ text are single-threaded). Cleans up after its own errors.
     fn write_renderer_outputs(&self, d: &Path) -> Result<Vec<PathBuf>> {
         use crate::io::{atlas, displace, ptex};
-        let (ptx, textured) = rayon::join(
-            || -> Result<Vec<PathBuf>> {
-                let p = d.join(ptex::PTEX_FILE);
-                ptex::write_face_maps_ptex(
-                    &p,
-                    &self.surface,
-                    &self.maps,
-                    &self.write_options.ptex,
-                )?;
-                Ok(vec![p])
-            },
+        // The textured meshes first: the atlas is the longest part of the write stage's
+        // work; facemaps.ptx, whose end is mostly the disk's, is taken by whichever
+        // worker is free first.
+        let (textured, ptx) = rayon::join(
             || -> Result<Vec<PathBuf>> {
                 let frames = (self.tangents.len() == self.geometry.normal.len()).then_some(
                     crate::io::tangent::FieldFrames {
@@ -1071,6 +1064,16 @@ impl SynthResult {
                 }
                 Ok(written)
             },
+            || -> Result<Vec<PathBuf>> {
+                let p = d.join(ptex::PTEX_FILE);
+                ptex::write_face_maps_ptex(
+                    &p,
+                    &self.surface,
+                    &self.maps,
+                    &self.write_options.ptex,
+                )?;
+                Ok(vec![p])
+            },
         );
         match (ptx, textured) {
             (Ok(mut a), Ok(b)) => {
@@ -1112,27 +1115,35 @@ impl SynthResult {
         measure: impl FnOnce() -> E + Send,
     ) -> Result<Report> {
         let t0 = Instant::now();
-        // Everything side by side: the two EXR files (each compressing its tiles in
-        // parallel, but writing them from one thread: two files, two writers), the extra
-        // outputs, and `measure` (the pf summary of `synth`, which only reads the result).
-        // Their bytes do not depend on the order or the threads; report.json waits for all.
-        let (((fm, geo), extra), (edit, measured)) = rayon::join(
-            || {
-                rayon::join(
-                    || {
-                        rayon::join(
-                            || (self.write_facemaps_exr(dir), t0.elapsed()),
-                            || (self.write_geometry_exr(dir), t0.elapsed()),
-                        )
-                    },
-                    || (extra(dir), t0.elapsed()),
-                )
-            },
-            || {
-                let t = Instant::now();
-                (measure(), t.elapsed())
-            },
-        );
+        self.check_finite_exr()?;
+        // Everything side by side: the two EXR files, the extra outputs, and `measure` (the
+        // pf summary of `synth`, which only reads the result). Their bytes do not depend on
+        // the order or the threads; report.json waits for all.
+        //
+        // The EXR files get a thread of their own beside the pool, one after the other:
+        // their tiles are copies, and most of their time is spent waiting for the disk
+        // (`O_DIRECT`), which on a pool worker left its core idle — on the bunny (N = 16,
+        // 290 MB) ~0.4 s of one of the two workers, while the other ran the pf summary and
+        // the atlas alone (docs/benchmarks.md, "The bunny's coherent run, ninth session").
+        // Here the waiting blocks that thread only, and the pool's workers take the rest:
+        // `measure` first, and the extra outputs (their longest part, the atlas, first).
+        // One thread, not one per file: the disk takes them one at a time anyway, and two
+        // files' buffers at once raised the end-of-run peak.
+        let ((fm, geo), (edit, measured), extra) = std::thread::scope(|s| {
+            let exr = s.spawn(|| {
+                let fm = (self.write_facemaps_exr(dir), t0.elapsed());
+                (fm, (self.write_geometry_exr(dir), t0.elapsed()))
+            });
+            let (measured, extra) = rayon::join(
+                || {
+                    let t = Instant::now();
+                    (measure(), t.elapsed())
+                },
+                || (extra(dir), t0.elapsed()),
+            );
+            let exr = exr.join().unwrap_or_else(|p| std::panic::resume_unwind(p));
+            (exr, measured, extra)
+        });
         // Writing ends when its last file does.
         let files = fm.1.max(geo.1).max(extra.1);
         let mut written: Vec<PathBuf> = Vec::new();
@@ -1170,28 +1181,19 @@ impl SynthResult {
         result
     }
 
-    /// facemaps.exr, after the last guard (issue 18): no NaN or ±inf in what synth writes.
-    fn write_facemaps_exr(&self, dir: &Path) -> Result<PathBuf> {
-        let p = dir.join(FACEMAPS_FILE);
+    /// The last guard before the EXR files (issue 18): no NaN or ±inf in what synth
+    /// writes. Checked on the pool before they are written, each on a thread of its own
+    /// ([`SynthResult::write_staged`]), so nothing is written when one fails.
+    fn check_finite_exr(&self) -> Result<()> {
+        use crate::io::exr::{check_finite, check_finite_by};
         for (name, data) in &self.maps.channels {
-            crate::io::exr::check_finite(
+            check_finite(
                 &format!("face map channel '{name}'"),
                 data,
                 &self.maps.layout,
             )?;
         }
-        write_face_maps(&p, &self.maps)?;
-        Ok(p)
-    }
-
-    /// geometry.exr: positions, normals, the field's tangents (and the local scale).
-    fn write_geometry_exr(&self, dir: &Path) -> Result<PathBuf> {
-        // Streamed from the texel geometry (the same bytes as writing
-        // `geometry_maps()`, without a second copy of the maps).
-        let p = dir.join(GEOMETRY_FILE);
         let g = &self.geometry;
-        // Streamed below, so checked here.
-        use crate::io::exr::check_finite_by;
         check_finite_by(
             "texel position",
             g.pos.len(),
@@ -1209,7 +1211,23 @@ impl SynthResult {
             self.tangents.len(),
             |i| self.tangents[i].iter().all(|v| v.is_finite()),
             &g.layout,
-        )?;
+        )
+    }
+
+    /// facemaps.exr, its tiles filled on the calling thread.
+    fn write_facemaps_exr(&self, dir: &Path) -> Result<PathBuf> {
+        let p = dir.join(FACEMAPS_FILE);
+        crate::io::exr::write_face_maps_on(&p, &self.maps, TileThreads::Caller)?;
+        Ok(p)
+    }
+
+    /// geometry.exr: positions, normals, the field's tangents (and the local scale), its
+    /// tiles filled on the calling thread.
+    fn write_geometry_exr(&self, dir: &Path) -> Result<PathBuf> {
+        // Streamed from the texel geometry (the same bytes as writing
+        // `geometry_maps()`, without a second copy of the maps).
+        let p = dir.join(GEOMETRY_FILE);
+        let g = &self.geometry;
         let mut names = crate::bake::GEOMETRY_CHANNELS.to_vec();
         names.extend(TANGENT_CHANNELS);
         if self.local_scale.is_some() {
@@ -1242,6 +1260,7 @@ impl SynthResult {
                 }
             },
             &|_| {},
+            TileThreads::Caller,
         )?;
         Ok(p)
     }
