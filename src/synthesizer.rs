@@ -1007,74 +1007,19 @@ impl SynthResult {
         txn: &OutputTxn,
         measure: impl FnOnce() -> E + Send,
     ) -> Result<Report> {
-        self.write_staged(txn.dir(), |d| self.write_renderer_outputs(d), measure)
-            .map_err(|e| txn.explain(e))
+        self.write_staged(
+            txn.dir(),
+            |d| self.write_ptx(d),
+            measure,
+            |d| self.write_textured(d),
+        )
+        .map_err(|e| txn.explain(e))
     }
 
     /// facemaps.ptx beside the textured meshes (independent, so side by side: PNG encoding
     /// and OBJ text are single-threaded). Cleans up after its own errors.
     fn write_renderer_outputs(&self, d: &Path) -> Result<Vec<PathBuf>> {
-        use crate::io::{atlas, displace, ptex};
-        // The textured meshes first: the atlas is the longest part of the write stage's
-        // work; facemaps.ptx, whose end is mostly the disk's, is taken by whichever
-        // worker is free first.
-        let (textured, ptx) = rayon::join(
-            || -> Result<Vec<PathBuf>> {
-                let frames = (self.tangents.len() == self.geometry.normal.len()).then_some(
-                    crate::io::tangent::FieldFrames {
-                        tangent: &self.tangents,
-                        normal: &self.geometry.normal,
-                    },
-                );
-                let (_, images) = crate::io::export::export_with_frames(
-                    d,
-                    &self.surface,
-                    &self.maps,
-                    &Default::default(),
-                    frames,
-                )?;
-                let mut written: Vec<PathBuf> = [
-                    atlas::OBJ_NAME,
-                    atlas::MTL_NAME,
-                    atlas::ATLAS_NAME,
-                    atlas::GLB_NAME,
-                ]
-                .iter()
-                .map(|n| d.join(n))
-                .chain(images.maps.iter().map(|m| d.join(m.file_name())))
-                .collect();
-                if let Some(amount) = self.displace {
-                    let decimate = self.write_options.decimate;
-                    match displace::write_displaced(
-                        d,
-                        &self.surface,
-                        &self.maps,
-                        amount,
-                        decimate,
-                        &images,
-                    )
-                    .and_then(|f| f.commit())
-                    {
-                        Ok(()) => written.push(d.join(displace::DISPLACED_GLB)),
-                        Err(e) => {
-                            remove_all(&written);
-                            return Err(e);
-                        }
-                    }
-                }
-                Ok(written)
-            },
-            || -> Result<Vec<PathBuf>> {
-                let p = d.join(ptex::PTEX_FILE);
-                ptex::write_face_maps_ptex(
-                    &p,
-                    &self.surface,
-                    &self.maps,
-                    &self.write_options.ptex,
-                )?;
-                Ok(vec![p])
-            },
-        );
+        let (textured, ptx) = rayon::join(|| self.write_textured(d), || self.write_ptx(d));
         match (ptx, textured) {
             (Ok(mut a), Ok(b)) => {
                 a.extend(b);
@@ -1089,6 +1034,56 @@ impl SynthResult {
         }
     }
 
+    /// facemaps.ptx.
+    fn write_ptx(&self, d: &Path) -> Result<Vec<PathBuf>> {
+        use crate::io::ptex;
+        let p = d.join(ptex::PTEX_FILE);
+        ptex::write_face_maps_ptex(&p, &self.surface, &self.maps, &self.write_options.ptex)?;
+        Ok(vec![p])
+    }
+
+    /// The textured meshes: surface.obj + mtl + atlases, surface.glb (and displaced.glb).
+    /// Cleans up after its own errors.
+    fn write_textured(&self, d: &Path) -> Result<Vec<PathBuf>> {
+        use crate::io::{atlas, displace};
+        let frames = (self.tangents.len() == self.geometry.normal.len()).then_some(
+            crate::io::tangent::FieldFrames {
+                tangent: &self.tangents,
+                normal: &self.geometry.normal,
+            },
+        );
+        let (_, images) = crate::io::export::export_with_frames(
+            d,
+            &self.surface,
+            &self.maps,
+            &Default::default(),
+            frames,
+        )?;
+        let mut written: Vec<PathBuf> = [
+            atlas::OBJ_NAME,
+            atlas::MTL_NAME,
+            atlas::ATLAS_NAME,
+            atlas::GLB_NAME,
+        ]
+        .iter()
+        .map(|n| d.join(n))
+        .chain(images.maps.iter().map(|m| d.join(m.file_name())))
+        .collect();
+        if let Some(amount) = self.displace {
+            let decimate = self.write_options.decimate;
+            match displace::write_displaced(d, &self.surface, &self.maps, amount, decimate, &images)
+                .and_then(|f| f.commit())
+            {
+                Ok(()) => written.push(d.join(displace::DISPLACED_GLB)),
+                Err(e) => {
+                    remove_all(&written);
+                    return Err(e);
+                }
+            }
+        }
+        Ok(written)
+    }
+
     /// Like [`SynthResult::write`] with other extra outputs: `extra(dir)` writes them into
     /// the staging folder `dir` (while the EXR files are written, before the report; its
     /// time counts as writing) and returns their paths. They are moved into place with the
@@ -1100,7 +1095,7 @@ impl SynthResult {
     ) -> Result<Report> {
         let txn = OutputTxn::begin(dir, crate::io::txn::SYNTH_OUTPUTS)?;
         let report = self
-            .write_staged(txn.dir(), extra, || |_: &mut Report| {})
+            .write_staged(txn.dir(), extra, || |_: &mut Report| {}, |_| Ok(Vec::new()))
             .map_err(|e| txn.explain(e))?;
         txn.commit()?;
         Ok(report)
@@ -1108,11 +1103,13 @@ impl SynthResult {
 
     /// Writes every file into `dir` (a staging folder), and runs `measure` beside them:
     /// what it returns edits the report before report.json is written (once, last).
+    /// `extra` writes outputs beside `measure`, `after` once it is done.
     fn write_staged<E: FnOnce(&mut Report) + Send>(
         &self,
         dir: &Path,
         extra: impl FnOnce(&Path) -> Result<Vec<PathBuf>> + Send,
         measure: impl FnOnce() -> E + Send,
+        after: impl FnOnce(&Path) -> Result<Vec<PathBuf>> + Send,
     ) -> Result<Report> {
         let t0 = Instant::now();
         self.check_finite_exr()?;
@@ -1126,10 +1123,13 @@ impl SynthResult {
         // 290 MB) ~0.4 s of one of the two workers, while the other ran the pf summary and
         // the atlas alone (docs/benchmarks.md, "The bunny's coherent run, ninth session").
         // Here the waiting blocks that thread only, and the pool's workers take the rest:
-        // `measure` first, and the extra outputs (their longest part, the atlas, first).
-        // One thread, not one per file: the disk takes them one at a time anyway, and two
-        // files' buffers at once raised the end-of-run peak.
-        let ((fm, geo), (edit, measured), extra) = std::thread::scope(|s| {
+        // `measure` and `extra` (synth: the pf summary and facemaps.ptx), then `after`
+        // (synth: the textured meshes) where `measure` ends — after it, not beside it: the
+        // atlas and the summary's point cloud at once raised the end-of-run peak (Spot
+        // N = 128: +30 MiB); the worker that finishes first helps the other meanwhile.
+        // One thread for both EXR files, not one each: the disk takes them one at a time
+        // anyway, and two files' buffers at once add to that peak.
+        let ((fm, geo), (edit, measured, after), extra) = std::thread::scope(|s| {
             let exr = s.spawn(|| {
                 let fm = (self.write_facemaps_exr(dir), t0.elapsed());
                 (fm, (self.write_geometry_exr(dir), t0.elapsed()))
@@ -1137,7 +1137,9 @@ impl SynthResult {
             let (measured, extra) = rayon::join(
                 || {
                     let t = Instant::now();
-                    (measure(), t.elapsed())
+                    let edit = measure();
+                    let measured = t.elapsed();
+                    (edit, measured, (after(dir), t0.elapsed()))
                 },
                 || (extra(dir), t0.elapsed()),
             );
@@ -1145,10 +1147,15 @@ impl SynthResult {
             (exr, measured, extra)
         });
         // Writing ends when its last file does.
-        let files = fm.1.max(geo.1).max(extra.1);
+        let files = fm.1.max(geo.1).max(extra.1).max(after.1);
         let mut written: Vec<PathBuf> = Vec::new();
         let mut first_err = None;
-        for r in [fm.0.map(|p| vec![p]), geo.0.map(|p| vec![p]), extra.0] {
+        for r in [
+            fm.0.map(|p| vec![p]),
+            geo.0.map(|p| vec![p]),
+            extra.0,
+            after.0,
+        ] {
             match r {
                 Ok(p) => written.extend(p),
                 Err(e) => {
