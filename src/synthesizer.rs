@@ -1128,7 +1128,7 @@ impl SynthResult {
         // atlas and the summary's point cloud at once raised the end-of-run peak (Spot
         // N = 128: +30 MiB); the worker that finishes first helps the other meanwhile.
         // One thread for both EXR files, not one each: the disk takes them one at a time
-        // anyway, and two files' buffers at once add to that peak.
+        // anyway.
         let ((fm, geo), (edit, measured, after), extra) = std::thread::scope(|s| {
             let exr = s.spawn(|| {
                 let fm = (self.write_facemaps_exr(dir), t0.elapsed());
