@@ -55,7 +55,7 @@
 use crate::error::{Error, Result};
 use crate::example::{Example, PendingImage};
 use crate::field::Orientation;
-use crate::io::exr::{write_face_maps, FaceMaps};
+use crate::io::exr::{FaceMaps, TileThreads};
 use crate::io::txn::OutputTxn;
 use crate::report::Report;
 use crate::texels::TexelGeometry;
@@ -1007,71 +1007,19 @@ impl SynthResult {
         txn: &OutputTxn,
         measure: impl FnOnce() -> E + Send,
     ) -> Result<Report> {
-        self.write_staged(txn.dir(), |d| self.write_renderer_outputs(d), measure)
-            .map_err(|e| txn.explain(e))
+        self.write_staged(
+            txn.dir(),
+            |d| self.write_ptx(d),
+            measure,
+            |d| self.write_textured(d),
+        )
+        .map_err(|e| txn.explain(e))
     }
 
     /// facemaps.ptx beside the textured meshes (independent, so side by side: PNG encoding
     /// and OBJ text are single-threaded). Cleans up after its own errors.
     fn write_renderer_outputs(&self, d: &Path) -> Result<Vec<PathBuf>> {
-        use crate::io::{atlas, displace, ptex};
-        let (ptx, textured) = rayon::join(
-            || -> Result<Vec<PathBuf>> {
-                let p = d.join(ptex::PTEX_FILE);
-                ptex::write_face_maps_ptex(
-                    &p,
-                    &self.surface,
-                    &self.maps,
-                    &self.write_options.ptex,
-                )?;
-                Ok(vec![p])
-            },
-            || -> Result<Vec<PathBuf>> {
-                let frames = (self.tangents.len() == self.geometry.normal.len()).then_some(
-                    crate::io::tangent::FieldFrames {
-                        tangent: &self.tangents,
-                        normal: &self.geometry.normal,
-                    },
-                );
-                let (_, images) = crate::io::export::export_with_frames(
-                    d,
-                    &self.surface,
-                    &self.maps,
-                    &Default::default(),
-                    frames,
-                )?;
-                let mut written: Vec<PathBuf> = [
-                    atlas::OBJ_NAME,
-                    atlas::MTL_NAME,
-                    atlas::ATLAS_NAME,
-                    atlas::GLB_NAME,
-                ]
-                .iter()
-                .map(|n| d.join(n))
-                .chain(images.maps.iter().map(|m| d.join(m.file_name())))
-                .collect();
-                if let Some(amount) = self.displace {
-                    let decimate = self.write_options.decimate;
-                    match displace::write_displaced(
-                        d,
-                        &self.surface,
-                        &self.maps,
-                        amount,
-                        decimate,
-                        &images,
-                    )
-                    .and_then(|f| f.commit())
-                    {
-                        Ok(()) => written.push(d.join(displace::DISPLACED_GLB)),
-                        Err(e) => {
-                            remove_all(&written);
-                            return Err(e);
-                        }
-                    }
-                }
-                Ok(written)
-            },
-        );
+        let (textured, ptx) = rayon::join(|| self.write_textured(d), || self.write_ptx(d));
         match (ptx, textured) {
             (Ok(mut a), Ok(b)) => {
                 a.extend(b);
@@ -1086,6 +1034,56 @@ impl SynthResult {
         }
     }
 
+    /// facemaps.ptx.
+    fn write_ptx(&self, d: &Path) -> Result<Vec<PathBuf>> {
+        use crate::io::ptex;
+        let p = d.join(ptex::PTEX_FILE);
+        ptex::write_face_maps_ptex(&p, &self.surface, &self.maps, &self.write_options.ptex)?;
+        Ok(vec![p])
+    }
+
+    /// The textured meshes: surface.obj + mtl + atlases, surface.glb (and displaced.glb).
+    /// Cleans up after its own errors.
+    fn write_textured(&self, d: &Path) -> Result<Vec<PathBuf>> {
+        use crate::io::{atlas, displace};
+        let frames = (self.tangents.len() == self.geometry.normal.len()).then_some(
+            crate::io::tangent::FieldFrames {
+                tangent: &self.tangents,
+                normal: &self.geometry.normal,
+            },
+        );
+        let (_, images) = crate::io::export::export_with_frames(
+            d,
+            &self.surface,
+            &self.maps,
+            &Default::default(),
+            frames,
+        )?;
+        let mut written: Vec<PathBuf> = [
+            atlas::OBJ_NAME,
+            atlas::MTL_NAME,
+            atlas::ATLAS_NAME,
+            atlas::GLB_NAME,
+        ]
+        .iter()
+        .map(|n| d.join(n))
+        .chain(images.maps.iter().map(|m| d.join(m.file_name())))
+        .collect();
+        if let Some(amount) = self.displace {
+            let decimate = self.write_options.decimate;
+            match displace::write_displaced(d, &self.surface, &self.maps, amount, decimate, &images)
+                .and_then(|f| f.commit())
+            {
+                Ok(()) => written.push(d.join(displace::DISPLACED_GLB)),
+                Err(e) => {
+                    remove_all(&written);
+                    return Err(e);
+                }
+            }
+        }
+        Ok(written)
+    }
+
     /// Like [`SynthResult::write`] with other extra outputs: `extra(dir)` writes them into
     /// the staging folder `dir` (while the EXR files are written, before the report; its
     /// time counts as writing) and returns their paths. They are moved into place with the
@@ -1097,7 +1095,7 @@ impl SynthResult {
     ) -> Result<Report> {
         let txn = OutputTxn::begin(dir, crate::io::txn::SYNTH_OUTPUTS)?;
         let report = self
-            .write_staged(txn.dir(), extra, || |_: &mut Report| {})
+            .write_staged(txn.dir(), extra, || |_: &mut Report| {}, |_| Ok(Vec::new()))
             .map_err(|e| txn.explain(e))?;
         txn.commit()?;
         Ok(report)
@@ -1105,39 +1103,71 @@ impl SynthResult {
 
     /// Writes every file into `dir` (a staging folder), and runs `measure` beside them:
     /// what it returns edits the report before report.json is written (once, last).
+    /// `extra` writes outputs beside `measure`, `after` once it is done.
     fn write_staged<E: FnOnce(&mut Report) + Send>(
         &self,
         dir: &Path,
         extra: impl FnOnce(&Path) -> Result<Vec<PathBuf>> + Send,
         measure: impl FnOnce() -> E + Send,
+        after: impl FnOnce(&Path) -> Result<Vec<PathBuf>> + Send,
     ) -> Result<Report> {
         let t0 = Instant::now();
-        // Everything side by side: the two EXR files (each compressing its tiles in
-        // parallel, but writing them from one thread: two files, two writers), the extra
-        // outputs, and `measure` (the pf summary of `synth`, which only reads the result).
-        // Their bytes do not depend on the order or the threads; report.json waits for all.
-        let (((fm, geo), extra), (edit, measured)) = rayon::join(
-            || {
-                rayon::join(
-                    || {
-                        rayon::join(
-                            || (self.write_facemaps_exr(dir), t0.elapsed()),
-                            || (self.write_geometry_exr(dir), t0.elapsed()),
-                        )
-                    },
-                    || (extra(dir), t0.elapsed()),
-                )
-            },
-            || {
-                let t = Instant::now();
-                (measure(), t.elapsed())
-            },
-        );
+        self.check_finite_exr()?;
+        // Everything side by side: the two EXR files, the extra outputs, and `measure` (the
+        // pf summary of `synth`, which only reads the result). Their bytes do not depend on
+        // the order or the threads; report.json waits for all.
+        //
+        // The EXR files get a thread of their own beside the pool, one after the other:
+        // their tiles are copies, and most of their time is spent waiting for the disk
+        // (`O_DIRECT`), which on a pool worker left its core idle — on the bunny (N = 16,
+        // 290 MB) ~0.4 s of one of the two workers, while the other ran the pf summary and
+        // the atlas alone (docs/benchmarks.md, "The bunny's coherent run, ninth session").
+        // Here the waiting blocks that thread only, and the pool's workers take the rest:
+        // `measure` and `extra` (synth: the pf summary and facemaps.ptx), then `after`
+        // (synth: the textured meshes) where `measure` ends — after it, not beside it: the
+        // atlas and the summary's point cloud at once raised the end-of-run peak (Spot
+        // N = 128: +30 MiB); the worker that finishes first helps the other meanwhile.
+        // One thread for both EXR files, not one each: the disk takes them one at a time
+        // anyway.
+        let exr_files = || {
+            let fm = (self.write_facemaps_exr(dir), t0.elapsed());
+            (fm, (self.write_geometry_exr(dir), t0.elapsed()))
+        };
+        let rest = || {
+            rayon::join(
+                || {
+                    let t = Instant::now();
+                    let edit = measure();
+                    let measured = t.elapsed();
+                    (edit, measured, (after(dir), t0.elapsed()))
+                },
+                || (extra(dir), t0.elapsed()),
+            )
+        };
+        // With one worker (`--threads 1`) the EXR files stay on it, after the rest: on a
+        // thread of their own they would compete with the only worker for its core (their
+        // tiles are filled there), which made that write stage 1.14–1.45x slower.
+        let ((fm, geo), ((edit, measured, after), extra)) = if rayon::current_num_threads() <= 1 {
+            let rest = rest();
+            (exr_files(), rest)
+        } else {
+            std::thread::scope(|s| {
+                let exr = s.spawn(exr_files);
+                let rest = rest();
+                let exr = exr.join().unwrap_or_else(|p| std::panic::resume_unwind(p));
+                (exr, rest)
+            })
+        };
         // Writing ends when its last file does.
-        let files = fm.1.max(geo.1).max(extra.1);
+        let files = fm.1.max(geo.1).max(extra.1).max(after.1);
         let mut written: Vec<PathBuf> = Vec::new();
         let mut first_err = None;
-        for r in [fm.0.map(|p| vec![p]), geo.0.map(|p| vec![p]), extra.0] {
+        for r in [
+            fm.0.map(|p| vec![p]),
+            geo.0.map(|p| vec![p]),
+            extra.0,
+            after.0,
+        ] {
             match r {
                 Ok(p) => written.extend(p),
                 Err(e) => {
@@ -1170,28 +1200,19 @@ impl SynthResult {
         result
     }
 
-    /// facemaps.exr, after the last guard (issue 18): no NaN or ±inf in what synth writes.
-    fn write_facemaps_exr(&self, dir: &Path) -> Result<PathBuf> {
-        let p = dir.join(FACEMAPS_FILE);
+    /// The last guard before the EXR files (issue 18): no NaN or ±inf in what synth
+    /// writes. Checked on the pool before they are written, each on a thread of its own
+    /// ([`SynthResult::write_staged`]), so nothing is written when one fails.
+    fn check_finite_exr(&self) -> Result<()> {
+        use crate::io::exr::{check_finite, check_finite_by};
         for (name, data) in &self.maps.channels {
-            crate::io::exr::check_finite(
+            check_finite(
                 &format!("face map channel '{name}'"),
                 data,
                 &self.maps.layout,
             )?;
         }
-        write_face_maps(&p, &self.maps)?;
-        Ok(p)
-    }
-
-    /// geometry.exr: positions, normals, the field's tangents (and the local scale).
-    fn write_geometry_exr(&self, dir: &Path) -> Result<PathBuf> {
-        // Streamed from the texel geometry (the same bytes as writing
-        // `geometry_maps()`, without a second copy of the maps).
-        let p = dir.join(GEOMETRY_FILE);
         let g = &self.geometry;
-        // Streamed below, so checked here.
-        use crate::io::exr::check_finite_by;
         check_finite_by(
             "texel position",
             g.pos.len(),
@@ -1209,7 +1230,23 @@ impl SynthResult {
             self.tangents.len(),
             |i| self.tangents[i].iter().all(|v| v.is_finite()),
             &g.layout,
-        )?;
+        )
+    }
+
+    /// facemaps.exr, its tiles filled on the calling thread.
+    fn write_facemaps_exr(&self, dir: &Path) -> Result<PathBuf> {
+        let p = dir.join(FACEMAPS_FILE);
+        crate::io::exr::write_face_maps_on(&p, &self.maps, TileThreads::Caller)?;
+        Ok(p)
+    }
+
+    /// geometry.exr: positions, normals, the field's tangents (and the local scale), its
+    /// tiles filled on the calling thread.
+    fn write_geometry_exr(&self, dir: &Path) -> Result<PathBuf> {
+        // Streamed from the texel geometry (the same bytes as writing
+        // `geometry_maps()`, without a second copy of the maps).
+        let p = dir.join(GEOMETRY_FILE);
+        let g = &self.geometry;
         let mut names = crate::bake::GEOMETRY_CHANNELS.to_vec();
         names.extend(TANGENT_CHANNELS);
         if self.local_scale.is_some() {
@@ -1242,6 +1279,7 @@ impl SynthResult {
                 }
             },
             &|_| {},
+            TileThreads::Caller,
         )?;
         Ok(p)
     }

@@ -306,13 +306,32 @@ pub fn write_face_maps_with(
     maps: &FaceMaps,
     compression: Compression,
 ) -> Result<()> {
+    write_face_maps_by(path.as_ref(), maps, compression, TileThreads::Pool)
+}
+
+/// [`write_face_maps`] with the tiles filled by `threads` (the same bytes).
+pub fn write_face_maps_on(
+    path: impl AsRef<Path>,
+    maps: &FaceMaps,
+    threads: TileThreads,
+) -> Result<()> {
+    write_face_maps_by(path.as_ref(), maps, compression_for(&maps.layout), threads)
+}
+
+fn write_face_maps_by(
+    path: &Path,
+    maps: &FaceMaps,
+    compression: Compression,
+    threads: TileThreads,
+) -> Result<()> {
     maps.validate()?;
     let names = maps.names();
-    write_tiles(
+    write_tiles_with_attributes(
         path,
         maps.tiles(),
         &names,
         compression,
+        &[],
         |f, tile| {
             let r = maps.layout.range(f);
             let nn = r.len();
@@ -321,6 +340,7 @@ pub fn write_face_maps_with(
             }
         },
         &|_| {},
+        threads,
     )
 }
 
@@ -375,6 +395,20 @@ pub fn check_finite_by(
 /// "Spot at N = 128").
 pub const BATCH_BYTES: usize = 8 << 20;
 
+/// Which threads fill the tiles of an uncompressed file
+/// ([`write_tiles_with_attributes`], [`write_face_maps_on`]); the bytes are the same.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TileThreads {
+    /// The current rayon pool's, one batch while the calling thread writes the one before.
+    Pool,
+    /// The calling thread alone: each batch filled, then written. For a file given a
+    /// thread of its own beside the pool: filling uncompressed tiles is copying, and most
+    /// of the file's time is spent waiting for the disk (`O_DIRECT`, [`crate::io::direct`]),
+    /// which then blocks that thread instead of one of the pool's workers. Compressed
+    /// files are compressed on the pool either way.
+    Caller,
+}
+
 /// Streams a face-map file: `fill(f, tile)` is called once per domain f (in parallel on
 /// the current rayon pool) and must write the domain's nu·nv texels of every channel into
 /// `tile` (zeroed, length `names.len()·nu·nv`, channel-major in the order of `names`, each
@@ -395,7 +429,16 @@ pub fn write_tiles<F>(
 where
     F: Fn(usize, &mut [f32]) + Sync,
 {
-    write_tiles_with_attributes(path, layout, names, compression, &[], fill, progress)
+    write_tiles_with_attributes(
+        path,
+        layout,
+        names,
+        compression,
+        &[],
+        fill,
+        progress,
+        TileThreads::Pool,
+    )
 }
 
 /// The exr crate keeps custom attributes in a `HashMap` and writes them in its iteration
@@ -423,7 +466,9 @@ fn name_ordered(
 }
 
 /// [`write_tiles`] with extra integer header attributes (e.g. geometry.exr's
-/// `tangentHandedness`), written in name order beside the layer's `faces`.
+/// `tangentHandedness`), written in name order beside the layer's `faces`, the tiles
+/// filled by `threads`.
+#[allow(clippy::too_many_arguments)]
 pub fn write_tiles_with_attributes<F>(
     path: impl AsRef<Path>,
     layout: TileLayout,
@@ -432,6 +477,7 @@ pub fn write_tiles_with_attributes<F>(
     attributes: &[(&str, i32)],
     fill: F,
     progress: &(dyn Fn(usize) + Sync),
+    threads: TileThreads,
 ) -> Result<()>
 where
     F: Fn(usize, &mut [f32]) + Sync,
@@ -444,12 +490,13 @@ where
         attributes,
         fill,
         progress,
-        (BATCH_BYTES, false),
+        (BATCH_BYTES, false, threads),
     )
 }
 
 /// [`write_tiles_with_attributes`] in batches of about `batch_bytes`; `via_crate` sends
-/// uncompressed tiles through the exr crate's chunk writer too (the tests compare the two).
+/// uncompressed tiles through the exr crate's chunk writer too (the tests compare the two),
+/// which fills them on the pool whatever `on` says.
 #[allow(clippy::too_many_arguments)]
 fn write_tiles_by<F>(
     path: &Path,
@@ -459,7 +506,7 @@ fn write_tiles_by<F>(
     attributes: &[(&str, i32)],
     fill: F,
     progress: &(dyn Fn(usize) + Sync),
-    (batch_bytes, via_crate): (usize, bool),
+    (batch_bytes, via_crate, on): (usize, bool, TileThreads),
 ) -> Result<()>
 where
     F: Fn(usize, &mut [f32]) + Sync,
@@ -539,7 +586,9 @@ where
         // file (two files at once at the end of `synth`), where the crate's vectors of
         // small tiles were reused from memory the allocator already held.
         let batch = batch_of(batch_bytes / 4);
-        return write_uncompressed_tiles(path, &headers, &layout, &order, batch, fill, progress);
+        return write_uncompressed_tiles(
+            path, &headers, &layout, &order, batch, fill, progress, on,
+        );
     }
 
     write_atomic(path, |w| {
@@ -608,7 +657,9 @@ fn block_index(layout: &TileLayout, t: usize) -> BlockIndex {
 /// offset table is known up front: the header (the crate's own validation and header
 /// writer), the table, then the chunks, each batch filled in file layout (tile
 /// coordinates, level, byte count, pixels) into one of two buffers allocated once and
-/// reused, one written while the other is filled.
+/// reused, one written while the other is filled (on the pool; filled by the calling
+/// thread between writes with [`TileThreads::Caller`]).
+#[allow(clippy::too_many_arguments)]
 fn write_uncompressed_tiles<F>(
     path: &Path,
     headers: &[Header],
@@ -617,6 +668,7 @@ fn write_uncompressed_tiles<F>(
     batch: usize,
     fill: F,
     progress: &(dyn Fn(usize) + Sync),
+    threads: TileThreads,
 ) -> Result<()>
 where
     F: Fn(usize, &mut [f32]) + Sync,
@@ -647,21 +699,31 @@ where
     let compute = |start: usize, out: &mut Vec<u8>| {
         let end = (start + batch).min(total);
         out.resize((end - start) * chunk_bytes, 0);
-        out.par_chunks_mut(chunk_bytes).enumerate().for_each_init(
-            || vec![0f32; channels * tw * th],
-            |buf, (i, chunk)| {
-                let t = start + i;
-                let (c, r) = (t % layout.columns, t / layout.columns);
-                let (head, data) = chunk.split_at_mut(CHUNK_HEAD);
-                for (d, v) in head
-                    .chunks_exact_mut(4)
-                    .zip([c as i32, r as i32, 0, 0, size])
-                {
-                    d.copy_from_slice(&v.to_le_bytes());
+        let chunk = |buf: &mut Vec<f32>, (i, chunk): (usize, &mut [u8])| {
+            let t = start + i;
+            let (c, r) = (t % layout.columns, t / layout.columns);
+            let (head, data) = chunk.split_at_mut(CHUNK_HEAD);
+            for (d, v) in head
+                .chunks_exact_mut(4)
+                .zip([c as i32, r as i32, 0, 0, size])
+            {
+                d.copy_from_slice(&v.to_le_bytes());
+            }
+            tile_block(layout, order, &fill, t, buf, data);
+        };
+        let scratch = || vec![0f32; channels * tw * th];
+        match threads {
+            TileThreads::Pool => out
+                .par_chunks_mut(chunk_bytes)
+                .enumerate()
+                .for_each_init(scratch, chunk),
+            TileThreads::Caller => {
+                let mut buf = scratch();
+                for c in out.chunks_mut(chunk_bytes).enumerate() {
+                    chunk(&mut buf, c);
                 }
-                tile_block(layout, order, &fill, t, buf, data);
-            },
-        );
+            }
+        }
     };
 
     write_atomic(path, |w| {
@@ -671,14 +733,15 @@ where
         let mut start = 0;
         while start < total {
             let next = start + batch;
-            let (written, ()) = rayon::join(
-                || w.write_all(&current),
-                || {
-                    if next < total {
-                        compute(next, &mut following);
-                    }
-                },
-            );
+            let mut fill_next = || {
+                if next < total {
+                    compute(next, &mut following);
+                }
+            };
+            let written = match threads {
+                TileThreads::Pool => rayon::join(|| w.write_all(&current), fill_next).0,
+                TileThreads::Caller => w.write_all(&current).inspect(|_| fill_next()),
+            };
             written.map_err(io_err)?;
             progress(next.min(total).min(layout.faces()));
             std::mem::swap(&mut current, &mut following);
@@ -1210,7 +1273,8 @@ mod tests {
 
     /// The uncompressed tiles written directly are the exr crate's bytes: uniform maps
     /// (with unused tiles in the last row), per-face resolutions (padded tiles), an extra
-    /// attribute, batches of one tile and of many, 1 and 3 threads.
+    /// attribute, batches of one tile and of many, 1 and 3 threads, tiles filled on the
+    /// pool and on the calling thread.
     #[test]
     fn direct_uncompressed_tiles_are_the_crates_bytes() {
         let d = tempfile::tempdir().unwrap();
@@ -1242,8 +1306,12 @@ mod tests {
                     .build()
                     .unwrap();
                 let mut files = Vec::new();
-                for via_crate in [false, true] {
-                    let p = d.path().join(format!("{via_crate}.exr"));
+                for (via_crate, on) in [
+                    (false, TileThreads::Pool),
+                    (true, TileThreads::Pool),
+                    (false, TileThreads::Caller),
+                ] {
+                    let p = d.path().join(format!("{via_crate}-{on:?}.exr"));
                     pool.install(|| {
                         write_tiles_by(
                             &p,
@@ -1253,14 +1321,15 @@ mod tests {
                             &[("zz.extra", -3)],
                             fill,
                             &|_| {},
-                            (batch_bytes, via_crate),
+                            (batch_bytes, via_crate, on),
                         )
                     })
                     .unwrap();
                     files.push(std::fs::read(&p).unwrap());
                 }
                 assert!(files[0] == files[1], "direct and crate bytes differ");
-                let back = read_face_maps(d.path().join("false.exr")).unwrap();
+                assert!(files[0] == files[2], "tiles filled by the caller differ");
+                let back = read_face_maps(d.path().join("false-Pool.exr")).unwrap();
                 assert_eq!(back.layout, maps.layout);
             }
         }
