@@ -603,7 +603,7 @@ impl Synthesizer {
 
     /// Loads, synthesizes and returns the result in memory.
     pub fn run(self) -> Result<SynthResult> {
-        Ok(self.run_in_pool(None)?.0)
+        self.run_in_pool(None, |result, _| Ok(result))
     }
 
     /// Loads the inputs, checks `dir` and opens it as a transaction ([`OutputTxn`]) — only
@@ -627,29 +627,43 @@ impl Synthesizer {
     ) -> Result<(SynthResult, Report)> {
         let dir = dir.as_ref();
         let progress = self.progress.clone();
-        let (result, txn) = self.run_in_pool(Some(dir))?;
-        let txn = txn.expect("run_in_pool opens the transaction when given a directory");
-        if let Some(p) = &progress {
-            p(Stage::Write, 0, 1);
-        }
-        let report = result.write_measured_into(&txn, || measure(&result))?;
-        txn.commit()?;
-        if let Some(p) = &progress {
-            p(Stage::Write, 1, 1);
-        }
-        Ok((result, report))
+        // The writing runs in the run's pool too, so that `threads(Some(t))` bounds the
+        // whole run, its end included.
+        self.run_in_pool(Some(dir), move |result, txn| {
+            let txn = txn.expect("run_in_pool opens the transaction when given a directory");
+            if let Some(p) = &progress {
+                p(Stage::Write, 0, 1);
+            }
+            let report = result.write_measured_into(&txn, || measure(&result))?;
+            txn.commit()?;
+            if let Some(p) = &progress {
+                p(Stage::Write, 1, 1);
+            }
+            Ok((result, report))
+        })
     }
 
-    fn run_in_pool(self, out: Option<&Path>) -> Result<(SynthResult, Option<OutputTxn>)> {
+    /// Runs the synthesis and then `then` on its result, both in the run's pool: a pool of
+    /// `threads` workers when set, else the caller's.
+    fn run_in_pool<R: Send>(
+        self,
+        out: Option<&Path>,
+        then: impl FnOnce(SynthResult, Option<OutputTxn>) -> Result<R> + Send,
+    ) -> Result<R> {
         self.validate()?;
-        match self.threads {
-            None => self.run_here(out),
+        let threads = self.threads;
+        let go = move || {
+            let (result, txn) = self.run_here(out)?;
+            then(result, txn)
+        };
+        match threads {
+            None => go(),
             Some(t) => {
                 let pool = rayon::ThreadPoolBuilder::new()
                     .num_threads(t)
                     .build()
                     .map_err(|e| Error::invalid(format!("cannot start {t} worker threads: {e}")))?;
-                pool.install(|| self.run_here(out))
+                pool.install(go)
             }
         }
     }

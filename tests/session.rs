@@ -368,3 +368,25 @@ fn texel_size_sessions_equal_one_shot_runs() {
     .unwrap_err();
     assert!(e.to_string().contains("texel size -1"), "{e}");
 }
+
+/// `threads(Some(t))` bounds the whole run, its writing included: the measure that runs
+/// beside the writers sees the run's pool of `t` workers (it saw the caller's pool before
+/// the writing moved into it). Three, so that no machine's default pool passes by chance
+/// unless it has exactly three cores.
+#[test]
+fn a_private_pool_holds_the_writing_too() {
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    let out = tempfile::tempdir().unwrap();
+    let seen = AtomicUsize::new(0);
+    Synthesizer::new(mesh(), example())
+        .method(Method::Coherent)
+        .resolution(N)
+        .seed(1)
+        .threads(3)
+        .run_to_with(out.path().join("result"), |_| {
+            seen.store(rayon::current_num_threads(), Ordering::SeqCst);
+            |_: &mut surfsynth::report::Report| {}
+        })
+        .unwrap();
+    assert_eq!(seen.load(Ordering::SeqCst), 3);
+}
