@@ -39,6 +39,16 @@ impl Method {
         Method::Jump,
     ];
 
+    /// [`Method::ALL`] and textons: every name `--method` takes.
+    pub const EVERY: [Method; 6] = [
+        Method::Coherent,
+        Method::Multiscale,
+        Method::Patches,
+        Method::Optimise,
+        Method::Jump,
+        Method::Textons,
+    ];
+
     /// The orientation field a run of this method gets without `--orient`.
     ///
     /// Texture optimisation copies whole patches, so it shows the example as it is — upright
@@ -104,16 +114,11 @@ impl Method {
 impl std::str::FromStr for Method {
     type Err = String;
     fn from_str(s: &str) -> std::result::Result<Self, String> {
-        Method::ALL
+        Method::EVERY
             .into_iter()
-            .chain([Method::Textons])
             .find(|m| m.name() == s)
             .ok_or_else(|| {
-                let names: Vec<_> = Method::ALL
-                    .iter()
-                    .chain(&[Method::Textons])
-                    .map(|m| m.name())
-                    .collect();
+                let names: Vec<_> = Method::EVERY.iter().map(|m| m.name()).collect();
                 format!(
                     "unknown method '{s}' (expected one of {})",
                     names.join(", ")
@@ -122,20 +127,12 @@ impl std::str::FromStr for Method {
     }
 }
 
-/// `--method`'s values: [`Method::name`] with [`Method::summary`] as help, in the order of
-/// docs/synthesis.md's table, textons last. Here rather than as a second enum in the
-/// command line's module, which had to be kept in step with this one by hand.
+/// `--method`'s values: [`Method::EVERY`], each [`Method::name`] with [`Method::summary`] as
+/// help. Here rather than as a second enum in the command line's module, which had to be
+/// kept in step with this one by hand.
 impl clap::ValueEnum for Method {
     fn value_variants<'a>() -> &'a [Self] {
-        const VARIANTS: [Method; 6] = [
-            Method::Coherent,
-            Method::Multiscale,
-            Method::Patches,
-            Method::Optimise,
-            Method::Jump,
-            Method::Textons,
-        ];
-        &VARIANTS
+        &Method::EVERY
     }
 
     fn to_possible_value(&self) -> Option<clap::builder::PossibleValue> {
@@ -154,7 +151,7 @@ mod tests {
     fn command_line_values_are_the_names() {
         let values = Method::value_variants();
         assert_eq!(values.len(), Method::ALL.len() + 1);
-        for m in Method::ALL.into_iter().chain([Method::Textons]) {
+        for m in Method::EVERY {
             assert!(values.contains(&m));
             let v = m.to_possible_value().expect("not hidden");
             assert_eq!(v.get_name(), m.name());

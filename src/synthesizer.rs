@@ -1160,7 +1160,7 @@ impl SynthResult {
         };
         // With one worker (`--threads 1`) the EXR files stay on it, after the rest: on a
         // thread of their own they would compete with the only worker for its core (their
-        // tiles are filled there), which made that write stage 1.14–1.45x slower.
+        // tiles are filled there).
         let ((fm, geo), ((edit, measured, after), extra)) = if rayon::current_num_threads() <= 1 {
             let rest = rest();
             (exr_files(), rest)

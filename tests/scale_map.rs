@@ -16,14 +16,7 @@ use surfsynth::synthesizer::{
 };
 
 /// Every method of plain examples, and textons (the example as a one-image sample).
-const METHODS: [Method; 6] = [
-    Method::Coherent,
-    Method::Multiscale,
-    Method::Patches,
-    Method::Optimise,
-    Method::Jump,
-    Method::Textons,
-];
+const METHODS: [Method; 6] = Method::EVERY;
 
 fn spot() -> PathBuf {
     data("meshes/spot_control_mesh.obj")

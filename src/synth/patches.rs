@@ -263,7 +263,6 @@ pub fn run<const K: usize>(
                 covered[t as usize] = true;
             }
         }
-        let _ = &mut state;
         let ctx = Ctx {
             ex,
             level,
