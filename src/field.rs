@@ -446,23 +446,27 @@ impl LevelProblem {
     fn new(lm: &LimitMesh) -> Self {
         let m = &lm.mesh;
         let nv = m.num_vertices();
-        let mut e = vec![DVec3::ZERO; nv];
-        let mut f = vec![DVec3::ZERO; nv];
-        for v in 0..nv {
-            let n = lm.normal[v];
-            // Reference direction: the first outgoing edge projected (any tangent would do;
-            // energies and the result do not depend on it).
-            let mut t = DVec3::ZERO;
-            if let Some(h) = m.vertex_out(VertexId::from_idx(v)) {
-                let d = lm.position[m.dest(h).idx()] - lm.position[v];
-                t = d - n * n.dot(d);
-            }
-            if t.length_squared() < 1e-30 {
-                t = n.any_orthonormal_vector();
-            }
-            e[v] = t.normalize();
-            f[v] = n.cross(e[v]);
-        }
+        // Every vertex's frame and every row below alone: in parallel (the rows in fixed
+        // blocks joined in order), the same values as one loop.
+        let (mut e, mut f): (Vec<DVec3>, Vec<DVec3>) = (0..nv)
+            .into_par_iter()
+            .with_min_len(4096)
+            .map(|v| {
+                let n = lm.normal[v];
+                // Reference direction: the first outgoing edge projected (any tangent would
+                // do; energies and the result do not depend on it).
+                let mut t = DVec3::ZERO;
+                if let Some(h) = m.vertex_out(VertexId::from_idx(v)) {
+                    let d = lm.position[m.dest(h).idx()] - lm.position[v];
+                    t = d - n * n.dot(d);
+                }
+                if t.length_squared() < 1e-30 {
+                    t = n.any_orthonormal_vector();
+                }
+                let ev = t.normalize();
+                (ev, n.cross(ev))
+            })
+            .unzip();
         let corner_frames = sided_frames(lm);
         for (v, (ev, fv)) in e.iter_mut().zip(f.iter_mut()).enumerate() {
             if lm.is_sided(VertexId::from_idx(v)) {
@@ -477,11 +481,7 @@ impl LevelProblem {
                 (e[v], f[v])
             }
         };
-        let mut start = Vec::with_capacity(nv + 1);
-        let mut nbr = Vec::new();
-        let mut coef = Vec::new();
-        start.push(0u32);
-        for v in 0..nv {
+        let row = |v: usize, nbr: &mut Vec<u32>, coef: &mut Vec<DVec2>| {
             let vid = VertexId::from_idx(v);
             // Edge v → j of face `face`, where v is corner `cv` and j corner `cj`.
             let mut push = |j: usize, face: FaceId, cv: usize, cj: usize| {
@@ -515,7 +515,34 @@ impl LevelProblem {
                     push(m.origin(p).idx(), face, (c + 1) % 4, c);
                 }
             }
-            start.push(nbr.len() as u32);
+        };
+        // Rows `vs`: every row's end (counted from the block's start), neighbours and
+        // coefficients.
+        let rows = |vs: std::ops::Range<usize>| {
+            let mut ends = Vec::with_capacity(vs.len());
+            let mut nbr = Vec::new();
+            let mut coef = Vec::new();
+            for v in vs {
+                row(v, &mut nbr, &mut coef);
+                ends.push(nbr.len() as u32);
+            }
+            (ends, nbr, coef)
+        };
+        const BLOCK: usize = 4096;
+        let blocks: Vec<_> = (0..nv.div_ceil(BLOCK))
+            .into_par_iter()
+            .map(|b| rows(b * BLOCK..((b + 1) * BLOCK).min(nv)))
+            .collect();
+        let total = blocks.iter().map(|b| b.1.len()).sum();
+        let mut start = Vec::with_capacity(nv + 1);
+        let mut nbr = Vec::with_capacity(total);
+        let mut coef = Vec::with_capacity(total);
+        start.push(0u32);
+        for (ends, n, c) in blocks {
+            let base = nbr.len() as u32;
+            start.extend(ends.iter().map(|&x| base + x));
+            nbr.extend_from_slice(&n);
+            coef.extend_from_slice(&c);
         }
         LevelProblem {
             graph: Graph::new(start, nbr),
@@ -1093,11 +1120,16 @@ fn coarse_problem<'c>(
             (diag, mass, target, pinned)
         })
         .collect();
-    let diag = scalars.iter().map(|s| s.0).collect();
-    let mass = scalars.iter().map(|s| s.1).collect();
-    let target = scalars.iter().map(|s| s.2).collect();
-    let pinned = scalars.iter().map(|s| s.3).collect();
-    let wgt = coef.iter().map(|c| c.length()).collect();
+    // Copies and per-entry values: in parallel on the larger levels, the same values.
+    let diag = scalars.par_iter().with_min_len(4096).map(|s| s.0).collect();
+    let mass = scalars.par_iter().with_min_len(4096).map(|s| s.1).collect();
+    let target = scalars.par_iter().with_min_len(4096).map(|s| s.2).collect();
+    let pinned = scalars.par_iter().with_min_len(4096).map(|s| s.3).collect();
+    let wgt = coef
+        .par_iter()
+        .with_min_len(4096)
+        .map(|c| c.length())
+        .collect();
     Problem {
         g: &c.coarse,
         coef,
@@ -1111,13 +1143,17 @@ fn coarse_problem<'c>(
 
 /// Turns every node by its aggregate's coarse value (pins stay).
 fn prolong(p: &Problem, c: &Coarsening, r: &[DVec2], z: &mut [DVec2]) {
-    for (i, zi) in z.iter_mut().enumerate() {
-        if p.pinned[i].x.is_nan() {
-            *zi = cmul(*zi, r[c.agg[i] as usize])
-                .try_normalize()
-                .unwrap_or(*zi);
-        }
-    }
+    // Every node alone: in parallel on the larger levels, the same values.
+    z.par_iter_mut()
+        .with_min_len(2048)
+        .enumerate()
+        .for_each(|(i, zi)| {
+            if p.pinned[i].x.is_nan() {
+                *zi = cmul(*zi, r[c.agg[i] as usize])
+                    .try_normalize()
+                    .unwrap_or(*zi);
+            }
+        });
 }
 
 /// A field from nothing, coarse to fine (full multigrid): the coarsest level gets the
@@ -1164,31 +1200,31 @@ fn vcycle(p: &Problem, z: &mut [DVec2], hier: &[Coarsening], opts: &FieldOptions
     // energy, which is the fine energy's change exactly; 1 is a candidate, so E cannot rise.
     let mut best = (q.energy(&r), 1.0);
     let mut scaled = r.clone();
+    // Every node's turn alone: in parallel on the larger levels, the same values.
+    let turn = |out: &mut [DVec2], alpha: f64| {
+        out.par_iter_mut()
+            .with_min_len(2048)
+            .zip(r.par_iter())
+            .zip(q.pinned.par_iter())
+            .for_each(|((s, x), pin)| {
+                *s = if pin.x.is_nan() {
+                    let (sn, cs) = (x.y.atan2(x.x) * alpha).sin_cos();
+                    DVec2::new(cs, sn)
+                } else {
+                    *pin
+                };
+            });
+    };
     for alpha in OVER_CORRECTION {
-        for (s, x) in scaled.iter_mut().zip(&r) {
-            let (sn, cs) = (x.y.atan2(x.x) * alpha).sin_cos();
-            *s = DVec2::new(cs, sn);
-        }
-        for (s, pin) in scaled.iter_mut().zip(&q.pinned) {
-            if !pin.x.is_nan() {
-                *s = *pin;
-            }
-        }
+        turn(&mut scaled, alpha);
         let e = q.energy(&scaled);
         if e < best.0 {
             best = (e, alpha);
         }
     }
     if best.1 != 1.0 {
-        for x in r.iter_mut() {
-            let (sn, cs) = (x.y.atan2(x.x) * best.1).sin_cos();
-            *x = DVec2::new(cs, sn);
-        }
-        for (x, pin) in r.iter_mut().zip(&q.pinned) {
-            if !pin.x.is_nan() {
-                *x = *pin;
-            }
-        }
+        turn(&mut scaled, best.1);
+        r = scaled;
     }
     prolong(p, c, &r, z);
     for _ in 0..SMOOTHING {
@@ -1647,7 +1683,10 @@ impl OrientationField {
                     (z, e)
                 }
                 Some((plm, pv1, pcv1)) => {
+                    // Each vertex's start alone: in parallel, the same values.
                     let z: Vec<DVec2> = (0..lp.nv())
+                        .into_par_iter()
+                        .with_min_len(1024)
                         .map(|i| {
                             if !lp.pinned[i].x.is_nan() {
                                 return lp.pinned[i];
@@ -1684,7 +1723,11 @@ impl OrientationField {
                 vertices: lp.nv(),
                 energy,
             });
-            let v1: Vec<DVec3> = (0..lp.nv()).map(|i| lp.to_3d(i, z[i])).collect();
+            let v1: Vec<DVec3> = (0..lp.nv())
+                .into_par_iter()
+                .with_min_len(4096)
+                .map(|i| lp.to_3d(i, z[i]))
+                .collect();
             let corner_v1 = lp.corner_v1(&lm, &z);
             prev = Some((lm, v1, corner_v1));
         }

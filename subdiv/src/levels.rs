@@ -6,9 +6,11 @@
 use crate::adjacency::BaseLocation;
 use crate::ids::{BaseQuadId, FaceId, VertexId};
 use crate::refine::refine;
+use crate::surface::LimitSample;
 use crate::surface::{from_child, quadrant, to_child, Surface};
 use crate::topology::PolyMesh;
 use glam::DVec3;
+use rayon::prelude::*;
 use std::collections::HashMap;
 
 /// The base mesh refined to `level` (level 1 = the base quads themselves), with every vertex
@@ -127,29 +129,55 @@ impl Surface {
             sided_normal: HashMap::new(),
             mesh,
         };
-        let mut done = vec![false; nv];
         const CORNER: [(f64, f64); 4] = [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)];
+        // Every vertex is evaluated at its first face corner in face order (found first,
+        // in one pass), each on its own: in parallel, the same values as one loop (the
+        // per-thread cache of deep levels gives the same bits as refining anew).
+        let mut first = vec![u32::MAX; nv];
         for f in 0..lm.mesh.num_faces() {
-            let fid = FaceId::from_idx(f);
-            for (c, &(cs, ct)) in CORNER.iter().enumerate() {
-                let v = lm.mesh.face_vertices(fid)[c] as usize;
-                let sided = lm.is_sided(VertexId(v as u32));
-                if done[v] && !sided {
-                    continue;
+            for (c, &v) in lm
+                .mesh
+                .face_vertices(FaceId::from_idx(f))
+                .iter()
+                .enumerate()
+            {
+                if first[v as usize] == u32::MAX {
+                    first[v as usize] = 4 * f as u32 + c as u32;
                 }
-                let loc = lm.to_base(fid, cs, ct);
-                let e = self.eval_base(loc.quad, loc.s, loc.t);
-                if sided {
-                    lm.sided_normal.insert(4 * f as u32 + c as u32, e.n);
-                }
-                if done[v] {
-                    continue;
-                }
-                done[v] = true;
+            }
+        }
+        let at = |lm: &LimitMesh, k: u32| {
+            let (cs, ct) = CORNER[(k % 4) as usize];
+            let loc = lm.to_base(FaceId(k / 4), cs, ct);
+            (loc, self.eval_base(loc.quad, loc.s, loc.t))
+        };
+        let evaluated: Vec<Option<(BaseLocation, LimitSample)>> = {
+            let lm = &lm;
+            first
+                .par_iter()
+                .with_min_len(1024)
+                .map(|&k| (k != u32::MAX).then(|| at(lm, k)))
+                .collect()
+        };
+        for (v, e) in evaluated.into_iter().enumerate() {
+            if let Some((loc, e)) = e {
                 lm.position[v] = e.p;
                 lm.normal[v] = e.n;
                 lm.vertex_location[v] = loc;
-                lm.vertex_corner[v] = 4 * f as u32 + c as u32;
+                lm.vertex_corner[v] = first[v];
+            }
+        }
+        // Every face corner's own normal where a vertex has one per side.
+        if !lm.sided.is_empty() {
+            for f in 0..lm.mesh.num_faces() {
+                for c in 0..4 {
+                    let v = lm.mesh.face_vertices(FaceId::from_idx(f))[c];
+                    if lm.is_sided(VertexId(v)) {
+                        let k = 4 * f as u32 + c as u32;
+                        let n = at(&lm, k).1.n;
+                        lm.sided_normal.insert(k, n);
+                    }
+                }
             }
         }
         lm
