@@ -619,7 +619,9 @@ impl Synthesizer {
     /// written (e.g. a quality measure for its report: `synth`'s pf summary); what it
     /// returns edits the report before report.json is written, once, with the rest, and
     /// everything lands in `dir` together. Its time is part of the run's: the run is not
-    /// done before it is (`seconds.total`; its own wall in `seconds.pf`).
+    /// done before it is (`seconds.total`; its own wall in `seconds.pf`). It runs only
+    /// once the result's maps and texel geometry are checked finite (issue 18: nothing is
+    /// written otherwise).
     pub fn run_to_with<E: FnOnce(&mut Report) + Send>(
         self,
         dir: impl AsRef<Path>,
@@ -1464,6 +1466,9 @@ pub fn run_command(c: &SynthCommand) -> Result<Report> {
                 &r.example,
                 r.report.scale,
                 &banks,
+                // `write_staged` has checked every map and the texel positions finite
+                // before `measure` runs (issue 18).
+                true,
             );
             move |report: &mut Report| report.patch_fidelity = Some(pf)
         })?;

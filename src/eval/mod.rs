@@ -73,7 +73,7 @@ pub fn summary_fidelity(
 ) -> PfSummary {
     let t0 = std::time::Instant::now();
     let p = match TexelPoints::of_maps(geometry) {
-        Some(g) => summary_pf(colour, g, example, scale, None),
+        Some(g) => summary_pf(colour, g, example, scale, None, false),
         None => PatchFidelity::empty(PfMethod::Surface),
     };
     summary_of(p, t0)
@@ -88,23 +88,30 @@ pub fn summary_fidelity_of(
     scale: f64,
 ) -> PfSummary {
     let t0 = std::time::Instant::now();
-    summary_of(summary_pf(colour, geometry, example, scale, None), t0)
+    summary_of(
+        summary_pf(colour, geometry, example, scale, None, false),
+        t0,
+    )
 }
 
 /// [`summary_fidelity_of`] with the example-side banks (one per spacing S) taken from
 /// `banks` — memory, else its disk cache, else built and saved (kind `pf-bank`) — as
 /// `synth` does: they depend on the example alone and were most of the summary's time on
 /// small meshes. The same figures; `bank_sources` says where the banks came from.
+/// `finite`: the caller has checked that every texel position and colour is finite
+/// (`synth` checks them before its write stage, issue 18), so the point cloud skips its
+/// own scan of them (which would find every texel valid: the same figures).
 pub fn summary_fidelity_cached(
     colour: &FaceMaps,
     geometry: TexelPoints,
     example: &Example,
     scale: f64,
     banks: &crate::synth::Analyses,
+    finite: bool,
 ) -> PfSummary {
     let t0 = std::time::Instant::now();
     let mut s = summary_of(
-        summary_pf(colour, geometry, example, scale, Some(banks)),
+        summary_pf(colour, geometry, example, scale, Some(banks), finite),
         t0,
     );
     // The spacings run side by side: sorted, so the list does not depend on the threads.
@@ -119,12 +126,13 @@ fn summary_pf(
     example: &Example,
     scale: f64,
     banks: Option<&crate::synth::Analyses>,
+    finite: bool,
 ) -> PatchFidelity {
     let opts = PfOptions {
         samples: PF_SUMMARY_SAMPLES,
         ..Default::default()
     };
-    surface::patch_fidelities_in(colour, geometry, example, Some(scale), &opts, banks)
+    surface::patch_fidelities_in(colour, geometry, example, Some(scale), &opts, banks, finite)
 }
 
 fn summary_of(p: PatchFidelity, t0: std::time::Instant) -> PfSummary {

@@ -162,11 +162,13 @@ pub(crate) struct Cloud<'a> {
     /// Every texel has a finite position and colour (the usual case).
     all_valid: bool,
     /// Per texel, the spacing that decides whether a point nearest to it is on the
-    /// surface ([`Cloud::cover`]), computed on first use: [`COVER_UNKNOWN`] while unknown,
-    /// else the f32 bits. Only texels walked near are asked (a few per window); at small N
-    /// most texels are border texels, whose cover costs a search each (a bounded nearest
-    /// search for an edge texel, a radius query for a corner), and computing all of them
-    /// took most of pf's time on a 200k-quad torus at N = 4.
+    /// surface ([`Cloud::cover`]), computed on first use: 0 while unknown, else the
+    /// complement of the f32 bits. Only texels walked near are asked (a few per window); at
+    /// small N most texels are border texels, whose cover costs a search each (a bounded
+    /// nearest search for an edge texel, a radius query for a corner), and computing all of
+    /// them took most of pf's time on a 200k-quad torus at N = 4. Zero as "unknown" lets
+    /// the array come from zeroed memory ([`zeroed_atomics`]): at 4 M texels it was 16 MB
+    /// written with a marker before the first window, and resident to the end.
     cover: Vec<AtomicU32>,
     /// Median adjacent spacing h.
     pub h: f64,
@@ -177,9 +179,24 @@ pub(crate) struct Cloud<'a> {
     local: Option<&'a [f32]>,
 }
 
-/// [`Cloud::cover`] not computed yet (a NaN pattern; a computed cover with these very
-/// bits would only be computed again, to the same value).
-const COVER_UNKNOWN: u32 = u32::MAX;
+/// [`Cloud::cover`] not computed yet, as stored (the complement of a NaN pattern: a
+/// computed cover with those very bits would only be computed again, to the same value).
+const COVER_UNKNOWN: u32 = 0;
+
+/// `n` atomics, all zero, from memory the allocator hands out zeroed: `vec![0u32; n]` is
+/// `calloc`, which for a large array maps fresh pages (zero, untouched until used) instead
+/// of writing every element as collecting `AtomicU32::new(0)` does.
+fn zeroed_atomics(n: usize) -> Vec<AtomicU32> {
+    const _: () = assert!(
+        std::mem::size_of::<u32>() == std::mem::size_of::<AtomicU32>()
+            && std::mem::align_of::<u32>() == std::mem::align_of::<AtomicU32>()
+    );
+    let mut v = std::mem::ManuallyDrop::new(vec![0u32; n]);
+    // SAFETY: `AtomicU32` has the size and bit validity of `u32` (std docs) and, checked
+    // above, its alignment: the allocation (from the global allocator, of `capacity` u32s),
+    // length and capacity describe a valid `Vec<AtomicU32>` of zeros; `v` is not dropped.
+    unsafe { Vec::from_raw_parts(v.as_mut_ptr().cast::<AtomicU32>(), v.len(), v.capacity()) }
+}
 
 fn channel<'a>(m: &'a FaceMaps, name: &str) -> Option<&'a [f32]> {
     m.channel(name)
@@ -187,10 +204,14 @@ fn channel<'a>(m: &'a FaceMaps, name: &str) -> Option<&'a [f32]> {
 
 impl<'a> Cloud<'a> {
     /// `None` without R, G, B or P channels, mismatched maps, or no finite texel.
+    /// `finite`: the caller knows every texel's position and colour to be finite (`synth`
+    /// checks them before writing), so they are not scanned again (4 M texels at Spot
+    /// N = 128: 96 MB read) — the scan would find every texel valid.
     pub fn build(
         colour: &'a FaceMaps,
         geometry: TexelPoints<'a>,
         scale: Option<f64>,
+        finite: bool,
     ) -> Option<Self> {
         let layout = colour.layout.clone();
         if *geometry.layout != colour.layout {
@@ -211,7 +232,8 @@ impl<'a> Cloud<'a> {
         };
         let pos = geometry.pos;
         let valid = |i: usize| pos.get(i).is_finite() && col.iter().all(|c| c[i].is_finite());
-        let all_valid = (0..total).into_par_iter().all(valid);
+        let all_valid = finite || (0..total).into_par_iter().all(valid);
+        debug_assert!(!finite || (0..total).into_par_iter().all(valid));
         let h = median_spacing(&layout, pos, all_valid, &valid)?;
         let index = TexelBvh::build(&layout, pos, all_valid, valid);
         Some(Self {
@@ -221,7 +243,7 @@ impl<'a> Cloud<'a> {
             src,
             index,
             all_valid,
-            cover: (0..total).map(|_| AtomicU32::new(COVER_UNKNOWN)).collect(),
+            cover: zeroed_atomics(total),
             h,
             scale: scale.filter(|s| s.is_finite() && *s > 0.0).unwrap_or(h),
             local: geometry.local_scale.filter(|c| c.len() == total),
@@ -297,10 +319,10 @@ impl<'a> Cloud<'a> {
     fn cover(&self, i: usize) -> f32 {
         let known = self.cover[i].load(Ordering::Relaxed);
         if known != COVER_UNKNOWN {
-            return f32::from_bits(known);
+            return f32::from_bits(!known);
         }
         let c = self.cover_of(i);
-        self.cover[i].store(c.to_bits(), Ordering::Relaxed);
+        self.cover[i].store(!c.to_bits(), Ordering::Relaxed);
         c
     }
 
@@ -1010,11 +1032,12 @@ pub fn patch_fidelities_of(
     scale: Option<f64>,
     opts: &PfOptions,
 ) -> PatchFidelity {
-    patch_fidelities_in(colour, geometry, example, scale, opts, None)
+    patch_fidelities_in(colour, geometry, example, scale, opts, None, false)
 }
 
 /// [`patch_fidelities_of`] with the example banks through `banks` (memory and the disk
-/// cache, [`super::pf::BANK_KIND`]), when given: the same figures.
+/// cache, [`super::pf::BANK_KIND`]), when given: the same figures. `finite`: every texel
+/// position and colour is known finite ([`Cloud::build`]).
 pub(crate) fn patch_fidelities_in(
     colour: &FaceMaps,
     geometry: TexelPoints,
@@ -1022,6 +1045,7 @@ pub(crate) fn patch_fidelities_in(
     scale: Option<f64>,
     opts: &PfOptions,
     banks: Option<&crate::synth::Analyses>,
+    finite: bool,
 ) -> PatchFidelity {
     let ex = Rgb::from_example(example);
     if !opts.force_surface {
@@ -1033,7 +1057,7 @@ pub(crate) fn patch_fidelities_in(
             return pf;
         }
     }
-    let Some(cloud) = Cloud::build(colour, geometry, scale) else {
+    let Some(cloud) = Cloud::build(colour, geometry, scale, finite) else {
         return PatchFidelity::empty(PfMethod::Surface);
     };
     let drawn = cloud.draw_centres(opts.samples, opts.seed);

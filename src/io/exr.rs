@@ -696,53 +696,60 @@ where
         head.extend_from_slice(&((first + t * chunk_bytes) as u64).to_le_bytes());
     }
 
+    // Chunk of tile t: its head (tile coordinates, level, byte count) and pixels.
+    let fill_chunk = |t: usize, buf: &mut Vec<f32>, chunk: &mut [u8]| {
+        let (c, r) = (t % layout.columns, t / layout.columns);
+        let (head, data) = chunk.split_at_mut(CHUNK_HEAD);
+        for (d, v) in head
+            .chunks_exact_mut(4)
+            .zip([c as i32, r as i32, 0, 0, size])
+        {
+            d.copy_from_slice(&v.to_le_bytes());
+        }
+        tile_block(layout, order, &fill, t, buf, data);
+    };
+    let scratch = || vec![0f32; channels * tw * th];
     let compute = |start: usize, out: &mut Vec<u8>| {
         let end = (start + batch).min(total);
         out.resize((end - start) * chunk_bytes, 0);
-        let chunk = |buf: &mut Vec<f32>, (i, chunk): (usize, &mut [u8])| {
-            let t = start + i;
-            let (c, r) = (t % layout.columns, t / layout.columns);
-            let (head, data) = chunk.split_at_mut(CHUNK_HEAD);
-            for (d, v) in head
-                .chunks_exact_mut(4)
-                .zip([c as i32, r as i32, 0, 0, size])
-            {
-                d.copy_from_slice(&v.to_le_bytes());
-            }
-            tile_block(layout, order, &fill, t, buf, data);
-        };
-        let scratch = || vec![0f32; channels * tw * th];
-        match threads {
-            TileThreads::Pool => out
-                .par_chunks_mut(chunk_bytes)
-                .enumerate()
-                .for_each_init(scratch, chunk),
-            TileThreads::Caller => {
-                let mut buf = scratch();
-                for c in out.chunks_mut(chunk_bytes).enumerate() {
-                    chunk(&mut buf, c);
-                }
-            }
-        }
+        out.par_chunks_mut(chunk_bytes)
+            .enumerate()
+            .for_each_init(scratch, |buf, (i, chunk)| fill_chunk(start + i, buf, chunk));
     };
 
     write_atomic(path, |w| {
         w.write_all(&head).map_err(io_err)?;
+        if threads == TileThreads::Caller {
+            // Each chunk filled straight into the writer's block (no batch buffers, no
+            // copy of every byte from them into the block); the few that straddle the
+            // end of a block through a chunk-sized buffer.
+            let (mut buf, mut spill) = (scratch(), Vec::new());
+            for t in 0..total {
+                let put = |chunk: &mut [u8]| fill_chunk(t, &mut buf, chunk);
+                if !w.write_in_place(chunk_bytes, put).map_err(io_err)? {
+                    spill.resize(chunk_bytes, 0);
+                    fill_chunk(t, &mut buf, &mut spill);
+                    w.write_all(&spill).map_err(io_err)?;
+                }
+                if (t + 1) % batch == 0 || t + 1 == total {
+                    progress((t + 1).min(layout.faces()));
+                }
+            }
+            return w.flush().map_err(io_err);
+        }
         let (mut current, mut following) = (Vec::new(), Vec::new());
         compute(0, &mut current);
         let mut start = 0;
         while start < total {
             let next = start + batch;
-            let mut fill_next = || {
+            let fill_next = || {
                 if next < total {
                     compute(next, &mut following);
                 }
             };
-            let written = match threads {
-                TileThreads::Pool => rayon::join(|| w.write_all(&current), fill_next).0,
-                TileThreads::Caller => w.write_all(&current).inspect(|_| fill_next()),
-            };
-            written.map_err(io_err)?;
+            rayon::join(|| w.write_all(&current), fill_next)
+                .0
+                .map_err(io_err)?;
             progress(next.min(total).min(layout.faces()));
             std::mem::swap(&mut current, &mut following);
             start = next;
