@@ -1089,7 +1089,8 @@ fn coarse_problem<'c>(
         rows.push(row);
         tail = rest;
     }
-    let scalars: Vec<(f64, f64, DVec2, DVec2)> = rows
+    type Scalars = (Vec<f64>, Vec<f64>);
+    let ((diag, mass), (target, pinned)): (Scalars, (Vec<DVec2>, Vec<DVec2>)) = rows
         .into_par_iter()
         .enumerate()
         .with_min_len(256)
@@ -1117,14 +1118,10 @@ fn coarse_problem<'c>(
                     }
                 }
             }
-            (diag, mass, target, pinned)
+            ((diag, mass), (target, pinned))
         })
-        .collect();
-    // Copies and per-entry values: in parallel on the larger levels, the same values.
-    let diag = scalars.par_iter().with_min_len(4096).map(|s| s.0).collect();
-    let mass = scalars.par_iter().with_min_len(4096).map(|s| s.1).collect();
-    let target = scalars.par_iter().with_min_len(4096).map(|s| s.2).collect();
-    let pinned = scalars.par_iter().with_min_len(4096).map(|s| s.3).collect();
+        .unzip();
+    // Per-entry values: in parallel on the larger levels, the same values.
     let wgt = coef
         .par_iter()
         .with_min_len(4096)
